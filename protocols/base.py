@@ -1,0 +1,90 @@
+"""What every protocol decoder shares: the sample record, the decode result and the error counters.
+
+Every decoder in this package (native, and those of other vendors' protocols) has the same
+incremental interface: ``feed(data) -> Decoded`` takes any chunk of bytes, however the stream
+was split, and returns the samples and other messages completed by it; ``flush()`` ends the
+stream (bytes left in the buffer are counted as truncated). Decoders never raise on bad input:
+every kind of error becomes a counter in ``stats``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+# One IMU sample, in SI units. The layout equals the native IMU_SAMPLE payload (40 bytes,
+# little-endian, packed), so native sample payloads are viewed with this dtype without copying.
+SAMPLE_DTYPE = np.dtype(
+    [
+        ("seq", "<u4"),
+        ("t_us", "<u8"),
+        ("acc", "<f4", (3,)),
+        ("gyro", "<f4", (3,)),
+        ("temp", "<f4"),
+    ]
+)
+
+EMPTY_SAMPLES = np.zeros(0, dtype=SAMPLE_DTYPE)
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded frame that is not a sample (device info, acknowledgement, unknown id)."""
+
+    msg_id: int
+    payload: bytes
+
+
+@dataclass
+class Decoded:
+    """What one ``feed`` call completed: samples as one numpy batch, other messages in order."""
+
+    samples: np.ndarray = field(default_factory=lambda: EMPTY_SAMPLES)
+    messages: list[Message] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.samples) + len(self.messages)
+
+
+@dataclass
+class DecoderStats:
+    """Counters of a decoder since it was made. Each bad input lands in exactly one error kind."""
+
+    frames: int = 0  # good frames of any kind
+    samples: int = 0  # good sample frames
+    garbage_bytes: int = 0  # bytes skipped while looking for a frame start
+    resyncs: int = 0  # times the decoder had to skip bytes to find the next frame
+    crc_errors: int = 0  # frames whose checksum did not match
+    length_errors: int = 0  # frames announcing an impossible length
+    truncated: int = 0  # frames cut short by the start of another frame or the end of stream
+    bad_payloads: int = 0  # good checksum but a payload the message id does not allow
+    unknown_ids: int = 0  # good frames with an id this decoder does not know (still returned)
+
+    @property
+    def errors(self) -> int:
+        return self.crc_errors + self.length_errors + self.truncated + self.bad_payloads
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+class StreamDecoderBase:
+    """Base of the incremental decoders: keeps the buffer and the counters."""
+
+    name = "base"
+
+    def __init__(self) -> None:
+        self.stats = DecoderStats()
+        self._buf = bytearray()
+
+    def feed(self, data: bytes) -> Decoded:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def flush(self) -> Decoded:
+        """End of stream: whatever is left in the buffer is an incomplete frame."""
+        if self._buf:
+            self.stats.truncated += 1
+            self.stats.garbage_bytes += len(self._buf)
+            self._buf.clear()
+        return Decoded()

@@ -1,0 +1,229 @@
+"""Native serial protocol, version 1 (``shared/specs/native-protocol.md``).
+
+Frame: sync ``A5 5A`` | id u8 | length u16 | payload | CRC-16/CCITT-FALSE over id, length
+and payload, all little-endian. The decoder takes a fast vectorised path over runs of
+well-formed sample frames and a per-frame path for everything else (other messages,
+errors and resynchronisation).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+from protocols.crc import crc16_ccitt_false, crc16_rows
+
+SYNC = b"\xa5\x5a"
+HEADER_SIZE = 5  # sync, id, length
+CRC_SIZE = 2
+MAX_PAYLOAD = 1024
+
+IMU_SAMPLE = 0x01
+DEVICE_INFO = 0x02
+ACK = 0x03
+GET_INFO = 0x10
+SET_RATE = 0x11
+START_STREAM = 0x12
+STOP_STREAM = 0x13
+
+KNOWN_IDS = {IMU_SAMPLE, DEVICE_INFO, ACK, GET_INFO, SET_RATE, START_STREAM, STOP_STREAM}
+COMMAND_IDS = {GET_INFO, SET_RATE, START_STREAM, STOP_STREAM}
+
+ACK_OK = 0
+ACK_UNKNOWN = 1
+ACK_BAD_ARGUMENT = 2
+ACK_BUSY = 3
+ACK_STATUS_NAMES = {ACK_OK: "ok", ACK_UNKNOWN: "unknown command", ACK_BAD_ARGUMENT: "bad argument",
+                    ACK_BUSY: "busy"}
+
+SAMPLE_PAYLOAD_SIZE = SAMPLE_DTYPE.itemsize  # 40
+SAMPLE_FRAME_SIZE = HEADER_SIZE + SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 47
+_SAMPLE_HEADER = SYNC + bytes([IMU_SAMPLE]) + struct.pack("<H", SAMPLE_PAYLOAD_SIZE)
+
+# A whole sample frame as one record, so a buffer of back-to-back frames is viewed, not parsed.
+SAMPLE_FRAME_DTYPE = np.dtype(
+    [("sync", "<u2"), ("msg_id", "u1"), ("length", "<u2"), ("payload", SAMPLE_DTYPE), ("crc", "<u2")]
+)
+assert SAMPLE_FRAME_DTYPE.itemsize == SAMPLE_FRAME_SIZE
+_SYNC_U16 = int.from_bytes(SYNC, "little")
+
+
+def encode_frame(msg_id: int, payload: bytes = b"") -> bytes:
+    """One frame: sync, id, length, payload and CRC."""
+    if not 0 <= msg_id <= 0xFF:
+        raise ValueError(f"message id {msg_id} is not a byte")
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"payload of {len(payload)} bytes exceeds the {MAX_PAYLOAD}-byte limit")
+    body = bytes([msg_id]) + struct.pack("<H", len(payload)) + payload
+    return SYNC + body + struct.pack("<H", crc16_ccitt_false(body))
+
+
+def encode_samples(samples: np.ndarray) -> bytes:
+    """Sample frames for a batch of ``SAMPLE_DTYPE`` records, back to back (vectorised)."""
+    samples = np.ascontiguousarray(samples, dtype=SAMPLE_DTYPE)
+    frames = np.zeros(len(samples), dtype=SAMPLE_FRAME_DTYPE)
+    frames["sync"] = _SYNC_U16
+    frames["msg_id"] = IMU_SAMPLE
+    frames["length"] = SAMPLE_PAYLOAD_SIZE
+    frames["payload"] = samples
+    rows = frames.view(np.uint8).reshape(len(samples), SAMPLE_FRAME_SIZE)
+    frames["crc"] = crc16_rows(rows[:, 2 : HEADER_SIZE + SAMPLE_PAYLOAD_SIZE])
+    return frames.tobytes()
+
+
+def encode_device_info(info: dict[str, Any]) -> bytes:
+    return encode_frame(DEVICE_INFO, json.dumps(info, separators=(",", ":")).encode("utf-8"))
+
+
+def encode_ack(command_id: int, status: int = ACK_OK) -> bytes:
+    return encode_frame(ACK, bytes([command_id, status]))
+
+
+def encode_set_rate(rate_hz: int) -> bytes:
+    if not 1 <= rate_hz <= 0xFFFF:
+        raise ValueError(f"rate {rate_hz} Hz does not fit the u16 of SET_RATE")
+    return encode_frame(SET_RATE, struct.pack("<H", rate_hz))
+
+
+@dataclass(frozen=True)
+class Ack:
+    command_id: int
+    status: int
+
+    @property
+    def ok(self) -> bool:
+        return self.status == ACK_OK
+
+
+def parse_ack(payload: bytes) -> Ack:
+    if len(payload) != 2:
+        raise ValueError(f"ACK payload has {len(payload)} bytes, expected 2")
+    return Ack(payload[0], payload[1])
+
+
+def parse_device_info(payload: bytes) -> dict[str, Any]:
+    info = json.loads(payload.decode("utf-8"))
+    if not isinstance(info, dict):
+        raise ValueError("DEVICE_INFO payload is not a JSON object")
+    return info
+
+
+def decode_sample_frames(buf: bytes | bytearray | memoryview) -> tuple[np.ndarray, int]:
+    """Vectorised decode of back-to-back sample frames at the start of ``buf``.
+
+    Returns the samples of the longest prefix of valid sample frames and the number of bytes
+    they span. Stops at the first frame that is not a valid IMU_SAMPLE (other message, bad
+    CRC, garbage); the caller handles what follows.
+    """
+    count = len(buf) // SAMPLE_FRAME_SIZE
+    if count == 0:
+        return EMPTY_SAMPLES, 0
+    frames = np.frombuffer(buf, dtype=SAMPLE_FRAME_DTYPE, count=count)
+    ok = (frames["sync"] == _SYNC_U16) & (frames["msg_id"] == IMU_SAMPLE)
+    ok &= frames["length"] == SAMPLE_PAYLOAD_SIZE
+    n_ok = count if ok.all() else int(np.argmin(ok))
+    if n_ok == 0:
+        return EMPTY_SAMPLES, 0
+    rows = np.frombuffer(buf, dtype=np.uint8, count=n_ok * SAMPLE_FRAME_SIZE).reshape(n_ok, SAMPLE_FRAME_SIZE)
+    crc_ok = crc16_rows(rows[:, 2 : HEADER_SIZE + SAMPLE_PAYLOAD_SIZE]) == frames["crc"][:n_ok]
+    if not crc_ok.all():
+        n_ok = int(np.argmin(crc_ok))
+    return frames["payload"][:n_ok].copy(), n_ok * SAMPLE_FRAME_SIZE
+
+
+class NativeDecoder(StreamDecoderBase):
+    """Incremental decoder of the native protocol.
+
+    After a bad CRC, an invalid length or a truncated frame it drops the bytes up to the next
+    sync candidate after the one it tried, counts the error and goes on, so a good frame that
+    follows garbage is never lost.
+    """
+
+    name = "native"
+
+    def feed(self, data: bytes) -> Decoded:
+        buf = self._buf
+        buf += data
+        batches: list[np.ndarray] = []
+        messages: list[Message] = []
+        pos = 0
+        stats = self.stats
+        while True:
+            start = buf.find(SYNC, pos)
+            if start < 0:
+                # Keep a trailing first sync byte: the second may come in the next chunk.
+                keep = 1 if buf.endswith(SYNC[:1]) else 0
+                skipped = len(buf) - pos - keep
+                if skipped > 0:
+                    stats.garbage_bytes += skipped
+                    stats.resyncs += 1
+                pos = len(buf) - keep
+                break
+            if start > pos:
+                stats.garbage_bytes += start - pos
+                stats.resyncs += 1
+                pos = start
+            samples, used = decode_sample_frames(memoryview(buf)[pos:])
+            if used:
+                batches.append(samples)
+                pos += used
+                continue
+            if len(buf) - pos < HEADER_SIZE:
+                break
+            msg_id = buf[pos + 2]
+            length = buf[pos + 3] | (buf[pos + 4] << 8)
+            if length > MAX_PAYLOAD:
+                stats.length_errors += 1
+                pos = self._skip_candidate(pos)
+                continue
+            end = pos + HEADER_SIZE + length + CRC_SIZE
+            if len(buf) < end:
+                break
+            body = bytes(buf[pos + 2 : pos + HEADER_SIZE + length])
+            crc = buf[end - 2] | (buf[end - 1] << 8)
+            if crc16_ccitt_false(body) != crc:
+                # A sync inside the claimed frame means this one was cut short by the next.
+                if buf.find(SYNC, pos + 1, end) >= 0:
+                    stats.truncated += 1
+                else:
+                    stats.crc_errors += 1
+                pos = self._skip_candidate(pos)
+                continue
+            payload = body[3:]
+            if msg_id == IMU_SAMPLE:
+                # A sample frame with a good CRC but a wrong length: the vectorised path refused it.
+                stats.bad_payloads += 1
+                pos = end
+                continue
+            stats.frames += 1
+            if msg_id not in KNOWN_IDS:
+                stats.unknown_ids += 1
+            messages.append(Message(msg_id, payload))
+            pos = end
+        if pos:
+            del buf[:pos]
+        samples = batches[0] if len(batches) == 1 else (np.concatenate(batches) if batches else EMPTY_SAMPLES)
+        stats.frames += len(samples)
+        stats.samples += len(samples)
+        return Decoded(samples, messages)
+
+    def _skip_candidate(self, pos: int) -> int:
+        """Drop the sync candidate at ``pos``: resume at the next one (counted as garbage)."""
+        self.stats.resyncs += 1
+        nxt = self._buf.find(SYNC, pos + 1)
+        nxt = len(self._buf) if nxt < 0 else nxt
+        self.stats.garbage_bytes += nxt - pos
+        return nxt
+
+    def flush(self) -> Decoded:
+        if self._buf:
+            if self._buf.startswith(SYNC):
+                self.stats.truncated += 1
+            self.stats.garbage_bytes += len(self._buf)
+            self._buf.clear()
+        return Decoded()

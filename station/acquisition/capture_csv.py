@@ -1,0 +1,185 @@
+"""The capture CSV of ``shared/specs/capture-csv.md``: reader and streaming writer.
+
+One header row, then one row per sample; columns in any order, unknown columns ignored.
+Required: t, ax, ay, az, gx, gy, gz; optional: temp, dtemp, step. Malformed input is
+refused with a message naming the file, line and column.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from station.acquisition.capture import Capture
+from station.errors import InputFileError
+
+REQUIRED = ("t", "ax", "ay", "az", "gx", "gy", "gz")
+OPTIONAL_NUMERIC = ("temp", "dtemp")
+HEADER = ("t", "ax", "ay", "az", "gx", "gy", "gz", "temp", "dtemp", "step")
+CHUNK_ROWS = 200_000
+
+
+def _open_text(path: Path) -> IO[str]:
+    if path.suffix == ".gz":
+        return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8", newline="")
+    return open(path, encoding="utf-8", newline="")
+
+
+def _locate_bad_value(path: Path, lines: list[str], first_line: int, columns: dict[str, int]) -> InputFileError:
+    """Slow path, only after the fast parse failed: find the first bad cell and name it."""
+    for offset, line in enumerate(lines):
+        cells = line.rstrip("\r\n").split(",")
+        for name, idx in columns.items():
+            if idx >= len(cells):
+                return InputFileError(path, f"row has {len(cells)} cells, the header names {idx + 1} or more",
+                                      line=first_line + offset, column=name)
+            try:
+                value = float(cells[idx])
+            except ValueError:
+                return InputFileError(path, f"value {cells[idx]!r} is not a number", line=first_line + offset,
+                                      column=name)
+            if name in REQUIRED and not math.isfinite(value):
+                return InputFileError(path, f"value {cells[idx]!r} is not a finite number",
+                                      line=first_line + offset, column=name)
+    return InputFileError(path, "could not be parsed as numbers", line=first_line)
+
+
+def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[Capture]:
+    """Read a capture CSV in chunks of at most ``chunk_rows`` rows, in bounded memory.
+
+    Checks every rule of the spec across chunk borders (t strictly increasing included).
+    """
+    path = Path(path)
+    try:
+        fh = _open_text(path)
+    except FileNotFoundError:
+        raise InputFileError(path, "does not exist; give a capture CSV or capture file") from None
+    except OSError as exc:
+        raise InputFileError(path, f"cannot be opened: {exc.strerror}") from None
+    with fh:
+        try:
+            header_line = fh.readline()
+        except (UnicodeDecodeError, OSError, EOFError) as exc:
+            raise InputFileError(path, f"is not a readable text file ({exc})", line=1) from None
+        header = [h.strip() for h in header_line.rstrip("\r\n").split(",")]
+        if not header_line.strip():
+            raise InputFileError(path, "is empty; expected a header row: " + ",".join(HEADER), line=1)
+        for name in REQUIRED:
+            if name not in header:
+                raise InputFileError(path, f"header lacks the required column; it has {header}", line=1,
+                                     column=name)
+        numeric = {n: header.index(n) for n in REQUIRED + OPTIONAL_NUMERIC if n in header}
+        step_idx = header.index("step") if "step" in header else None
+        names = list(numeric)
+        usecols = [numeric[n] for n in names]
+        line_no = 1
+        last_t = -math.inf
+        while True:
+            try:
+                lines = [ln for ln in (fh.readline() for _ in range(chunk_rows)) if ln]
+            except UnicodeDecodeError as exc:
+                raise InputFileError(path, f"is not UTF-8 text ({exc.reason})", line=line_no + 1) from None
+            lines = [ln for ln in lines if ln.strip()]
+            if not lines:
+                return
+            first = line_no + 1
+            line_no += len(lines)
+            try:
+                values = np.loadtxt(lines, delimiter=",", usecols=usecols, ndmin=2, dtype=float)
+                if values.shape[0] != len(lines):
+                    raise ValueError
+            except (ValueError, IndexError):
+                raise _locate_bad_value(path, lines, first, numeric) from None
+            cols = {n: values[:, i] for i, n in enumerate(names)}
+            for n in REQUIRED:
+                bad = np.flatnonzero(~np.isfinite(cols[n]))
+                if len(bad):
+                    raise InputFileError(path, "value is not a finite number", line=first + int(bad[0]), column=n)
+            t = cols["t"]
+            steps = np.diff(np.concatenate([[last_t], t]))
+            bad = np.flatnonzero(steps <= 0)
+            if len(bad):
+                i = int(bad[0])
+                raise InputFileError(path, f"t = {float(t[i])!r} does not increase (previous row has "
+                                     f"{float(t[i - 1]) if i else last_t!r}); rows must be in time order",
+                                     line=first + i, column="t")
+            last_t = float(t[-1])
+            step = None
+            if step_idx is not None:
+                step = np.array([_cell(ln, step_idx) for ln in lines], dtype=object)
+            yield Capture(
+                t=t,
+                acc=np.column_stack([cols["ax"], cols["ay"], cols["az"]]),
+                gyro=np.column_stack([cols["gx"], cols["gy"], cols["gz"]]),
+                temp=cols.get("temp"),
+                dtemp=cols.get("dtemp"),
+                step=step,
+                source=str(path),
+            )
+
+
+def _cell(line: str, idx: int) -> str:
+    cells = line.rstrip("\r\n").split(",")
+    return cells[idx].strip() if idx < len(cells) else ""
+
+
+def read_csv(path: str | Path) -> Capture:
+    """The whole capture CSV in memory (see :func:`iter_csv_chunks` for bounded memory)."""
+    chunks = list(iter_csv_chunks(path))
+    if not chunks:
+        raise InputFileError(path, "has a header but no sample rows", line=2)
+
+    def cat(name: str) -> np.ndarray | None:
+        parts = [getattr(c, name) for c in chunks]
+        return None if parts[0] is None else np.concatenate(parts)
+
+    return Capture(t=cat("t"), acc=cat("acc"), gyro=cat("gyro"), temp=cat("temp"), dtemp=cat("dtemp"),
+                   step=cat("step"), source=str(path))
+
+
+class CsvWriter:
+    """Appends sample batches to a capture CSV; the caller owns the file handle."""
+
+    def __init__(self, fh: IO[str], with_temp: bool = True, with_dtemp: bool = False, with_step: bool = False):
+        self.fh = fh
+        self.columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+        if with_temp:
+            self.columns.append("temp")
+        if with_dtemp:
+            self.columns.append("dtemp")
+        if with_step:
+            self.columns.append("step")
+        fh.write(",".join(self.columns) + "\n")
+
+    def write(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, temp: np.ndarray | None = None,
+              dtemp: np.ndarray | None = None, step: np.ndarray | list[str] | None = None) -> None:
+        numeric = [np.asarray(t, float)[:, None], np.asarray(acc), np.asarray(gyro)]
+        if "temp" in self.columns:
+            numeric.append(np.full((len(t), 1), np.nan) if temp is None else np.asarray(temp, float)[:, None])
+        if "dtemp" in self.columns:
+            numeric.append(np.zeros((len(t), 1)) if dtemp is None else np.asarray(dtemp, float)[:, None])
+        block = np.hstack([np.asarray(a, dtype=float) for a in numeric])
+        buf = io.StringIO()
+        # 9 significant digits round-trip float32 sensor values exactly; t keeps microseconds.
+        np.savetxt(buf, block, delimiter=",", fmt=["%.6f"] + ["%.9g"] * (block.shape[1] - 1))
+        text = buf.getvalue()
+        if "step" in self.columns:
+            labels = [""] * len(t) if step is None else list(step)
+            text = "".join(f"{row},{lab}\n" for row, lab in zip(text.splitlines(), labels, strict=True))
+        self.fh.write(text)
+
+
+def write_csv(path: str | Path, capture: Capture) -> None:
+    """Write a whole capture atomically."""
+    from station.files import atomic_open
+
+    with atomic_open(path, "w") as fh:
+        w = CsvWriter(fh, with_temp=capture.temp is not None, with_dtemp=capture.dtemp is not None,
+                      with_step=capture.step is not None)
+        w.write(capture.t, capture.acc, capture.gyro, capture.temp, capture.dtemp, capture.step)

@@ -1,0 +1,68 @@
+"""The intrinsic model of one sensor triad: raw = M true + b, with M = K (I + S).
+
+K is the diagonal of scale factors, S the misalignment (zero diagonal), b the bias. This is
+the forward model of ``shared/specs/params-file.md``; its inverse gives the correction
+true = M^-1 (raw - b).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class SensorCalibration:
+    """Intrinsics of one triad (accelerometer or gyroscope), with how they were obtained.
+
+    ``stddev`` maps a parameter name (``bias``, ``scale``, ``misalignment``, ``matrix``) to
+    its 1-sigma uncertainty in the same shape; ``extra`` holds method-specific report keys
+    that go into the parameter file beside the required ones.
+    """
+
+    matrix: np.ndarray
+    bias: np.ndarray
+    method: str = ""
+    residual_rms: float | None = None
+    stddev: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.matrix = np.asarray(self.matrix, dtype=float).reshape(3, 3)
+        self.bias = np.asarray(self.bias, dtype=float).reshape(3)
+
+    @classmethod
+    def from_parts(cls, scale: np.ndarray, misalignment: np.ndarray, bias: np.ndarray, **kw: Any) -> SensorCalibration:
+        """Build from K (diagonal ``scale``), S (``misalignment``, zero diagonal) and b: M = K (I + S)."""
+        matrix = np.diag(np.asarray(scale, float)) @ (np.eye(3) + np.asarray(misalignment, float))
+        return cls(matrix=matrix, bias=bias, **kw)
+
+    @property
+    def scale(self) -> np.ndarray:
+        """K: the diagonal of M, since I + S has a unit diagonal."""
+        return np.diag(self.matrix).copy()
+
+    @property
+    def misalignment(self) -> np.ndarray:
+        """S = K^-1 M - I (zero diagonal)."""
+        s = self.matrix / self.scale[:, None] - np.eye(3)
+        np.fill_diagonal(s, 0.0)
+        return s
+
+    @property
+    def correction(self) -> np.ndarray:
+        return np.linalg.inv(self.matrix)
+
+    def correct(self, raw: np.ndarray, extra_bias: np.ndarray | float = 0.0) -> np.ndarray:
+        """true = M^-1 (raw - b - extra_bias), for rows of ``raw`` (N, 3)."""
+        return (np.asarray(raw, float) - self.bias - extra_bias) @ self.correction.T
+
+    def forward(self, true: np.ndarray) -> np.ndarray:
+        """raw = M true + b, for rows of ``true`` (N, 3)."""
+        return np.asarray(true, float) @ self.matrix.T + self.bias
+
+    @staticmethod
+    def identity() -> SensorCalibration:
+        return SensorCalibration(np.eye(3), np.zeros(3), method="identity")

@@ -1,0 +1,175 @@
+"""Evaluation of the temperature model of the bias: what firmware computes, in numpy.
+
+The bias added by temperature, per axis (the lecture's model, all seven terms):
+
+    B(T, dT) = a t^3 + b t^2 + c t + e dT^2 + f dT + g t dT + h,     t = T - T_ref
+
+with T in degC, dT in degC/s. Terms the fit left out have a zero coefficient. The
+coefficients are piecewise over temperature segments; T is first clamped to the calibrated
+range [t_min, t_max] and dT to [dt_min, dt_max], exactly as the firmware export does it.
+This thermal bias adds to the static bias of the ``accel``/``gyro`` section:
+raw = M true + b + B(T, dT).
+
+The dT filter (how dT is estimated from the temperature stream) is stored with the model so
+firmware estimates dT the same way; see :func:`estimate_dtemp`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+TERMS = ("t3", "t2", "t", "dt2", "dt", "tdt", "1")
+
+
+def term_matrix(t_rel: np.ndarray, dtemp: np.ndarray) -> np.ndarray:
+    """Columns of the seven terms in ``TERMS`` order, for T relative to T_ref and dT (N, 7)."""
+    t = np.asarray(t_rel, float)
+    d = np.asarray(dtemp, float)
+    return np.stack([t**3, t**2, t, d**2, d, t * d, np.ones_like(t)], axis=-1)
+
+
+@dataclass
+class ThermalSegment:
+    """Coefficients (3 axes x 7 terms, ``TERMS`` order) valid for t_min <= T < t_max."""
+
+    t_min: float
+    t_max: float
+    coeffs: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.coeffs = np.asarray(self.coeffs, dtype=float).reshape(3, len(TERMS))
+
+
+@dataclass
+class ThermalBias:
+    """The thermal bias model of one triad."""
+
+    segments: list[ThermalSegment]
+    dt_min: float = -1.0
+    dt_max: float = 1.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def t_min(self) -> float:
+        return self.segments[0].t_min
+
+    @property
+    def t_max(self) -> float:
+        return self.segments[-1].t_max
+
+    def evaluate(self, temp: np.ndarray, dtemp: np.ndarray, reference_temp: float) -> np.ndarray:
+        """Thermal bias (N, 3) at temperatures ``temp`` and rates ``dtemp`` (both (N,)).
+
+        Clamps T to [t_min, t_max] and dT to [dt_min, dt_max]; picks the segment whose
+        range holds T (the last segment holds t_max itself).
+        """
+        temp = np.clip(np.asarray(temp, float), self.t_min, self.t_max)
+        dtemp = np.clip(np.asarray(dtemp, float), self.dt_min, self.dt_max)
+        starts = np.array([s.t_min for s in self.segments[1:]])
+        index = np.searchsorted(starts, temp, side="right")
+        terms = term_matrix(temp - reference_temp, dtemp)
+        coeffs = np.stack([s.coeffs for s in self.segments])  # (S, 3, 7)
+        return np.einsum("nk,njk->nj", terms, coeffs[index])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "terms": list(TERMS),
+            "clamp": {"temp": [self.t_min, self.t_max], "dtemp": [self.dt_min, self.dt_max]},
+            "segments": [
+                {"t_min": s.t_min, "t_max": s.t_max, "coeffs": s.coeffs.tolist()} for s in self.segments
+            ],
+            **self.extra,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ThermalBias:
+        if list(d.get("terms", TERMS)) != list(TERMS):
+            raise ValueError(f"thermal terms {d.get('terms')} are not the known {list(TERMS)}")
+        clamp = d.get("clamp", {})
+        dt_min, dt_max = clamp.get("dtemp", [-1.0, 1.0])
+        segments = [ThermalSegment(s["t_min"], s["t_max"], s["coeffs"]) for s in d["segments"]]
+        if not segments:
+            raise ValueError("thermal model has no segments")
+        known = {"terms", "clamp", "segments"}
+        return cls(segments, float(dt_min), float(dt_max), {k: v for k, v in d.items() if k not in known})
+
+
+@dataclass
+class DtempFilter:
+    """How dT is estimated from the sampled temperature, the same in the station and firmware.
+
+    ``ema``: a first-order low-pass of T with time constant ``tau_s`` (alpha = dt / (tau + dt),
+    on each sample's own dt), then the difference quotient of the filtered T, low-passed again
+    with the same time constant. State starts at the first sample with dT = 0.
+    """
+
+    kind: str = "ema"
+    tau_s: float = 10.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "tau_s": self.tau_s}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DtempFilter:
+        if d.get("kind") != "ema":
+            raise ValueError(f"dT filter kind {d.get('kind')!r} is unknown; this station knows 'ema'")
+        return cls("ema", float(d["tau_s"]))
+
+
+def estimate_dtemp(t_s: np.ndarray, temp: np.ndarray, filt: DtempFilter) -> np.ndarray:
+    """dT (degC/s) from timestamps and temperatures with the filter ``filt`` (see DtempFilter)."""
+    t_s = np.asarray(t_s, float)
+    temp = np.asarray(temp, float)
+    out = np.zeros_like(temp)
+    if len(temp) == 0:
+        return out
+    tf = temp[0]
+    d = 0.0
+    # A sequential recursion: it is what firmware runs sample by sample, kept identical here.
+    for i in range(1, len(temp)):
+        dt = t_s[i] - t_s[i - 1]
+        if dt <= 0:
+            out[i] = d
+            continue
+        alpha = dt / (filt.tau_s + dt)
+        tf_new = tf + alpha * (temp[i] - tf)
+        d += alpha * ((tf_new - tf) / dt - d)
+        tf = tf_new
+        out[i] = d
+    return out
+
+
+@dataclass
+class ThermalModel:
+    """The ``thermal`` section: reference temperature, dT filter and per-triad bias models."""
+
+    reference_temp: float
+    dtemp_filter: DtempFilter
+    accel: ThermalBias | None = None
+    gyro: ThermalBias | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "reference_temp": self.reference_temp,
+            "dtemp_filter": self.dtemp_filter.to_dict(),
+        }
+        for name in ("accel", "gyro"):
+            model = getattr(self, name)
+            out[name] = model.to_dict() if model is not None else None
+        out.update(self.extra)
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ThermalModel:
+        known = {"reference_temp", "dtemp_filter", "accel", "gyro"}
+        return cls(
+            reference_temp=float(d["reference_temp"]),
+            dtemp_filter=DtempFilter.from_dict(d["dtemp_filter"]),
+            accel=ThermalBias.from_dict(d["accel"]) if d.get("accel") else None,
+            gyro=ThermalBias.from_dict(d["gyro"]) if d.get("gyro") else None,
+            extra={k: v for k, v in d.items() if k not in known},
+        )

@@ -1,0 +1,31 @@
+"""The station's exception root. Every message says what went wrong and what to do next."""
+
+from __future__ import annotations
+
+
+class StationError(Exception):
+    """An error the user can act on; the CLI prints it without a traceback.
+
+    ``exit_code`` follows the factory convention: 3 device or link, 4 usage or configuration.
+    """
+
+    exit_code = 4
+
+
+class InputFileError(StationError):
+    """A file the user gave cannot be read: names the file, line and field."""
+
+    def __init__(self, path: object, problem: str, line: int | None = None, column: str | None = None):
+        where = str(path)
+        if line is not None:
+            where += f", line {line}"
+        if column is not None:
+            where += f", column '{column}'"
+        super().__init__(f"{where}: {problem}")
+        self.path = path
+        self.line = line
+        self.column = column
+
+
+class EngineInputError(StationError):
+    """The data cannot determine what was asked (too few poses, rank deficiency, motion, ...)."""
