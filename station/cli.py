@@ -11,6 +11,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from drivers.errors import DriverError
 from station import __version__
 from station.errors import StationError
 
@@ -73,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 4
     try:
         return int(args._run(args) or 0)
-    except StationError as exc:
+    except (StationError, DriverError) as exc:
         print(f"imu-station {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:

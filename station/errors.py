@@ -29,3 +29,11 @@ class InputFileError(StationError):
 
 class EngineInputError(StationError):
     """The data cannot determine what was asked (too few poses, rank deficiency, motion, ...)."""
+
+
+class OutputFileError(StationError):
+    """A file the station writes cannot be written (disk full, no permission): names the file."""
+
+    def __init__(self, path: object, problem: str):
+        super().__init__(f"{path}: {problem}")
+        self.path = path

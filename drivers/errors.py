@@ -1,0 +1,70 @@
+"""The drivers' exception root. Every message names the port and says what to do next.
+
+``drivers`` may not import ``station``, so these errors carry the station's exit-code convention
+themselves (``exit_code = 3``: device or link) and the CLI treats them like its own errors.
+
+::
+
+    DriverError
+     ├── PortError                 opening the port failed
+     │    ├── PortNotFound         no such device, or an unknown URL scheme
+     │    ├── PortBusy             another program holds the port
+     │    └── PortPermission       the user may not open it
+     ├── PortLost                  the port went away while open (unplugged, simulator stopped)
+     └── CommandError             a command to the device failed
+          ├── CommandTimeout       no answer in time
+          ├── CommandRejected      the device answered with an error status
+          └── CommandUnsupported   the protocol has no such command
+"""
+
+from __future__ import annotations
+
+
+class DriverError(Exception):
+    """A device or link error the user can act on; ``port`` names the port it concerns."""
+
+    exit_code = 3
+
+    def __init__(self, message: str, port: str = ""):
+        super().__init__(message)
+        self.port = port
+
+
+class PortError(DriverError):
+    """The port could not be opened."""
+
+
+class PortNotFound(PortError):
+    """No device at that path, or a URL scheme nobody registered."""
+
+
+class PortBusy(PortError):
+    """Another program holds the port (an exclusive lock is taken where the OS supports it)."""
+
+
+class PortPermission(PortError):
+    """The operating system refuses to open the port for this user."""
+
+
+class PortLost(DriverError):
+    """The port disappeared while open. Every sample received before it is still delivered."""
+
+
+class CommandError(DriverError):
+    """A command to the device did not succeed."""
+
+
+class CommandTimeout(CommandError):
+    """The device did not answer a command in time."""
+
+
+class CommandRejected(CommandError):
+    """The device answered a command with an error status (unknown command, bad argument, busy)."""
+
+    def __init__(self, message: str, port: str = "", status: int = 0):
+        super().__init__(message, port)
+        self.status = status
+
+
+class CommandUnsupported(CommandError):
+    """The protocol spoken on this port has no such command."""

@@ -1,0 +1,107 @@
+"""Link statistics: what came over the wire, what was lost, and the rate on the device clock."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from protocols.base import DecoderStats
+
+SEQ_MODULUS = 1 << 32
+# A seq step larger than half the counter range is the counter going back (device reset or a
+# replayed frame), not four billion lost samples.
+_SEQ_BACKWARDS = 1 << 31
+RATE_WINDOW_S = 2.0
+
+
+@dataclass
+class LinkStats:
+    """A snapshot of one link since it was opened. All counts are totals."""
+
+    samples: int = 0  # good sample frames decoded
+    bytes: int = 0  # bytes read from the port
+    rate_hz: float = 0.0  # samples received per second of device clock, over the last ~2 s
+    device_time_s: float = 0.0  # device clock span from the first to the last sample
+    crc_errors: int = 0
+    resyncs: int = 0
+    garbage_bytes: int = 0
+    length_errors: int = 0
+    truncated: int = 0
+    bad_payloads: int = 0
+    lost: int = 0  # samples missing from seq gaps (u32 wrap understood)
+    seq_resets: int = 0  # times seq went backwards (device restart or a replayed frame)
+    overflow_drops: int = 0  # samples dropped because the consumer did not keep up
+
+    @property
+    def errors(self) -> int:
+        """Frames that arrived damaged (CRC, length, truncation, bad payload)."""
+        return self.crc_errors + self.length_errors + self.truncated + self.bad_payloads
+
+    def as_dict(self) -> dict[str, float | int]:
+        out = asdict(self)
+        out["errors"] = self.errors
+        return out
+
+    def summary(self) -> str:
+        return (f"{self.samples} samples, {self.rate_hz:.1f} Hz, {self.errors} errors "
+                f"({self.crc_errors} CRC, {self.truncated} truncated, {self.length_errors} length), "
+                f"{self.resyncs} resyncs, {self.garbage_bytes} garbage bytes, {self.lost} lost, "
+                f"{self.overflow_drops} dropped (overflow)")
+
+
+class LinkMonitor:
+    """Keeps :class:`LinkStats` up to date from decoded batches and the decoder's counters.
+
+    Not thread-safe by itself: the device calls it under its own lock.
+    """
+
+    def __init__(self) -> None:
+        self.stats = LinkStats()
+        self._last_seq: int | None = None
+        self._first_t_us: int | None = None
+        self._window: deque[tuple[int, int]] = deque()  # (t_us of a batch's last sample, samples so far)
+
+    def add_bytes(self, n: int) -> None:
+        self.stats.bytes += n
+
+    def add_samples(self, samples: np.ndarray) -> None:
+        """Count a batch of ``SAMPLE_DTYPE`` records: seq gaps, resets and the device-clock rate."""
+        n = len(samples)
+        if n == 0:
+            return
+        s = self.stats
+        seq = samples["seq"].astype(np.int64)
+        prev = np.empty(n, dtype=np.int64)
+        prev[0] = seq[0] - 1 if self._last_seq is None else self._last_seq
+        prev[1:] = seq[:-1]
+        gap = (seq - prev - 1) % SEQ_MODULUS
+        backwards = gap >= _SEQ_BACKWARDS
+        s.lost += int(gap[~backwards].sum())
+        s.seq_resets += int(backwards.sum())
+        self._last_seq = int(seq[-1])
+        s.samples += n
+        t_us = samples["t_us"]
+        if self._first_t_us is None:
+            self._first_t_us = int(t_us[0])
+        t_last = int(t_us[-1])
+        s.device_time_s = max(0.0, (t_last - self._first_t_us) * 1e-6)
+        self._window.append((t_last, s.samples))
+        while len(self._window) > 2 and (t_last - self._window[1][0]) * 1e-6 >= RATE_WINDOW_S:
+            self._window.popleft()
+        t0, n0 = self._window[0]
+        if t_last > t0:
+            s.rate_hz = (s.samples - n0) / ((t_last - t0) * 1e-6)
+
+    def add_overflow(self, n: int) -> None:
+        self.stats.overflow_drops += n
+
+    def update_decoder(self, dec: DecoderStats) -> None:
+        s = self.stats
+        s.crc_errors = dec.crc_errors
+        s.resyncs = dec.resyncs
+        s.garbage_bytes = dec.garbage_bytes
+        s.length_errors = dec.length_errors
+        s.truncated = dec.truncated
+        s.bad_payloads = dec.bad_payloads

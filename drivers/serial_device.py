@@ -1,0 +1,317 @@
+"""A device on a serial port, a pseudo-terminal or a pyserial URL (``sim://``, ``loop://``, ...).
+
+A reader thread reads bytes as they come, feeds the protocol decoder and appends the decoded
+sample batches to a buffer bounded in samples; the consumer takes everything buffered with
+:meth:`SerialDevice.read`. When the consumer falls behind and the buffer is full, new batches
+are dropped and counted (``overflow_drops``): the reader never waits for the consumer, so the
+OS buffer of the port never overflows silently. Commands are written from the caller's thread
+and wait for their answer, which the reader picks out of the stream between samples.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+import serial
+
+from drivers.errors import (
+    CommandRejected,
+    CommandTimeout,
+    CommandUnsupported,
+    DriverError,
+    PortBusy,
+    PortError,
+    PortLost,
+    PortNotFound,
+    PortPermission,
+)
+from drivers.interface import Device
+from drivers.link_stats import LinkMonitor, LinkStats
+from protocols import native
+from protocols.base import EMPTY_SAMPLES, Message
+from protocols.registry import make_decoder
+
+DEFAULT_BAUDRATE = 921_600  # 1 kHz of 47-byte frames needs 470 kbit/s
+DEFAULT_MAX_BUFFERED = 200_000  # samples (8 MB): minutes of data at 1 kHz before anything drops
+READ_CHUNK = 65_536
+READ_TIMEOUT_S = 0.05
+MESSAGE_BACKLOG = 64
+LIST_PORTS_HINT = "list the ports with `python -m serial.tools.list_ports -v`"
+
+
+def open_serial(port: str, baudrate: int = DEFAULT_BAUDRATE, exclusive: bool = True) -> serial.SerialBase:
+    """Open ``port`` (a device path or a pyserial URL) and turn pyserial's errors into ours."""
+    is_url = "://" in port
+    kwargs: dict[str, Any] = {"baudrate": baudrate, "timeout": READ_TIMEOUT_S, "write_timeout": 1.0}
+    if exclusive and not is_url:
+        kwargs["exclusive"] = True
+    try:
+        return serial.serial_for_url(port, **kwargs)
+    except ValueError as exc:
+        if is_url and "not known" in str(exc):
+            scheme = port.split("://", 1)[0]
+            raise PortNotFound(f"{port}: no handler for URL scheme '{scheme}://'; use a device path, "
+                               f"a pyserial URL such as loop://, or sim:// (the simulated unit)",
+                               port) from None
+        raise PortError(f"{port}: cannot open: {exc}", port) from None
+    except serial.SerialException as exc:
+        code = exc.errno
+        text = str(exc)
+        if code in (errno.ENOENT, errno.ENODEV, errno.ENXIO):
+            raise PortNotFound(f"{port}: no such port; check the cable and the name ({LIST_PORTS_HINT})",
+                               port) from None
+        if code in (errno.EACCES, errno.EPERM):
+            raise PortPermission(f"{port}: permission denied; add your user to the group owning the "
+                                 f"port (e.g. `sudo usermod -aG dialout $USER`, then log in again)",
+                                 port) from None
+        if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK) or "exclusively lock" in text:
+            raise PortBusy(f"{port}: busy, another program has it open; close that program "
+                           f"(`fuser -v {port}` shows which) and try again", port) from None
+        raise PortError(f"{port}: cannot open: {text}", port) from None
+
+
+class SerialDevice(Device):
+    """An IMU on a serial link, read by a background thread.
+
+    Parameters
+    ----------
+    port:
+        Device path (``/dev/ttyUSB0``, a pty such as ``/dev/pts/5``) or pyserial URL (``sim://``).
+    protocol:
+        Decoder name from ``protocols.registry``. Commands exist for ``native`` only.
+    baudrate:
+        Line speed; ignored by pseudo-terminals and most URLs.
+    max_buffered_samples:
+        Bound of the buffer between the reader and the consumer; beyond it batches are dropped
+        and counted in ``stats.overflow_drops``.
+    exclusive:
+        Take an exclusive lock on the port where the OS supports it (a second opener gets PortBusy).
+    """
+
+    def __init__(self, port: str, protocol: str = "native", baudrate: int = DEFAULT_BAUDRATE,
+                 max_buffered_samples: int = DEFAULT_MAX_BUFFERED, exclusive: bool = True):
+        self.port = port
+        self.protocol = protocol
+        self._decoder = make_decoder(protocol)
+        self._max_buffered = max_buffered_samples
+        self._serial = open_serial(port, baudrate, exclusive)
+        self._cond = threading.Condition()
+        self._pending: deque[np.ndarray] = deque()
+        self._pending_count = 0
+        self._messages: deque[tuple[int, Message]] = deque(maxlen=MESSAGE_BACKLOG)
+        self._message_count = 0
+        self._info: dict[str, Any] = {}
+        self._monitor = LinkMonitor()
+        self._error: DriverError | None = None
+        self._closed = False
+        self._stop = threading.Event()
+        self._write_lock = threading.Lock()
+        self._thread = threading.Thread(target=self._reader, name=f"imu-reader {port}", daemon=True)
+        self._thread.start()
+
+    # -- the reader thread ---------------------------------------------------------------------
+
+    def _reader(self) -> None:
+        ser = self._serial
+        try:
+            while not self._stop.is_set():
+                data = ser.read(1)
+                if not data:
+                    continue
+                waiting = ser.in_waiting
+                if waiting:
+                    data += ser.read(min(waiting, READ_CHUNK))
+                self._ingest(data)
+        except (serial.SerialException, OSError) as exc:
+            if not self._stop.is_set():
+                self._fail(PortLost(f"{self.port}: the port went away ({exc}); every sample received "
+                                    f"before was kept; check the cable or the simulator and capture again",
+                                    self.port))
+        except Exception as exc:  # a bug must not leave the consumer waiting forever
+            self._fail(DriverError(f"{self.port}: the reader stopped on an internal error: {exc!r}",
+                                   self.port))
+            raise
+
+    def _ingest(self, data: bytes) -> None:
+        decoded = self._decoder.feed(data)
+        samples = decoded.samples
+        with self._cond:
+            mon = self._monitor
+            mon.add_bytes(len(data))
+            mon.update_decoder(self._decoder.stats)
+            if len(samples):
+                mon.add_samples(samples)
+                if self._pending_count + len(samples) > self._max_buffered:
+                    mon.add_overflow(len(samples))
+                else:
+                    self._pending.append(samples)
+                    self._pending_count += len(samples)
+            for message in decoded.messages:
+                if message.msg_id == native.DEVICE_INFO:
+                    try:
+                        self._info = native.parse_device_info(message.payload)
+                    except (ValueError, UnicodeDecodeError):
+                        continue
+                self._message_count += 1
+                self._messages.append((self._message_count, message))
+            if len(samples) or decoded.messages:
+                self._cond.notify_all()
+
+    def _fail(self, error: DriverError) -> None:
+        with self._cond:
+            if self._error is None:
+                self._error = error
+            self._cond.notify_all()
+
+    def _raise_error(self) -> None:
+        err = self._error
+        assert err is not None
+        # A fresh exception each time: the same error may reach several callers.
+        raise type(err)(str(err), err.port)
+
+    # -- the consumer side ---------------------------------------------------------------------
+
+    def read(self, timeout: float | None = None) -> np.ndarray:
+        with self._cond:
+            if not self._pending and self._error is None and not self._closed:
+                self._cond.wait_for(lambda: self._pending or self._error is not None or self._closed, timeout)
+            if self._pending:
+                batch = self._pending[0] if len(self._pending) == 1 else np.concatenate(self._pending)
+                self._pending.clear()
+                self._pending_count = 0
+                return batch
+            if self._error is not None:
+                self._raise_error()
+            return EMPTY_SAMPLES
+
+    @property
+    def stats(self) -> LinkStats:
+        with self._cond:
+            return LinkStats(**vars(self._monitor.stats))
+
+    @property
+    def info(self) -> dict[str, Any]:
+        with self._cond:
+            return dict(self._info)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # -- commands ------------------------------------------------------------------------------
+
+    def get_info(self, timeout: float = 1.0, retries: int = 2) -> dict[str, Any]:
+        message = self._command(native.GET_INFO, b"", timeout, retries)
+        return native.parse_device_info(message.payload)
+
+    def set_rate(self, rate_hz: int, timeout: float = 1.0, retries: int = 2) -> None:
+        if not 1 <= rate_hz <= 0xFFFF:
+            raise CommandRejected(f"{self.port}: rate {rate_hz} Hz does not fit SET_RATE (1..65535 Hz)",
+                                  self.port, native.ACK_BAD_ARGUMENT)
+        self._command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout, retries)
+
+    def start(self, timeout: float = 1.0, retries: int = 2) -> None:
+        self._command(native.START_STREAM, b"", timeout, retries)
+
+    def stop(self, timeout: float = 1.0, retries: int = 2) -> None:
+        self._command(native.STOP_STREAM, b"", timeout, retries)
+
+    def _command(self, command_id: int, payload: bytes, timeout: float, retries: int) -> Message:
+        """Send a command and wait for its answer; resend on timeout (all commands are idempotent)."""
+        name = _COMMAND_NAMES[command_id]
+        if self.protocol != "native":
+            raise CommandUnsupported(f"{self.port}: the {self.protocol} protocol has no {name} command; "
+                                     f"configure the unit with its vendor's tool", self.port)
+        frame = native.encode_frame(command_id, payload)
+        for _ in range(retries + 1):
+            with self._cond:
+                if self._closed:
+                    raise DriverError(f"{self.port}: the device is closed", self.port)
+                if self._error is not None:
+                    self._raise_error()
+                mark = self._message_count
+            self._write(frame)
+            answer = self._wait_answer(command_id, mark, time.monotonic() + timeout)
+            if answer is not None:
+                if answer.msg_id == native.ACK:
+                    ack = native.parse_ack(answer.payload)
+                    if not ack.ok:
+                        status = native.ACK_STATUS_NAMES.get(ack.status, f"status {ack.status}")
+                        raise CommandRejected(f"{self.port}: the unit refused {name}: {status}", self.port,
+                                              ack.status)
+                return answer
+        raise CommandTimeout(f"{self.port}: no answer to {name} in {retries + 1} tries of {timeout:g} s; "
+                             f"check that the unit is powered, speaks the {self.protocol} protocol and "
+                             f"that the baud rate is right", self.port)
+
+    def _wait_answer(self, command_id: int, mark: int, deadline: float) -> Message | None:
+        def find() -> Message | None:
+            for index, message in self._messages:
+                if index > mark and _answers(message, command_id):
+                    return message
+            return None
+
+        with self._cond:
+            while True:
+                found = find()
+                if found is not None:
+                    return found
+                if self._error is not None:
+                    self._raise_error()
+                left = deadline - time.monotonic()
+                if left <= 0 or self._closed:
+                    return None
+                self._cond.wait(left)
+
+    def _write(self, frame: bytes) -> None:
+        try:
+            with self._write_lock:
+                self._serial.write(frame)
+                self._serial.flush()
+        except (serial.SerialException, OSError) as exc:
+            self._fail(PortLost(f"{self.port}: writing to the port failed ({exc}); check the cable or the "
+                                f"simulator", self.port))
+            self._raise_error()
+
+    # -- closing -------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._stop.set()
+        cancel = getattr(self._serial, "cancel_read", None)
+        if cancel is not None:
+            try:
+                cancel()
+            except (serial.SerialException, OSError, NotImplementedError):
+                pass
+        self._thread.join(timeout=2.0)
+        try:
+            self._serial.close()
+        except (serial.SerialException, OSError):
+            pass
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+_COMMAND_NAMES = {native.GET_INFO: "GET_INFO", native.SET_RATE: "SET_RATE",
+                  native.START_STREAM: "START_STREAM", native.STOP_STREAM: "STOP_STREAM"}
+
+
+def _answers(message: Message, command_id: int) -> bool:
+    if command_id == native.GET_INFO:
+        if message.msg_id != native.DEVICE_INFO:
+            return False
+        try:
+            json.loads(message.payload.decode("utf-8"))
+        except (ValueError, UnicodeDecodeError):
+            return False
+        return True
+    return message.msg_id == native.ACK and len(message.payload) == 2 and message.payload[0] == command_id
