@@ -1,0 +1,473 @@
+"""Xsens Xbus framing and MTData2 measurement packets (MTi 1/10/100/600-series, MTi-G).
+
+Xbus frame: preamble ``FA`` | bus id ``FF`` | message id | length u8 (``FF`` announces the
+extended form: a u16 big-endian length follows) | payload | checksum, chosen so that the byte
+sum from the bus id through the checksum is zero modulo 256.
+
+MTData2 (message id ``0x36``) is a list of data items: data id u16 | size u8 | data, all
+big-endian. The low two bits of a data id give the precision (float32, fixed point 12.20,
+fixed point 16.32, float64), bits 2-3 the coordinate system of orientation and velocity items
+(ENU, NED, NWU), the rest the data type. The station keeps the inertial items in the **sensor
+frame**: Acceleration, DeltaV, RateOfTurn and DeltaQ are sensor-frame quantities in the Xsens
+definition, and the coordinate-system bits, which only rotate orientation and velocity
+outputs, are accepted and ignored for them. (A device-side alignment rotation, if one was set,
+does rotate them: reset it before calibrating.)
+
+A packet becomes one sample when it carries Acceleration (or AccelerationHR or DeltaV) or
+RateOfTurn (or RateOfTurnHR or DeltaQ); a triad the packet lacks is NaN. DeltaV and DeltaQ
+are turned into mean acceleration and rate over the interval between consecutive inertial
+packets (from SampleTimeFine). Packets without inertial data (GNSS, orientation only, status)
+are returned as messages, not errors. ``seq`` is the unwrapped PacketCounter less the
+packets skipped so far, so consecutive samples are consecutive and a gap means lost packets;
+``t_us`` is the unwrapped SampleTimeFine (10 kHz ticks) in microseconds; ``temp`` is the
+last Temperature item seen (NaN before the first).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+
+SYNC = b"\xfa\xff"
+PREAMBLE = 0xFA
+BUS_ID = 0xFF
+EXTENDED_LENGTH = 0xFF
+MAX_PAYLOAD = 2048  # the largest extended-length message an MTi sends
+
+MID_MTDATA2 = 0x36
+MESSAGE_NAMES = {
+    0x00: "ReqDID", 0x01: "DeviceID", 0x10: "GoToMeasurement", 0x11: "GoToMeasurementAck",
+    0x12: "ReqFWRev", 0x13: "FirmwareRev", 0x18: "SetBaudrate", 0x19: "SetBaudrateAck",
+    0x1C: "ReqProductCode", 0x1D: "ProductCode", 0x30: "GoToConfig", 0x31: "GoToConfigAck",
+    0x32: "MTData", 0x34: "ReqData", 0x36: "MTData2", 0x3E: "WakeUp", 0x3F: "WakeUpAck",
+    0x40: "Reset", 0x41: "ResetAck", 0x42: "Error", 0x43: "Warning",
+    0xC0: "SetOutputConfiguration", 0xC1: "OutputConfiguration",
+}
+
+TYPE_MASK = 0xF8F0
+COORD_MASK = 0x000C
+PRECISION_MASK = 0x0003
+
+FLOAT32, FP1220, FP1632, FLOAT64 = 0, 1, 2, 3
+PRECISIONS = {"float32": FLOAT32, "fp1220": FP1220, "fp1632": FP1632, "float64": FLOAT64}
+PRECISION_NAMES = {v: k for k, v in PRECISIONS.items()}
+PRECISION_SIZE = {FLOAT32: 4, FP1220: 4, FP1632: 6, FLOAT64: 8}
+ENU, NED, NWU = 0x0, 0x4, 0x8
+COORDINATE_SYSTEMS = {"enu": ENU, "ned": NED, "nwu": NWU}
+
+TEMPERATURE = 0x0810
+UTC_TIME = 0x1010
+PACKET_COUNTER = 0x1020
+SAMPLE_TIME_FINE = 0x1060
+SAMPLE_TIME_COARSE = 0x1070
+DELTA_V = 0x4010
+ACCELERATION = 0x4020
+FREE_ACCELERATION = 0x4030
+ACCELERATION_HR = 0x4040
+RATE_OF_TURN = 0x8020
+DELTA_Q = 0x8030
+RATE_OF_TURN_HR = 0x8040
+
+DATA_NAMES = {
+    TEMPERATURE: "Temperature", UTC_TIME: "UTCTime", PACKET_COUNTER: "PacketCounter",
+    0x1030: "ITOW", SAMPLE_TIME_FINE: "SampleTimeFine", SAMPLE_TIME_COARSE: "SampleTimeCoarse",
+    0x2010: "Quaternion", 0x2020: "RotationMatrix", 0x2030: "EulerAngles", 0x3010: "BaroPressure",
+    DELTA_V: "DeltaV", ACCELERATION: "Acceleration", FREE_ACCELERATION: "FreeAcceleration",
+    ACCELERATION_HR: "AccelerationHR", 0x5020: "AltitudeEllipsoid", 0x5030: "PositionECEF",
+    0x5040: "LatLon", 0x7010: "GNSSPVTData", 0x7020: "GNSSSatInfo", RATE_OF_TURN: "RateOfTurn",
+    DELTA_Q: "DeltaQ", RATE_OF_TURN_HR: "RateOfTurnHR", 0xC020: "MagneticField", 0xD010: "VelocityXYZ",
+    0xE010: "StatusByte", 0xE020: "StatusWord",
+}
+# Items the decoder reads, with the number of values of the chosen precision each holds.
+_VALUE_COUNTS = {
+    TEMPERATURE: 1, DELTA_V: 3, ACCELERATION: 3, ACCELERATION_HR: 3, RATE_OF_TURN: 3, DELTA_Q: 4,
+    RATE_OF_TURN_HR: 3,
+}
+_INERTIAL = {DELTA_V, ACCELERATION, ACCELERATION_HR, RATE_OF_TURN, DELTA_Q, RATE_OF_TURN_HR}
+
+TICKS_PER_SECOND = 10_000  # SampleTimeFine
+_US_PER_TICK = 1_000_000 // TICKS_PER_SECOND
+_NAN3 = (math.nan, math.nan, math.nan)
+
+
+def item_name(data_id: int) -> str:
+    """``Acceleration(float32)``, ``EulerAngles(NED,fp1632)``, ``0x1234`` for unknown ids."""
+    kind = data_id & TYPE_MASK
+    name = DATA_NAMES.get(kind)
+    if name is None:
+        return f"0x{data_id:04X}"
+    if kind in _VALUE_COUNTS or kind in (0x2010, 0x2020, 0x2030, 0xD010, 0x4030, 0x5020, 0x5030, 0xC020):
+        precision = PRECISION_NAMES[data_id & PRECISION_MASK]
+        if kind in (0x2010, 0x2020, 0x2030, 0xD010):
+            coord = {ENU: "ENU", NED: "NED", NWU: "NWU"}.get(data_id & COORD_MASK, "?")
+            return f"{name}({coord},{precision})"
+        return f"{name}({precision})"
+    return name
+
+
+# ---------------------------------------------------------------------------------- numbers
+
+
+def _decode_values(data: bytes | memoryview, precision: int, count: int) -> tuple[float, ...]:
+    if precision == FLOAT32:
+        return struct.unpack(f">{count}f", data)
+    if precision == FLOAT64:
+        return struct.unpack(f">{count}d", data)
+    if precision == FP1220:
+        return tuple(v / 1048576.0 for v in struct.unpack(f">{count}i", data))
+    # 16.32: the 32-bit fraction first, then the signed 16-bit integer part, both big-endian.
+    raw = struct.unpack(">" + "Ih" * count, data)
+    return tuple((raw[2 * i + 1] * 4294967296 + raw[2 * i]) / 4294967296.0 for i in range(count))
+
+
+def _encode_values(values, precision: int) -> bytes:
+    if precision == FLOAT32:
+        return struct.pack(f">{len(values)}f", *values)
+    if precision == FLOAT64:
+        return struct.pack(f">{len(values)}d", *values)
+    if precision == FP1220:
+        fixed = [max(-(2**31), min(2**31 - 1, round(float(v) * 1048576.0))) for v in values]
+        return struct.pack(f">{len(values)}i", *fixed)
+    out = bytearray()
+    for v in values:
+        fixed = max(-(2**47), min(2**47 - 1, round(float(v) * 4294967296.0)))
+        out += struct.pack(">Ih", fixed & 0xFFFFFFFF, fixed >> 32)
+    return bytes(out)
+
+
+# ---------------------------------------------------------------------------------- framing
+
+
+def checksum(body: bytes) -> int:
+    """The byte that makes ``sum(body) + checksum`` zero modulo 256 (body: bus id .. data)."""
+    return (-sum(body)) & 0xFF
+
+
+def encode_frame(msg_id: int, payload: bytes = b"", bus_id: int = BUS_ID) -> bytes:
+    """One Xbus message, in the extended-length form when the payload needs it."""
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"payload of {len(payload)} bytes exceeds the {MAX_PAYLOAD}-byte Xbus limit")
+    if len(payload) < EXTENDED_LENGTH:
+        body = bytes([bus_id, msg_id, len(payload)]) + payload
+    else:
+        body = bytes([bus_id, msg_id, EXTENDED_LENGTH]) + struct.pack(">H", len(payload)) + payload
+    return bytes([PREAMBLE]) + body + bytes([checksum(body)])
+
+
+def encode_item(data_id: int, data: bytes) -> bytes:
+    if len(data) > 255:
+        raise ValueError(f"MTData2 item 0x{data_id:04X} of {len(data)} bytes exceeds 255")
+    return struct.pack(">HB", data_id, len(data)) + data
+
+
+def encode_samples(
+    samples: np.ndarray,
+    precision: str = "float32",
+    deltas: bool = False,
+    coordinate_system: str = "enu",
+    temperature: bool = True,
+) -> bytes:
+    """MTData2 messages for a batch of ``SAMPLE_DTYPE`` records, as an MTi would send them.
+
+    Each message carries PacketCounter (seq mod 2^16), SampleTimeFine (t_us / 100 mod 2^32),
+    Acceleration and RateOfTurn (or, with ``deltas``, DeltaV and DeltaQ over the interval to the
+    previous sample) and Temperature, in the given precision and coordinate-system flag.
+    """
+    prec = PRECISIONS[precision]
+    flags = prec | COORDINATE_SYSTEMS[coordinate_system]
+    samples = np.asarray(samples, dtype=SAMPLE_DTYPE)
+    out = bytearray()
+    t_s = samples["t_us"].astype(np.float64) / 1e6
+    for i, s in enumerate(samples):
+        payload = encode_item(PACKET_COUNTER, struct.pack(">H", int(s["seq"]) & 0xFFFF))
+        ticks = (int(s["t_us"]) // _US_PER_TICK) & 0xFFFFFFFF
+        payload += encode_item(SAMPLE_TIME_FINE, struct.pack(">I", ticks))
+        acc = [float(v) for v in s["acc"]]
+        gyro = [float(v) for v in s["gyro"]]
+        if deltas:
+            dt = t_s[i] - t_s[i - 1] if i else (t_s[1] - t_s[0] if len(samples) > 1 else 0.01)
+            payload += encode_item(DELTA_V | flags, _encode_values([a * dt for a in acc], prec))
+            payload += encode_item(DELTA_Q | flags, _encode_values(_rate_to_delta_q(gyro, dt), prec))
+        else:
+            payload += encode_item(ACCELERATION | flags, _encode_values(acc, prec))
+            payload += encode_item(RATE_OF_TURN | flags, _encode_values(gyro, prec))
+        if temperature and not math.isnan(float(s["temp"])):
+            payload += encode_item(TEMPERATURE | prec, _encode_values([float(s["temp"])], prec))
+        out += encode_frame(MID_MTDATA2, payload)
+    return bytes(out)
+
+
+def _rate_to_delta_q(rate: list[float], dt: float) -> tuple[float, float, float, float]:
+    """Rotation quaternion of a constant rate over dt: q = (cos(|w|dt/2), sin(|w|dt/2) w/|w|)."""
+    norm = math.sqrt(sum(r * r for r in rate))
+    if norm == 0.0:
+        return (1.0, 0.0, 0.0, 0.0)
+    half = norm * dt / 2.0
+    s = math.sin(half) / norm
+    return (math.cos(half), rate[0] * s, rate[1] * s, rate[2] * s)
+
+
+def _delta_q_to_rate(q: tuple[float, ...], dt: float) -> tuple[float, float, float]:
+    """Mean rate over dt of the rotation quaternion q: angle 2 atan2(|q_v|, q_0) about q_v."""
+    q0, q1, q2, q3 = q
+    if q0 < 0.0:  # the same rotation; keep the angle in [0, pi]
+        q0, q1, q2, q3 = -q0, -q1, -q2, -q3
+    vnorm = math.sqrt(q1 * q1 + q2 * q2 + q3 * q3)
+    if vnorm == 0.0:
+        return (0.0, 0.0, 0.0)
+    k = 2.0 * math.atan2(vnorm, q0) / (vnorm * dt)
+    return (q1 * k, q2 * k, q3 * k)
+
+
+# ---------------------------------------------------------------------------------- packets
+
+
+@dataclass
+class MTData2Packet:
+    """The items of one MTData2 message that the station reads; absent items are None."""
+
+    counter: int | None = None
+    time_fine: int | None = None
+    time_coarse: int | None = None
+    acc: tuple[float, ...] | None = None
+    delta_v: tuple[float, ...] | None = None
+    gyro: tuple[float, ...] | None = None
+    delta_q: tuple[float, ...] | None = None
+    temp: float | None = None
+
+    @property
+    def inertial(self) -> bool:
+        return any(v is not None for v in (self.acc, self.delta_v, self.gyro, self.delta_q))
+
+
+class BadPacket(ValueError):
+    """An MTData2 payload whose items do not fit it or have the wrong size."""
+
+
+def parse_mtdata2(payload: bytes, seen: dict[str, int] | None = None) -> MTData2Packet:
+    """Read the items of an MTData2 payload; unknown items are skipped by their size.
+
+    ``seen`` (optional) counts the items by name, for telling the user what the device sends.
+    Raises ``BadPacket`` when an item runs past the payload or a known item has the wrong size.
+    """
+    packet = MTData2Packet()
+    pos, end = 0, len(payload)
+    view = memoryview(payload)
+    while pos < end:
+        if pos + 3 > end:
+            raise BadPacket(f"item header cut short at byte {pos}")
+        data_id = (payload[pos] << 8) | payload[pos + 1]
+        size = payload[pos + 2]
+        start = pos + 3
+        pos = start + size
+        if pos > end:
+            raise BadPacket(f"item 0x{data_id:04X} of {size} bytes runs past the payload")
+        if seen is not None:
+            name = item_name(data_id)
+            seen[name] = seen.get(name, 0) + 1
+        kind = data_id & TYPE_MASK
+        data = view[start:pos]
+        if kind == PACKET_COUNTER:
+            if size != 2:
+                raise BadPacket(f"PacketCounter of {size} bytes")
+            packet.counter = (data[0] << 8) | data[1]
+        elif kind == SAMPLE_TIME_FINE or kind == SAMPLE_TIME_COARSE:
+            if size != 4:
+                raise BadPacket(f"{DATA_NAMES[kind]} of {size} bytes")
+            value = struct.unpack(">I", data)[0]
+            if kind == SAMPLE_TIME_FINE:
+                packet.time_fine = value
+            else:
+                packet.time_coarse = value
+        elif kind in _VALUE_COUNTS:
+            precision = data_id & PRECISION_MASK
+            count = _VALUE_COUNTS[kind]
+            if size != count * PRECISION_SIZE[precision]:
+                expected = count * PRECISION_SIZE[precision]
+                raise BadPacket(f"{item_name(data_id)} of {size} bytes, expected {expected}")
+            values = _decode_values(data, precision, count)
+            if kind == TEMPERATURE:
+                packet.temp = values[0]
+            elif kind == ACCELERATION or (kind == ACCELERATION_HR and packet.acc is None):
+                packet.acc = values
+            elif kind == DELTA_V:
+                packet.delta_v = values
+            elif kind == RATE_OF_TURN or (kind == RATE_OF_TURN_HR and packet.gyro is None):
+                packet.gyro = values
+            else:
+                packet.delta_q = values
+    return packet
+
+
+class XsensDecoder(StreamDecoderBase):
+    """Incremental decoder of Xbus messages; MTData2 packets with inertial data become samples.
+
+    ``nominal_rate_hz`` dates packets that carry neither SampleTimeFine nor SampleTimeCoarse
+    (``t_us = seq / rate``). ``items_seen`` counts the MTData2 items met, by name.
+    """
+
+    name = "xsens"
+
+    def __init__(self, nominal_rate_hz: float = 100.0) -> None:
+        super().__init__()
+        self.nominal_rate_hz = nominal_rate_hz
+        self.items_seen: dict[str, int] = {}
+        self.message_ids_seen: dict[int, int] = {}
+        self._counter: int | None = None  # unwrapped PacketCounter of the last packet
+        self._skipped = 0  # packets without inertial data so far
+        self._own_seq = 0  # for packets without PacketCounter
+        self._fine: int | None = None  # unwrapped SampleTimeFine of the last packet with one
+        self._last_inertial_ticks: int | None = None
+        self._temp = math.nan
+        self._pending: list[tuple[int, int, MTData2Packet]] = []  # delta packets waiting for an interval
+
+    def feed(self, data: bytes) -> Decoded:
+        buf = self._buf
+        buf += data
+        rows: list[tuple] = []
+        messages: list[Message] = []
+        stats = self.stats
+        pos = 0
+        while True:
+            start = buf.find(SYNC, pos)
+            if start < 0:
+                keep = 1 if buf.endswith(SYNC[:1]) else 0
+                skipped = len(buf) - pos - keep
+                if skipped > 0:
+                    stats.garbage_bytes += skipped
+                    stats.resyncs += 1
+                pos = len(buf) - keep
+                break
+            if start > pos:
+                stats.garbage_bytes += start - pos
+                stats.resyncs += 1
+                pos = start
+            if len(buf) - pos < 4:
+                break
+            length = buf[pos + 3]
+            header = 4
+            if length == EXTENDED_LENGTH:
+                if len(buf) - pos < 6:
+                    break
+                length = (buf[pos + 4] << 8) | buf[pos + 5]
+                header = 6
+                if length > MAX_PAYLOAD:
+                    stats.length_errors += 1
+                    pos = self._skip_candidate(pos)
+                    continue
+            end = pos + header + length + 1
+            if len(buf) < end:
+                break
+            if sum(memoryview(buf)[pos + 1 : end]) & 0xFF:
+                if buf.find(SYNC, pos + 1, end) >= 0:
+                    stats.truncated += 1
+                else:
+                    stats.crc_errors += 1
+                pos = self._skip_candidate(pos)
+                continue
+            msg_id = buf[pos + 2]
+            payload = bytes(buf[pos + header : end - 1])
+            pos = end
+            self.message_ids_seen[msg_id] = self.message_ids_seen.get(msg_id, 0) + 1
+            if msg_id != MID_MTDATA2:
+                stats.frames += 1
+                if msg_id not in MESSAGE_NAMES:
+                    stats.unknown_ids += 1
+                messages.append(Message(msg_id, payload))
+                continue
+            try:
+                packet = parse_mtdata2(payload, self.items_seen)
+            except BadPacket:
+                stats.bad_payloads += 1
+                continue
+            stats.frames += 1
+            if self._on_packet(packet, rows):
+                continue
+            messages.append(Message(msg_id, payload))
+        if pos:
+            del buf[:pos]
+        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        stats.samples += len(samples)
+        return Decoded(samples, messages)
+
+    def _on_packet(self, packet: MTData2Packet, rows: list[tuple]) -> bool:
+        """Track counter, time and temperature; append the sample rows. False: not inertial."""
+        if packet.counter is not None:
+            if self._counter is None:
+                self._counter = packet.counter
+            else:
+                self._counter += (packet.counter - self._counter) & 0xFFFF
+        if packet.time_fine is not None:
+            if self._fine is None:
+                self._fine = packet.time_fine
+            else:
+                # Signed step: GNSS packets carry the older time of their fix, not a wrap.
+                self._fine += ((packet.time_fine - self._fine + 2**31) & 0xFFFFFFFF) - 2**31
+        if packet.temp is not None:
+            self._temp = packet.temp
+        if not packet.inertial:
+            self._skipped += 1
+            return False
+        if packet.counter is not None:
+            seq = (self._counter - self._skipped) & 0xFFFFFFFF
+        else:
+            seq = self._own_seq & 0xFFFFFFFF
+        self._own_seq += 1
+        if packet.time_fine is not None:
+            ticks = self._fine
+        elif packet.time_coarse is not None:
+            ticks = packet.time_coarse * TICKS_PER_SECOND
+        else:
+            ticks = round(seq * TICKS_PER_SECOND / self.nominal_rate_hz)
+        needs_dt = (packet.acc is None and packet.delta_v is not None) or (
+            packet.gyro is None and packet.delta_q is not None)
+        last = self._last_inertial_ticks
+        dt = None if last is None else (ticks - last) / TICKS_PER_SECOND
+        self._last_inertial_ticks = ticks
+        if needs_dt and not dt:
+            self._pending.append((seq, ticks, packet))
+            return True
+        for p_seq, p_ticks, pending in self._pending:
+            rows.append(self._row(p_seq, p_ticks, pending, dt))
+        self._pending.clear()
+        rows.append(self._row(seq, ticks, packet, dt))
+        return True
+
+    def _row(self, seq: int, ticks: int, packet: MTData2Packet, dt: float | None) -> tuple:
+        acc = packet.acc
+        if acc is None:
+            acc = tuple(v / dt for v in packet.delta_v) if packet.delta_v is not None and dt else _NAN3
+        gyro = packet.gyro
+        if gyro is None:
+            gyro = _delta_q_to_rate(packet.delta_q, dt) if packet.delta_q is not None and dt else _NAN3
+        return (seq, ticks * _US_PER_TICK, acc, gyro, self._temp)
+
+    def _skip_candidate(self, pos: int) -> int:
+        self.stats.resyncs += 1
+        nxt = self._buf.find(SYNC, pos + 1)
+        nxt = len(self._buf) if nxt < 0 else nxt
+        self.stats.garbage_bytes += nxt - pos
+        return nxt
+
+    def flush(self) -> Decoded:
+        """End of stream: a frame start left waiting for bytes is truncated; what follows it is
+        decoded, so a false start inside garbage does not hide a good last frame."""
+        batches: list[np.ndarray] = []
+        messages: list[Message] = []
+        while self._buf:
+            if self._buf.startswith(SYNC):
+                self.stats.truncated += 1
+            del self._buf[: self._skip_candidate(0)]
+            out = self.feed(b"")
+            batches.append(out.samples)
+            messages += out.messages
+        # A lone delta packet has no interval to turn it into a rate: it cannot become a sample.
+        if self._pending:
+            self.stats.bad_payloads += len(self._pending)
+            self._pending.clear()
+        return Decoded(np.concatenate(batches) if batches else EMPTY_SAMPLES, messages)
