@@ -12,6 +12,7 @@ from drivers.errors import (
     CommandTimeout,
     CommandUnsupported,
     DriverError,
+    NoSamples,
     PortBusy,
     PortError,
     PortLost,
@@ -31,6 +32,6 @@ def open_device(port: str, protocol: str = "native", baudrate: int = DEFAULT_BAU
 
 __all__ = [
     "CommandError", "CommandRejected", "CommandTimeout", "CommandUnsupported", "Device", "DriverError",
-    "LinkStats", "PortBusy", "PortError", "PortLost", "PortNotFound", "PortPermission", "SerialDevice",
-    "open_device",
+    "LinkStats", "NoSamples", "PortBusy", "PortError", "PortLost", "PortNotFound", "PortPermission",
+    "DEFAULT_BAUDRATE", "SerialDevice", "open_device",
 ]

@@ -11,6 +11,7 @@ themselves (``exit_code = 3``: device or link) and the CLI treats them like its 
      │    ├── PortBusy             another program holds the port
      │    └── PortPermission       the user may not open it
      ├── PortLost                  the port went away while open (unplugged, simulator stopped)
+     ├── NoSamples                 the port is open but no sample arrives
      └── CommandError             a command to the device failed
           ├── CommandTimeout       no answer in time
           ├── CommandRejected      the device answered with an error status
@@ -48,6 +49,10 @@ class PortPermission(PortError):
 
 class PortLost(DriverError):
     """The port disappeared while open. Every sample received before it is still delivered."""
+
+
+class NoSamples(DriverError):
+    """The port is open but no sample frame arrives (unit stopped, wrong baud rate or protocol)."""
 
 
 class CommandError(DriverError):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import gzip
 import io
 import math
+import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -17,7 +18,7 @@ from typing import IO
 import numpy as np
 
 from station.acquisition.capture import Capture
-from station.errors import InputFileError
+from station.errors import InputFileError, OutputFileError
 
 REQUIRED = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 OPTIONAL_NUMERIC = ("temp", "dtemp")
@@ -31,7 +32,8 @@ def _open_text(path: Path) -> IO[str]:
     return open(path, encoding="utf-8", newline="")
 
 
-def _locate_bad_value(path: Path, lines: list[str], first_line: int, columns: dict[str, int]) -> InputFileError:
+def _locate_bad_value(path: Path, lines: list[str], first_line: int,
+                      columns: dict[str, int]) -> InputFileError:
     """Slow path, only after the fast parse failed: find the first bad cell and name it."""
     for offset, line in enumerate(lines):
         cells = line.rstrip("\r\n").split(",")
@@ -100,7 +102,8 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
             for n in REQUIRED:
                 bad = np.flatnonzero(~np.isfinite(cols[n]))
                 if len(bad):
-                    raise InputFileError(path, "value is not a finite number", line=first + int(bad[0]), column=n)
+                    raise InputFileError(path, "value is not a finite number", line=first + int(bad[0]),
+                                         column=n)
             t = cols["t"]
             steps = np.diff(np.concatenate([[last_t], t]))
             bad = np.flatnonzero(steps <= 0)
@@ -146,7 +149,8 @@ def read_csv(path: str | Path) -> Capture:
 class CsvWriter:
     """Appends sample batches to a capture CSV; the caller owns the file handle."""
 
-    def __init__(self, fh: IO[str], with_temp: bool = True, with_dtemp: bool = False, with_step: bool = False):
+    def __init__(self, fh: IO[str], with_temp: bool = True, with_dtemp: bool = False,
+                 with_step: bool = False):
         self.fh = fh
         self.columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
         if with_temp:
@@ -183,3 +187,60 @@ def write_csv(path: str | Path, capture: Capture) -> None:
         w = CsvWriter(fh, with_temp=capture.temp is not None, with_dtemp=capture.dtemp is not None,
                       with_step=capture.step is not None)
         w.write(capture.t, capture.acc, capture.gyro, capture.temp, capture.dtemp, capture.step)
+
+
+class CsvCaptureWriter:
+    """Streams sample batches (``protocols.base.SAMPLE_DTYPE``) into a capture CSV at ``path``.
+
+    Written in place, not atomically, so a capture cut short keeps everything written so far.
+    Every batch goes to the OS in whole rows; if a write fails (disk full), the file is cut back
+    to the last whole batch so it stays a valid capture CSV, and :class:`OutputFileError` says how
+    much was kept. ``t`` is the device clock in seconds (``t_us`` / 1e6, microsecond resolution).
+    """
+
+    def __init__(self, path: str | Path, with_step: bool = False):
+        self.path = Path(path)
+        self.rows = 0
+        self._text = io.StringIO()
+        self._csv = CsvWriter(self._text, with_temp=True, with_step=with_step)
+        try:
+            self._fh = open(self.path, "wb", buffering=0)
+        except OSError as exc:
+            raise OutputFileError(self.path, f"cannot be created: {exc.strerror}; choose another path"
+                                  ) from None
+        self._good_size = 0
+        self._commit()
+
+    def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
+        if len(samples) == 0:
+            return
+        t = samples["t_us"] * 1e-6
+        self._csv.write(t, samples["acc"], samples["gyro"], samples["temp"], step=step)
+        self._commit()
+        self.rows += len(samples)
+
+    def _commit(self) -> None:
+        data = self._text.getvalue().encode("utf-8")
+        self._text.seek(0)
+        self._text.truncate()
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[self._fh.write(view):]
+        except OSError as exc:
+            self._fh.truncate(self._good_size)
+            self._fh.close()
+            raise OutputFileError(self.path, f"writing failed: {exc.strerror}; the file keeps the first "
+                                  f"{self.rows} samples and stays a valid capture; free space and capture "
+                                  f"again") from None
+        self._good_size += len(data)
+
+    def flush(self) -> None:
+        """Make what was written durable (the rows already reached the OS with each batch)."""
+        if not self._fh.closed:
+            os.fsync(self._fh.fileno())
+
+    def close(self, link: dict | None = None) -> None:
+        """Close the file; ``link`` (link statistics) has no place in a CSV and is ignored."""
+        if not self._fh.closed:
+            self._fh.close()

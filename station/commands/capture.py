@@ -1,0 +1,147 @@
+"""``imu-station capture``: record a unit's samples into a capture CSV or an HDF5 capture file."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import IO
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from drivers import (
+    DEFAULT_BAUDRATE,
+    CommandTimeout,
+    CommandUnsupported,
+    Device,
+    LinkStats,
+    PortLost,
+    open_device,
+)
+from protocols.registry import DECODERS
+from station.acquisition.recorder import CaptureResult, record
+from station.cli import EXIT_INTERRUPTED
+
+NAME = "capture"
+HELP = "record samples from a unit (serial port, pty or sim://) into a CSV or HDF5 capture file"
+DESCRIPTION = """\
+Record the samples a unit streams into a capture file: the capture CSV (t is the device clock in
+seconds) or, when FILE ends in .h5 or .hdf5, the station's HDF5 capture file (with the unit's info
+and the link statistics). It runs until --duration seconds of device clock, Ctrl-C, or the link
+breaks; in every case the file keeps every sample received. A status line on stderr shows the
+rate, samples, damaged frames and lost samples.
+
+exit codes: 0 done, 3 device or link error (after saving what was received), 4 usage,
+130 interrupted by Ctrl-C (after saving)."""
+EPILOG = """\
+examples:
+  imu-station capture --port /dev/ttyUSB0 --duration 60 -o still.csv
+  imu-station capture --port sim:// --rate 400 --duration 10 -o sim.h5"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", required=True,
+                        help="serial device path (/dev/ttyUSB0, a pty), or pyserial URL (sim://, loop://)")
+    parser.add_argument("--protocol", default="native", choices=sorted(DECODERS),
+                        help="wire protocol of the unit (default: native)")
+    parser.add_argument("--duration", type=_positive_float, metavar="S",
+                        help="seconds of device clock to record (default: until Ctrl-C)")
+    parser.add_argument("--rate", type=int, metavar="HZ", help="set the unit's output rate first (SET_RATE)")
+    parser.add_argument("--baud", type=int, default=DEFAULT_BAUDRATE,
+                        help=f"line speed of a real serial port (default: {DEFAULT_BAUDRATE})")
+    parser.add_argument("-o", "--output", required=True, type=Path, metavar="FILE",
+                        help="capture file to write: .csv, or .h5/.hdf5 for the HDF5 capture file")
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:
+    """Ask the unit who it is, set its rate if asked, and start it if it does not stream yet.
+
+    A unit that does not answer GET_INFO or START_STREAM is still recorded (a warning says so):
+    a device streams from power-up. A refused or unanswered SET_RATE is an error.
+    """
+    try:
+        info = device.get_info(timeout=0.5, retries=1)
+        print(f"unit: {info.get('model', '?')} serial {info.get('serial', '?')} firmware "
+              f"{info.get('firmware', '?')} at {info.get('rate_hz', '?')} Hz", file=err)
+    except CommandUnsupported:
+        return
+    except CommandTimeout as exc:
+        print(f"warning: {exc}; recording without the unit's info", file=err)
+    if rate_hz is not None:
+        device.set_rate(rate_hz)
+    if device.stats.samples == 0:
+        try:
+            device.start()
+        except CommandTimeout as exc:
+            print(f"warning: {exc}; recording what it sends", file=err)
+
+
+def capture_to_file(port: str, output: Path, protocol: str = "native", duration_s: float | None = None,
+                    rate_hz: int | None = None, baudrate: int = DEFAULT_BAUDRATE,
+                    err: IO[str] | None = None) -> CaptureResult:
+    """Open the unit at ``port``, prepare it, and record into ``output`` with a live status line."""
+    err = err if err is not None else sys.stderr
+    with open_device(port, protocol=protocol, baudrate=baudrate) as device:
+        try:
+            prepare_device(device, rate_hz, err)
+        except PortLost:
+            pass  # record() saves what arrived before the loss, then reports it
+        with _StatusLine(err, duration_s) as status:
+            return record(device, output, duration_s=duration_s, on_status=status.update)
+
+
+class _StatusLine:
+    """A live line on stderr: progress (with --duration), rate, samples, errors, lost."""
+
+    def __init__(self, err: IO[str], duration_s: float | None):
+        self._progress = Progress(
+            TextColumn("capturing"), BarColumn(), TextColumn("{task.fields[status]}"), TimeElapsedColumn(),
+            console=Console(file=err), transient=False,
+        )
+        self._task = self._progress.add_task("capture", total=duration_s, status="waiting for samples")
+
+    def __enter__(self) -> _StatusLine:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._progress.stop()
+
+    def update(self, stats: LinkStats, rows: int, device_time_s: float) -> None:
+        self._progress.update(self._task, completed=device_time_s, status=_status_text(stats, rows))
+
+
+def _status_text(stats: LinkStats, rows: int) -> str:
+    return (f"{stats.rate_hz:7.1f} Hz  {rows} samples  {stats.errors} errors  {stats.lost} lost"
+            + (f"  {stats.overflow_drops} dropped" if stats.overflow_drops else ""))
+
+
+def report(result: CaptureResult, out: IO[str]) -> None:
+    """The summary printed after a capture: where the samples went and how the link fared."""
+    link = result.link
+    print(f"wrote {result.rows} samples ({result.device_time_s:.3f} s of device clock) to {result.path}",
+          file=out)
+    print(f"link: {link.summary()}, {link.bytes} bytes", file=out)
+    if result.non_increasing:
+        print(f"left out {result.non_increasing} samples whose device time did not increase", file=out)
+
+
+def run(args: argparse.Namespace) -> int:
+    result = capture_to_file(args.port, args.output, protocol=args.protocol, duration_s=args.duration,
+                             rate_hz=args.rate, baudrate=args.baud)
+    report(result, sys.stdout)
+    if result.error is not None:
+        print(f"imu-station capture: error: {result.error}", file=sys.stderr)
+        return result.error.exit_code
+    if result.ended_by == "interrupted":
+        print("imu-station capture: interrupted; the file keeps every sample received", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0
