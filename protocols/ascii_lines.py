@@ -1,0 +1,419 @@
+"""Text protocols, one sample a line: configurable CSV, PJRC MotionCal ``Raw:``/``Uni:`` and
+VectorNav ``$VNYMR``/``$VNIMU`` sentences.
+
+Lines end in ``\\n``, ``\\r`` or both. Each line is recognised by its start:
+
+- ``Raw:ax,ay,az,gx,gy,gz,mx,my,mz`` (integers; the scales MotionCal assumes): accelerometer
+  8192 counts per g (g = 9.80665 m/s^2), gyroscope 16 counts per deg/s, magnetometer 10 counts
+  per uT (ignored);
+- ``Uni:`` with the same nine fields as decimals in m/s^2, rad/s and uT (Adafruit's sketches);
+- ``$VNYMR,yaw,pitch,roll,mx,my,mz,ax,ay,az,gx,gy,gz*CS`` (m/s^2, rad/s) and
+  ``$VNIMU,mx,my,mz,ax,ay,az,gx,gy,gz,temp,pressure*CS`` (temp degC), where CS is the XOR of
+  the bytes between ``$`` and ``*`` as two hex digits, or their CRC-16 (XMODEM) as four;
+  a counter or status the device appends (``,T...``, ``,S...``) is ignored;
+- any other line is CSV in the configured columns (``parse_columns``).
+
+These formats carry no sample counter and, except CSV with a time column, no device clock:
+``seq`` counts the samples and ``t_us`` is ``seq / rate_hz`` at the nominal rate given.
+A line longer than ``max_line`` bytes is dropped (``length_errors``); a line whose numbers are
+malformed or implausible (beyond ``max_acc``, ``max_gyro``, ``temp_range``, or not finite) is a
+``bad_payloads`` error; a sentence with a wrong checksum is a ``crc_errors`` error. Lines of
+text that hold no numbers (banners, headers) are returned as messages.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+from protocols.crc import crc16_ccitt_false
+
+STANDARD_GRAVITY = 9.80665
+MOTIONCAL_ACC_PER_G = 8192.0
+MOTIONCAL_GYRO_PER_DPS = 16.0
+MOTIONCAL_MAG_PER_UT = 10.0
+
+# Message ids of the lines returned as messages (Message.msg_id), by kind of line.
+MSG_TEXT = 0
+MSG_VECTORNAV = 1
+MSG_MOTIONCAL = 2
+
+UNITS = {
+    "t": {"s": 1.0, "ms": 1e-3, "us": 1e-6},
+    "acc": {"m/s^2": 1.0, "mps2": 1.0, "g": STANDARD_GRAVITY, "mg": STANDARD_GRAVITY * 1e-3},
+    "gyro": {"rad/s": 1.0, "rads": 1.0, "dps": math.pi / 180.0, "deg/s": math.pi / 180.0, "mrad/s": 1e-3},
+    "temp": {"degc": 1.0, "c": 1.0, "cdegc": 0.01},
+    "seq": {"": 1.0},
+}
+FIELDS = {"t": "t", "seq": "seq", "ax": "acc", "ay": "acc", "az": "acc", "gx": "gyro", "gy": "gyro",
+          "gz": "gyro", "temp": "temp"}
+SKIP = "_"
+DEFAULT_COLUMNS = "t,ax,ay,az,gx,gy,gz,temp"
+
+
+@dataclass(frozen=True)
+class CsvColumns:
+    """Names of the CSV fields (``_`` for an ignored one) and the factor to SI of each."""
+
+    names: tuple[str, ...]
+    scales: tuple[float, ...]
+    delimiter: str = ","
+
+    def describe(self) -> str:
+        return self.delimiter.join(n if s == 1.0 else f"{n}*{s:g}" for n, s in zip(self.names, self.scales,
+                                                                                      strict=True))
+
+
+def parse_columns(spec: str, delimiter: str = ",") -> CsvColumns:
+    """Read a column spec: comma-separated ``name[:unit]``, ``_`` for a field to ignore.
+
+    Names: t, seq, ax, ay, az, gx, gy, gz, temp. Units: t in s, ms, us; accelerations in m/s^2
+    (or mps2), g, mg; rates in rad/s (or rads), dps (or deg/s), mrad/s; temp in degC, cdegC;
+    or a number, the factor to SI. Example: ``t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``.
+    Raises ``ValueError`` naming the item it cannot read.
+    """
+    names, scales = [], []
+    for item in spec.split(","):
+        name, _, unit = item.strip().partition(":")
+        name, unit = name.strip().lower(), unit.strip()
+        if name == SKIP:
+            names.append(SKIP)
+            scales.append(1.0)
+            continue
+        if name not in FIELDS:
+            raise ValueError(f"unknown column {name!r} in {spec!r}; known: {', '.join(FIELDS)} and _ to skip")
+        if name in names:
+            raise ValueError(f"column {name!r} appears twice in {spec!r}")
+        table = UNITS[FIELDS[name]]
+        if not unit:
+            scale = 1.0
+        elif unit.lower() in table:
+            scale = table[unit.lower()]
+        else:
+            try:
+                scale = float(unit)
+            except ValueError:
+                raise ValueError(f"unknown unit {unit!r} for column {name!r}; use one of "
+                                 f"{', '.join(u for u in table if u)} or a number") from None
+        names.append(name)
+        scales.append(scale)
+    missing = [n for n in ("ax", "ay", "az", "gx", "gy", "gz") if n not in names]
+    if missing:
+        raise ValueError(f"column spec {spec!r} lacks {', '.join(missing)}")
+    return CsvColumns(tuple(names), tuple(scales), delimiter)
+
+
+def nmea_xor(body: bytes) -> int:
+    """XOR of the bytes between ``$`` and ``*`` (the VectorNav 8-bit checksum)."""
+    value = 0
+    for b in body:
+        value ^= b
+    return value
+
+
+def vectornav_sentence(body: str, crc16: bool = False) -> bytes:
+    """``$`` + body + ``*`` + checksum + CRLF."""
+    raw = body.encode("ascii")
+    cs = f"{crc16_ccitt_false(raw, 0):04X}" if crc16 else f"{nmea_xor(raw):02X}"
+    return b"$" + raw + b"*" + cs.encode("ascii") + b"\r\n"
+
+
+class _Reject(ValueError):
+    """A line that cannot be a sample; ``kind`` names the counter it lands in."""
+
+    def __init__(self, kind: str):
+        super().__init__(kind)
+        self.kind = kind
+
+
+_LINE_END = re.compile(rb"[\r\n]")
+
+
+class AsciiDecoder(StreamDecoderBase):
+    """Incremental decoder of text lines (see the module docstring for the formats).
+
+    ``kinds_seen`` counts the lines by kind (``csv``, ``motioncal``, ``vectornav``, ``text``).
+    """
+
+    name = "ascii"
+
+    def __init__(
+        self,
+        columns: str | CsvColumns = DEFAULT_COLUMNS,
+        rate_hz: float = 100.0,
+        max_line: int = 512,
+        max_acc: float = 40 * STANDARD_GRAVITY,
+        max_gyro: float = 40.0,
+        temp_range: tuple[float, float] = (-60.0, 150.0),
+    ) -> None:
+        super().__init__()
+        self.columns = parse_columns(columns) if isinstance(columns, str) else columns
+        self.rate_hz = rate_hz
+        self.max_line = max_line
+        self.max_acc = max_acc
+        self.max_gyro = max_gyro
+        self.temp_range = temp_range
+        self.kinds_seen: dict[str, int] = {}
+        self._count = 0
+        self._first_line = True  # the stream may start in the middle of a line
+        self._discarding = False  # inside an over-long line, until its end
+
+    def feed(self, data: bytes) -> Decoded:
+        buf = self._buf
+        buf += data
+        rows: list[tuple] = []
+        messages: list[Message] = []
+        pos = 0
+        while True:
+            m = _LINE_END.search(buf, pos)
+            if m is None:
+                if len(buf) - pos > self.max_line:
+                    self._too_long(len(buf) - pos)
+                    self._discarding = True
+                    pos = len(buf)
+                break
+            line = bytes(buf[pos : m.start()])
+            pos = m.end()
+            if self._discarding:
+                self.stats.garbage_bytes += len(line)
+                self._discarding = False
+                self._first_line = False
+                continue
+            if len(line) > self.max_line:
+                self._too_long(len(line))
+                self._first_line = False
+                continue
+            if line:
+                self._line(line, rows, messages)
+        if pos:
+            del buf[:pos]
+        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        self.stats.samples += len(samples)
+        return Decoded(samples, messages)
+
+    def flush(self) -> Decoded:
+        """End of stream: a last line without its end of line is still read."""
+        rows: list[tuple] = []
+        messages: list[Message] = []
+        if self._buf and not self._discarding:
+            self._line(bytes(self._buf), rows, messages)
+        elif self._buf:
+            self.stats.garbage_bytes += len(self._buf)
+        self._buf.clear()
+        self._discarding = False
+        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        self.stats.samples += len(samples)
+        return Decoded(samples, messages)
+
+    def _too_long(self, n: int) -> None:
+        if not self._discarding:
+            self.stats.length_errors += 1
+            self.stats.resyncs += 1
+        self.stats.garbage_bytes += n
+
+    def _line(self, line: bytes, rows: list[tuple], messages: list[Message]) -> None:
+        first, self._first_line = self._first_line, False
+        stats = self.stats
+        try:
+            text = line.decode("ascii").strip()
+        except UnicodeDecodeError:
+            stats.garbage_bytes += len(line)
+            stats.resyncs += 1
+            return
+        if not text:
+            return
+        try:
+            if text.startswith(("Raw:", "Uni:")):
+                kind, values = "motioncal", self._motioncal(text)
+            elif text.startswith("$VN"):
+                kind, values = "vectornav", self._vectornav(text)
+                if values is None:
+                    self._seen("vectornav")
+                    stats.frames += 1
+                    messages.append(Message(MSG_VECTORNAV, line))
+                    return
+            else:
+                kind, values = "csv", self._csv(text)
+                if values is None:
+                    self._seen("text")
+                    stats.frames += 1
+                    stats.unknown_ids += 1
+                    messages.append(Message(MSG_TEXT, line))
+                    return
+            row = self._row(*values)
+        except _Reject as reject:
+            if first:  # most likely the tail of a line sent before we listened
+                stats.garbage_bytes += len(line)
+                stats.resyncs += 1
+            else:
+                setattr(stats, reject.kind, getattr(stats, reject.kind) + 1)
+            return
+        self._seen(kind)
+        stats.frames += 1
+        rows.append(row)
+
+    def _seen(self, kind: str) -> None:
+        self.kinds_seen[kind] = self.kinds_seen.get(kind, 0) + 1
+
+    @staticmethod
+    def _numbers(fields: list[str], cast=float) -> list:
+        try:
+            return [cast(f) for f in fields]
+        except ValueError:
+            raise _Reject("bad_payloads") from None
+
+    def _motioncal(self, text: str) -> tuple:
+        fields = text[4:].split(",")
+        if len(fields) != 9:
+            raise _Reject("bad_payloads")
+        if text.startswith("Raw:"):
+            v = self._numbers(fields, int)
+            acc = [x * STANDARD_GRAVITY / MOTIONCAL_ACC_PER_G for x in v[0:3]]
+            gyro = [math.radians(x / MOTIONCAL_GYRO_PER_DPS) for x in v[3:6]]
+        else:
+            v = self._numbers(fields)
+            acc, gyro = v[0:3], v[3:6]
+        return None, None, acc, gyro, math.nan
+
+    def _vectornav(self, text: str) -> tuple | None:
+        body, star, cs = text[1:].partition("*")
+        if not star or len(cs) not in (2, 4):
+            raise _Reject("bad_payloads")
+        raw = body.encode("ascii")
+        try:
+            expected = int(cs, 16)
+        except ValueError:
+            raise _Reject("bad_payloads") from None
+        actual = nmea_xor(raw) if len(cs) == 2 else crc16_ccitt_false(raw, 0)
+        if actual != expected:
+            raise _Reject("crc_errors")
+        fields = body.split(",")
+        head, fields = fields[0], fields[1:]
+        # SerialCount / SerialStatus append ",T<count>" / ",S<status>" before the checksum.
+        while fields and fields[-1][:1] in ("T", "S"):
+            fields.pop()
+        if head == "VNYMR":
+            if len(fields) != 12:
+                raise _Reject("bad_payloads")
+            v = self._numbers(fields)
+            return None, None, v[6:9], v[9:12], math.nan
+        if head == "VNIMU":
+            if len(fields) != 11:
+                raise _Reject("bad_payloads")
+            v = self._numbers(fields)
+            return None, None, v[3:6], v[6:9], v[9]
+        return None
+
+    def _csv(self, text: str) -> tuple | None:
+        cols = self.columns
+        fields = [f.strip() for f in text.split(cols.delimiter)]
+        if not any(_is_number(f) for f in fields):
+            return None
+        if len(fields) != len(cols.names):
+            raise _Reject("bad_payloads")
+        got: dict[str, float] = {}
+        for name, scale, field in zip(cols.names, cols.scales, fields, strict=True):
+            if name == SKIP:
+                continue
+            try:
+                got[name] = float(field) * scale
+            except ValueError:
+                raise _Reject("bad_payloads") from None
+        seq = got.get("seq")
+        if seq is not None and not (math.isfinite(seq) and seq >= 0):
+            raise _Reject("bad_payloads")
+        t = got.get("t")
+        if t is not None and not (math.isfinite(t) and t >= 0):
+            raise _Reject("bad_payloads")
+        return (None if seq is None else int(seq), t, [got["ax"], got["ay"], got["az"]],
+                [got["gx"], got["gy"], got["gz"]], got.get("temp", math.nan))
+
+    def _row(self, seq: int | None, t: float | None, acc, gyro, temp: float) -> tuple:
+        if not all(math.isfinite(a) and abs(a) <= self.max_acc for a in acc):
+            raise _Reject("bad_payloads")
+        if not all(math.isfinite(g) and abs(g) <= self.max_gyro for g in gyro):
+            raise _Reject("bad_payloads")
+        if not math.isnan(temp) and not self.temp_range[0] <= temp <= self.temp_range[1]:
+            raise _Reject("bad_payloads")
+        n = self._count
+        self._count += 1
+        seq = n if seq is None else seq
+        t_us = round(n * 1e6 / self.rate_hz) if t is None else round(t * 1e6)
+        return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+# ---------------------------------------------------------------------------------- encoders
+
+
+def encode_csv(samples: np.ndarray, columns: str | CsvColumns = DEFAULT_COLUMNS) -> bytes:
+    """CSV lines of a ``SAMPLE_DTYPE`` batch in the given columns (values divided by their scale)."""
+    cols = parse_columns(columns) if isinstance(columns, str) else columns
+    values = {
+        "seq": samples["seq"].astype(np.float64), "t": samples["t_us"].astype(np.float64) / 1e6,
+        "ax": samples["acc"][:, 0], "ay": samples["acc"][:, 1], "az": samples["acc"][:, 2],
+        "gx": samples["gyro"][:, 0], "gy": samples["gyro"][:, 1], "gz": samples["gyro"][:, 2],
+        "temp": samples["temp"],
+    }
+    lines = []
+    for i in range(len(samples)):
+        fields = []
+        for name, scale in zip(cols.names, cols.scales, strict=True):
+            if name == SKIP:
+                fields.append("0")
+            elif name == "seq":
+                fields.append(str(int(samples["seq"][i])))
+            else:
+                fields.append(f"{float(values[name][i]) / scale:.9g}")
+        lines.append(cols.delimiter.join(fields))
+    return ("\r\n".join(lines) + "\r\n").encode("ascii") if lines else b""
+
+
+def encode_motioncal(samples: np.ndarray, mag_ut: tuple[float, float, float] = (20.0, 0.0, -40.0)) -> bytes:
+    """``Raw:`` lines at MotionCal's scales (rounded to whole counts), a constant field."""
+    acc = np.rint(samples["acc"].astype(np.float64) / STANDARD_GRAVITY * MOTIONCAL_ACC_PER_G).astype(np.int64)
+    gyro = np.rint(np.degrees(samples["gyro"].astype(np.float64)) * MOTIONCAL_GYRO_PER_DPS).astype(np.int64)
+    mag = ",".join(str(round(m * MOTIONCAL_MAG_PER_UT)) for m in mag_ut)
+    return "".join(
+        f"Raw:{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},{mag}\r\n" for a, g in zip(acc, gyro, strict=True)
+    ).encode("ascii")
+
+
+def encode_vectornav(samples: np.ndarray, sentence: str = "VNYMR", crc16: bool = False) -> bytes:
+    """``$VNYMR`` (zero attitude and field) or ``$VNIMU`` sentences, in VectorNav's number formats."""
+    out = bytearray()
+    for s in samples:
+        acc = ",".join(f"{float(v):+07.3f}" for v in s["acc"])
+        gyro = ",".join(f"{float(v):+09.6f}" for v in s["gyro"])
+        if sentence == "VNYMR":
+            body = f"VNYMR,+000.000,+000.000,+000.000,+0.0000,+0.0000,+0.0000,{acc},{gyro}"
+        elif sentence == "VNIMU":
+            temp = float(s["temp"]) if math.isfinite(float(s["temp"])) else 0.0
+            body = f"VNIMU,+0.0000,+0.0000,+0.0000,{acc},{gyro},{temp:+05.1f},+101.325"
+        else:
+            raise ValueError(f"unknown VectorNav sentence {sentence!r}; use VNYMR or VNIMU")
+        out += vectornav_sentence(body, crc16)
+    return bytes(out)
+
+
+def encode_samples(samples: np.ndarray, kind: str = "csv") -> bytes:
+    """Lines of one kind: ``csv`` (the default columns), ``motioncal``, ``vnymr`` or ``vnimu``."""
+    samples = np.asarray(samples, dtype=SAMPLE_DTYPE)
+    if kind == "csv":
+        return encode_csv(samples)
+    if kind == "motioncal":
+        return encode_motioncal(samples)
+    if kind in ("vnymr", "vnimu"):
+        return encode_vectornav(samples, kind.upper())
+    raise ValueError(f"unknown line kind {kind!r}; use csv, motioncal, vnymr or vnimu")
