@@ -1,0 +1,194 @@
+"""The simulated device: a state machine fed host bytes, producing samples for elapsed time.
+
+It speaks the native protocol (``shared/specs/native-protocol.md``): it streams from power-up,
+answers GET_INFO with DEVICE_INFO, SET_RATE / START_STREAM / STOP_STREAM with ACK, and
+unknown commands with ACK status 1. Time is the device clock in seconds since power-up, given
+by whoever serves the device (a pty thread, the ``sim://`` port): ``produce(t)`` returns every
+sample due at or before t; sample k is due at its own timestamp (an absolute schedule).
+
+What the unit feels comes from a scenario (a list of rig segments, looped or held at the end)
+and can be driven live with :meth:`SimDevice.set_pose`, :meth:`SimDevice.rotate` and
+:meth:`SimDevice.command`: the hook a simulated operator or turntable uses.
+
+Sample encoders are pluggable: ``ENCODERS[name](samples) -> bytes`` for a batch of
+``SAMPLE_DTYPE`` records; other wire protocols register theirs here.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import threading
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from mocks.rig import (
+    Move,
+    Rotation,
+    Segment,
+    Static,
+    Timeline,
+    UnitSampler,
+    handheld_session,
+    sequence_segments,
+)
+from mocks.truth import UnitTruth
+from protocols import native
+from protocols.base import SAMPLE_DTYPE
+
+ENCODERS: dict[str, Callable[[np.ndarray], bytes]] = {"native": native.encode_samples}
+
+MIN_RATE_HZ = 1
+MAX_RATE_HZ = 4000
+
+
+def _still() -> list[Segment]:
+    return [Static("+z", 1.0)]
+
+
+# name -> (segments for a seed, loop). "still" holds +z forever (labelled +z throughout).
+SCENARIOS: dict[str, tuple[Callable[[int], list[Segment]], bool]] = {
+    "still": (lambda seed: _still(), False),
+    "six-position": (lambda seed: sequence_segments("six-position"), True),
+    "twelve-position": (lambda seed: sequence_segments("twelve-position"), True),
+    "six-position-static": (lambda seed: sequence_segments("six-position", rotations=False), True),
+    "handheld": (lambda seed: handheld_session(n_poses=20, seed=seed, hold_s=3.0, initial_still_s=10.0),
+                 True),
+}
+
+
+def scenario_timeline(scenario: str | Sequence[Segment], seed: int = 0, loop: bool | None = None) -> Timeline:
+    """The motion of a named scenario (``SCENARIOS``) or of a list of segments."""
+    if isinstance(scenario, str):
+        if scenario not in SCENARIOS:
+            raise ValueError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
+        make, default_loop = SCENARIOS[scenario]
+        segments = make(seed)
+        if scenario == "still":
+            timeline = Timeline(segments, loop=False)
+            timeline.pieces[-1].label = "+z"
+            return timeline
+        return Timeline(segments, loop=default_loop if loop is None else loop)
+    return Timeline(list(scenario), loop=bool(loop))
+
+
+class SimDevice:
+    """The simulated unit behind a serial link. Thread-safe: one lock around the state.
+
+    Parameters
+    ----------
+    truth : the unit (default ``UnitTruth.random(seed)``).
+    seed : seeds the unit (when ``truth`` is None), the noise and the hand-held scenario.
+    rate_hz : sample rate at power-up.
+    scenario : a name of ``SCENARIOS`` or a list of rig segments.
+    loop : repeat the scenario (default: per scenario; lists hold their last pose).
+    temperature : a temperature profile over device time (default 25 degC).
+    encoder : name in ``ENCODERS`` of the sample wire format.
+    """
+
+    def __init__(self, truth: UnitTruth | None = None, *, seed: int = 0, rate_hz: float = 200.0,
+                 scenario: str | Sequence[Segment] = "still", loop: bool | None = None,
+                 temperature: Callable[[np.ndarray], np.ndarray] | None = None,
+                 encoder: str = "native", temp_noise_degc: float = 0.01):
+        if encoder not in ENCODERS:
+            raise ValueError(f"unknown encoder {encoder!r}; known: {', '.join(ENCODERS)}")
+        if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
+            raise ValueError(f"rate {rate_hz} Hz is outside {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
+        self.truth = truth if truth is not None else UnitTruth.random(seed)
+        self.encoder_name = encoder
+        self.encode_samples = ENCODERS[encoder]
+        self.timeline = scenario_timeline(scenario, seed, loop)
+        self.sampler = UnitSampler(self.truth, self.timeline, rate_hz, seed, temperature, temp_noise_degc)
+        self.streaming = True
+        self.seq = 0
+        self.commands: dict[str, int] = {}
+        self._decoder = native.NativeDecoder()
+        self._lock = threading.RLock()
+
+    @property
+    def rate_hz(self) -> float:
+        return self.sampler.rate_hz
+
+    def info(self) -> dict[str, object]:
+        info = self.truth.device_info(self.rate_hz)
+        rate = self.rate_hz
+        info["rate_hz"] = int(rate) if float(rate).is_integer() else rate
+        return info
+
+    def next_due_s(self) -> float:
+        """Device time at which the next sample is due."""
+        with self._lock:
+            return self.sampler.time_of(self.sampler.count)
+
+    # --- host commands -----------------------------------------------------------------
+
+    def feed(self, data: bytes) -> bytes:
+        """Bytes from the host in; the device's answers out (frames, in command order)."""
+        with self._lock:
+            decoded = self._decoder.feed(data)
+            return b"".join(self._answer(m.msg_id, m.payload) for m in decoded.messages)
+
+    def _answer(self, msg_id: int, payload: bytes) -> bytes:
+        name = {native.GET_INFO: "GET_INFO", native.SET_RATE: "SET_RATE", native.START_STREAM: "START_STREAM",
+                native.STOP_STREAM: "STOP_STREAM"}.get(msg_id, f"0x{msg_id:02x}")
+        self.commands[name] = self.commands.get(name, 0) + 1
+        if msg_id == native.GET_INFO:
+            return native.encode_device_info(self.info())
+        if msg_id == native.SET_RATE:
+            if len(payload) != 2:
+                return native.encode_ack(msg_id, native.ACK_BAD_ARGUMENT)
+            (rate,) = struct.unpack("<H", payload)
+            if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+                return native.encode_ack(msg_id, native.ACK_BAD_ARGUMENT)
+            self.sampler.set_rate(rate)
+            return native.encode_ack(msg_id)
+        if msg_id in (native.START_STREAM, native.STOP_STREAM):
+            self.streaming = msg_id == native.START_STREAM
+            return native.encode_ack(msg_id)
+        if msg_id in (native.IMU_SAMPLE, native.DEVICE_INFO, native.ACK):
+            return b""  # device-to-host messages echoed back by the host: not commands
+        return native.encode_ack(msg_id, native.ACK_UNKNOWN)
+
+    # --- samples ---------------------------------------------------------------------------
+
+    def due_count(self, t_s: float) -> int:
+        """How many samples fall due at or before device time ``t_s`` and are not produced yet."""
+        s = self.sampler
+        last = s._k_base + math.floor((t_s - s._t_base) * s.rate_hz + 1e-9)
+        return max(0, last + 1 - s.count)
+
+    def produce(self, t_s: float, max_samples: int | None = None) -> np.ndarray:
+        """Every sample due at or before ``t_s`` (``SAMPLE_DTYPE``). While streaming is stopped the
+        unit still runs (time, motion and noise go on) but nothing is returned and seq holds."""
+        with self._lock:
+            n = self.due_count(t_s)
+            if max_samples is not None:
+                n = min(n, max_samples)
+            if n == 0:
+                return np.zeros(0, dtype=SAMPLE_DTYPE)
+            rec = self.sampler.next(n)
+            self.timeline.prune(float(rec.t[0]))
+            if not self.streaming:
+                return np.zeros(0, dtype=SAMPLE_DTYPE)
+            samples = rec.samples()
+            samples["seq"] = (self.seq + np.arange(n)) % (1 << 32)
+            self.seq = (self.seq + n) % (1 << 32)
+            return samples
+
+    # --- live motion -------------------------------------------------------------------------
+
+    def command(self, segments: Sequence[Segment]) -> float:
+        """Drive the unit with ``segments`` from the next sample on, then hold; returns the device
+        time at which they end."""
+        with self._lock:
+            return self.timeline.command(segments, self.sampler.time_of(self.sampler.count))
+
+    def set_pose(self, pose: str, move_s: float = 2.0, label: str | None = None) -> float:
+        """Move the unit smoothly to ``pose`` ("+x", "-z", "+x+y") and hold it there."""
+        return self.command([Move(move_s), Static(pose, 1.0, label=label)])
+
+    def rotate(self, axis: str, angle_deg: float = 360.0, rate_dps: float = 90.0,
+               settle_s: float = 1.0) -> float:
+        """Turn about the body ``axis`` held vertical (a move first puts the axis up)."""
+        return self.command([Rotation(axis, angle_deg, rate_dps, settle_s)])

@@ -1,0 +1,282 @@
+"""Serve a simulated device on a pseudo-terminal, as a real unit on a serial port.
+
+A thread owns the master side: every ``block_s`` it produces the samples due by then on an
+absolute schedule (sample k at t0 + its device time, so no drift), encodes them in one batch,
+applies faults and writes them with one ``os.write``; host commands read from the master are
+answered between blocks. The host opens ``port_path`` (the slave) with pyserial or anything.
+
+While no host has the port open (reading the master gives EIO) the device streams into the
+void, as a UART with nobody listening: nothing is buffered for a later reader. A
+``disconnect`` fault closes the master, so the port vanishes under the host.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import os
+import select
+import threading
+import time
+import tty
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mocks.device import SimDevice
+from mocks.faults import FaultInjector, FaultSpec
+
+MAX_PENDING_BYTES = 256 * 1024  # beyond this the host is not reading: new output is dropped
+
+
+@dataclass
+class ServerStats:
+    samples: int = 0  # samples produced while streaming
+    samples_sent: int = 0  # samples handed to a connected host (before faults)
+    samples_unheard: int = 0  # samples produced while no host had the port open
+    samples_overrun: int = 0  # samples dropped because the host stopped reading
+    bytes_written: int = 0
+    answers: int = 0
+    host_opens: int = 0
+    disconnected: bool = False
+    elapsed_s: float = 0.0
+    late_blocks: int = 0  # blocks written more than one block period after their due time
+    max_lateness_s: float = 0.0
+    commands: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def rate_hz(self) -> float:
+        return self.samples / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+
+class PtyServer:
+    """A simulated unit on a pty: ``with PtyServer(seed=3) as srv: serial.Serial(srv.port_path)``.
+
+    Parameters
+    ----------
+    device : the device to serve (default: ``SimDevice(seed=seed, rate_hz=rate_hz, scenario=...)``).
+    faults : link faults (:class:`FaultSpec`); None for a clean link.
+    block_s : period of the output blocks.
+    link : also make a symlink at this path to the port (removed on stop).
+    record : keep every intact frame's bytes and every sample sent (for end-to-end tests).
+    """
+
+    def __init__(self, device: SimDevice | None = None, *, seed: int = 0, rate_hz: float = 200.0,
+                 scenario: str | Sequence = "still", faults: FaultSpec | None = None, block_s: float = 0.01,
+                 link: str | os.PathLike[str] | None = None, record: bool = False):
+        if device is None:
+            device = SimDevice(seed=seed, rate_hz=rate_hz, scenario=scenario)
+        self.device = device
+        self.faults = faults if faults is not None and faults.active else None
+        self.injector = FaultInjector(self.faults, record=record) if self.faults else None
+        self.block_s = block_s
+        self.link = Path(link) if link is not None else None
+        self.record = record
+        self.stats = ServerStats()
+        self.sent_samples: list[np.ndarray] = []
+        self.port_path = ""
+        self._master = -1
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._closed = threading.Event()
+        self._error: BaseException | None = None
+        self._pending = bytearray()
+        self._host = False
+        self._hold_until = 0.0
+        self._t0 = 0.0
+
+    # --- life cycle ----------------------------------------------------------------------
+
+    def start(self) -> PtyServer:
+        master, slave = os.openpty()
+        tty.setraw(master)
+        tty.setraw(slave)
+        self.port_path = os.ttyname(slave)
+        # Closed at once: the host opens the path; EIO on the master then says nobody has it open.
+        os.close(slave)
+        flags = fcntl.fcntl(master, fcntl.F_GETFL)
+        fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        self._master = master
+        if self.link is not None:
+            with contextlib.suppress(FileNotFoundError):
+                if self.link.is_symlink():
+                    self.link.unlink()
+            self.link.symlink_to(self.port_path)
+        self._t0 = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="pty-server", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        self._close_master()
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise RuntimeError("the pty server thread failed") from error
+
+    def __enter__(self) -> PtyServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait_closed(self, timeout: float | None = None) -> bool:
+        """Wait until the port is gone (a disconnect fault ended it, or stop)."""
+        return self._closed.wait(timeout)
+
+    def elapsed_s(self) -> float:
+        return time.monotonic() - self._t0
+
+    def _close_master(self) -> None:
+        if self._master >= 0:
+            os.close(self._master)
+            self._master = -1
+        if self.link is not None and self.link.is_symlink():
+            self.link.unlink()
+        self._closed.set()
+
+    # --- the serving thread ------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            self._serve()
+        except BaseException as exc:  # surfaced by stop(): a test must see a crashed server
+            self._error = exc
+        finally:
+            self.stats.elapsed_s = self.elapsed_s()
+            self.stats.commands = dict(self.device.commands)
+
+    def _serve(self) -> None:
+        tick = 0
+        faults = self.faults
+        while not self._stop.is_set():
+            tick += 1
+            due = self._t0 + tick * self.block_s
+            self._wait(due)
+            if self._stop.is_set() or self._master < 0:
+                return
+            now = time.monotonic()
+            lateness = now - due
+            if lateness > self.block_s:
+                self.stats.late_blocks += 1
+            self.stats.max_lateness_s = max(self.stats.max_lateness_s, lateness)
+            self._probe_host()
+            self._emit(now - self._t0)
+            if faults is not None and faults.disconnect_after_s is not None \
+                    and now - self._t0 >= faults.disconnect_after_s:
+                self.injector.end_link()
+            self._flush(now)
+            if self.injector is not None and self.injector.disconnected and not self._pending:
+                self.stats.disconnected = True
+                self.stats.elapsed_s = self.elapsed_s()
+                self._close_master()
+                return
+            self.stats.elapsed_s = now - self._t0
+
+    def _wait(self, until: float) -> None:
+        """Sleep until ``until`` while answering host commands and draining pending output."""
+        while not self._stop.is_set():
+            timeout = until - time.monotonic()
+            if timeout <= 0:
+                return
+            if not self._host:
+                time.sleep(min(timeout, self.block_s))
+                self._probe_host()
+                continue
+            want_write = [self._master] if self._pending and time.monotonic() >= self._hold_until else []
+            readable, writable, _ = select.select([self._master], want_write, [], timeout)
+            if readable:
+                self._read_host()
+            if writable:
+                self._flush(time.monotonic())
+
+    def _probe_host(self) -> None:
+        if not self._host:
+            self._read_host()
+
+    def _read_host(self) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except BlockingIOError:
+            data = b""
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            if self._host:
+                self._host = False
+                self._pending.clear()
+            return
+        if not self._host:
+            self._host = True
+            self.stats.host_opens += 1
+        if data:
+            self._answer(data)
+
+    def _answer(self, data: bytes) -> None:
+        # Samples due before the command go out before its answer, as on a real link.
+        self._emit(time.monotonic() - self._t0)
+        answer = self.device.feed(data)
+        # Answers bypass the per-frame faults (the injector numbers sample frames only) but not
+        # the end of the link.
+        if answer and not (self.injector is not None and self.injector.disconnected):
+            self.stats.answers += 1
+            self._pending += answer
+
+    def _emit(self, device_time_s: float) -> None:
+        samples = self.device.produce(device_time_s)
+        if not len(samples):
+            return
+        self.stats.samples += len(samples)
+        if not self._host:
+            self.stats.samples_unheard += len(samples)
+            return
+        if len(self._pending) > MAX_PENDING_BYTES:
+            self.stats.samples_overrun += len(samples)
+            return
+        self.stats.samples_sent += len(samples)
+        if self.record:
+            self.sent_samples.append(samples)
+        encode = self.device.encode_samples
+        if self.injector is None:
+            self._pending += encode(samples)
+        else:
+            self._queue([encode(samples[i : i + 1]) for i in range(len(samples))])
+
+    def _queue(self, frames: list[bytes]) -> None:
+        out = self.injector.apply(frames)
+        if out.stall_s:
+            self._hold_until = max(self._hold_until, time.monotonic()) + out.stall_s
+        self._pending += out.data
+
+    def _flush(self, now: float) -> None:
+        if not self._pending or not self._host or now < self._hold_until or self._master < 0:
+            return
+        try:
+            written = os.write(self._master, self._pending)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            self._host = False
+            self._pending.clear()
+            return
+        self.stats.bytes_written += written
+        del self._pending[:written]
+
+    # --- for tests -----------------------------------------------------------------------------
+
+    def sent(self) -> np.ndarray:
+        """Every sample handed to the host, in order (``record=True``)."""
+        from protocols.base import SAMPLE_DTYPE
+
+        return np.concatenate(self.sent_samples) if self.sent_samples else np.zeros(0, dtype=SAMPLE_DTYPE)
