@@ -1,0 +1,238 @@
+"""A still recording streamed into per-axis cumulative sums on disk, for the Allan deviation.
+
+Any input (capture CSV, station capture file, ROS bag) is read in chunks; the six axes are appended to
+float64 files; then each file is turned in place into the demeaned cumulative sum of
+``station.engines.allan`` eq. (1), which the engine reads through ``np.memmap``. Memory stays bounded by one
+input chunk (at most 200,000 rows) plus the engine's cache blocks, whatever the length of the record;
+the disk holds 6 x 8 bytes per sample (4.1 GB for 24 h at 1 kHz) in a temporary folder removed afterwards.
+
+Timestamps are checked on the way: duplicates and samples older than the newest one are dropped and
+counted, gaps (steps over 1.5 nominal periods) are counted with the samples they miss. Nothing is assumed
+silently: the report goes to the user and into the outputs.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from station.errors import EngineInputError, InputFileError
+
+AXES = ("gx", "gy", "gz", "ax", "ay", "az")
+GAP_FACTOR = 1.5
+MAX_EXAMPLES = 5
+PASS2_ROWS = 1 << 20
+
+Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]  # t (n,), acc (n, 3), gyro (n, 3)
+
+
+@dataclass
+class TimingReport:
+    """What the timestamps of a record showed."""
+
+    samples: int = 0  # kept
+    rate_hz: float = float("nan")  # nominal, from the median step of the first chunk (or given)
+    first_t: float = float("nan")
+    last_t: float = float("nan")
+    gaps: int = 0
+    missing_samples: int = 0
+    largest_gap_s: float = 0.0
+    duplicates: int = 0
+    disordered: int = 0
+    gap_examples: list[tuple[float, float]] = field(default_factory=list)  # (t before the gap, length s)
+
+    @property
+    def span_s(self) -> float:
+        return self.last_t - self.first_t
+
+    @property
+    def mean_rate_hz(self) -> float:
+        return (self.samples - 1) / self.span_s if self.samples > 1 and self.span_s > 0 else float("nan")
+
+    @property
+    def missing_fraction(self) -> float:
+        total = self.samples + self.missing_samples
+        return self.missing_samples / total if total else 0.0
+
+    def problems(self) -> list[str]:
+        """One sentence per kind of irregularity found."""
+        out = []
+        if self.gaps:
+            where = ", ".join(f"{dt:.3g} s after t = {t:.6g}" for t, dt in self.gap_examples)
+            out.append(f"{self.gaps} gap(s) missing {self.missing_samples} samples "
+                       f"({self.missing_fraction:.3%}), largest {self.largest_gap_s:.3g} s: {where}")
+        if self.duplicates:
+            out.append(f"{self.duplicates} sample(s) with a repeated timestamp dropped")
+        if self.disordered:
+            out.append(f"{self.disordered} sample(s) older than the sample before them dropped")
+        if self.samples > 1 and abs(self.mean_rate_hz / self.rate_hz - 1.0) > 0.01 and not self.gaps:
+            out.append(f"mean rate {self.mean_rate_hz:.6g} Hz differs from the nominal {self.rate_hz:.6g} Hz "
+                       f"by more than 1 %")
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"samples": self.samples, "rate_hz": self.rate_hz, "mean_rate_hz": self.mean_rate_hz,
+                "first_t": self.first_t, "last_t": self.last_t, "gaps": self.gaps,
+                "missing_samples": self.missing_samples, "missing_fraction": self.missing_fraction,
+                "largest_gap_s": self.largest_gap_s, "duplicates": self.duplicates,
+                "disordered": self.disordered,
+                "gap_examples": [{"t": t, "length_s": dt} for t, dt in self.gap_examples]}
+
+
+class TimingChecker:
+    """Checks timestamps chunk by chunk; returns the mask of samples to keep."""
+
+    def __init__(self, rate_hz: float | None = None):
+        self.report = TimingReport(rate_hz=float(rate_hz) if rate_hz else float("nan"))
+        self._last = -math.inf
+
+    def check(self, t: np.ndarray) -> np.ndarray:
+        r = self.report
+        if not math.isfinite(r.rate_hz):
+            steps = np.diff(t)
+            steps = steps[steps > 0]
+            if len(steps) == 0:
+                raise EngineInputError("cannot tell the sample rate from the first timestamps; give --rate")
+            r.rate_hz = float(1.0 / np.median(steps))
+        newest = np.maximum.accumulate(np.concatenate([[self._last], t]))[:-1]
+        keep = t > newest
+        r.duplicates += int(np.count_nonzero(t == newest))
+        r.disordered += int(np.count_nonzero(t < newest))
+        kept = t[keep]
+        if len(kept) == 0:
+            return keep
+        dt = np.diff(np.concatenate([[self._last], kept]))
+        if not math.isfinite(self._last):
+            dt = dt[1:]
+            base = kept[:-1]
+            r.first_t = float(kept[0])
+        else:
+            base = np.concatenate([[self._last], kept[:-1]])
+        period = 1.0 / r.rate_hz
+        big = np.flatnonzero(dt > GAP_FACTOR * period)
+        if len(big):
+            r.gaps += len(big)
+            r.missing_samples += int(np.sum(np.rint(dt[big] / period) - 1))
+            r.largest_gap_s = max(r.largest_gap_s, float(dt[big].max()))
+            for i in big[:MAX_EXAMPLES - len(r.gap_examples)]:
+                r.gap_examples.append((float(base[i]), float(dt[i])))
+        r.samples += len(kept)
+        r.last_t = float(kept[-1])
+        self._last = float(kept[-1])
+        return keep
+
+
+@dataclass
+class IntegratedRecord:
+    """Per-axis demeaned cumulative sums on disk (``phase`` rows are memmaps), with what was learnt."""
+
+    phase: list[np.ndarray]
+    rate_hz: float
+    timing: TimingReport
+    means: np.ndarray
+    source: str
+    device: dict[str, Any]
+    _tmp: tempfile.TemporaryDirectory | None = None
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.phase[0]) - 1
+
+    def close(self) -> None:
+        self.phase = []
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def __enter__(self) -> IntegratedRecord:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None = None,
+                     workdir: str | Path | None = None, device: dict[str, Any] | None = None,
+                     on_rows: Callable[[int], None] | None = None) -> IntegratedRecord:
+    """Stream (t, acc, gyro) chunks into cumulative sums on disk (two passes, bounded memory).
+
+    Pass 1 appends each axis as float64 behind a leading zero and sums it; pass 2 replaces the values in
+    place, chunk by chunk, by ``cumsum(y - mean) / rate`` carrying the running sum across chunks, which is
+    exactly the sequential float64 sum of the whole record.
+    """
+    tmp = tempfile.TemporaryDirectory(prefix="imu-allan-", dir=workdir)
+    try:
+        paths = [Path(tmp.name) / f"{axis}.f64" for axis in AXES]
+        files = [open(p, "wb") for p in paths]
+        checker = TimingChecker(rate_hz)
+        sums = np.zeros(6)
+        try:
+            for f in files:
+                f.write(np.zeros(1).tobytes())
+            for t, acc, gyro in chunks:
+                t = np.asarray(t, dtype=np.float64)
+                keep = checker.check(t)
+                block = np.column_stack([np.asarray(gyro, np.float64), np.asarray(acc, np.float64)])[keep]
+                sums += block.sum(axis=0)
+                for j, f in enumerate(files):
+                    f.write(np.ascontiguousarray(block[:, j]).tobytes())
+                if on_rows is not None:
+                    on_rows(len(t))
+        finally:
+            for f in files:
+                f.close()
+        report = checker.report
+        if report.samples < 2:
+            raise EngineInputError(f"{source}: {report.samples} usable samples; an Allan deviation needs a "
+                                   "long still recording")
+        means = sums / report.samples
+        tau0 = 1.0 / report.rate_hz
+        phase = []
+        for j, p in enumerate(paths):
+            x = np.memmap(p, dtype=np.float64, mode="r+")
+            carry = 0.0
+            for a in range(1, len(x), PASS2_ROWS):
+                part = x[a:a + PASS2_ROWS]
+                s = np.cumsum(np.concatenate([[carry], part - means[j]]))[1:]
+                carry = float(s[-1])
+                s *= tau0
+                part[:] = s
+            x.flush()
+            phase.append(np.memmap(p, dtype=np.float64, mode="r"))
+            del x
+        return IntegratedRecord(phase, report.rate_hz, report, means, source, device or {}, tmp)
+    except BaseException:
+        tmp.cleanup()
+        raise
+
+
+def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterator[Chunk], dict[str, Any], int]:
+    """Chunks of a capture CSV, station capture file or ROS bag; the unit's info; the size in bytes."""
+    from station.acquisition import rosbag_reader
+
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(path, "does not exist; give a capture CSV, a capture file (.h5) or a ROS bag")
+    if path.is_dir():
+        size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    else:
+        size = path.stat().st_size
+    if rosbag_reader.is_rosbag(path):
+        return rosbag_reader.iter_imu_chunks(path, topic), {}, size
+    name = path.name.lower()
+    if name.endswith((".h5", ".hdf5")):
+        from station.acquisition.capture import read_capture
+
+        cap = read_capture(path)
+        step = 200_000
+        return ((cap.t[a:a + step], cap.acc[a:a + step], cap.gyro[a:a + step])
+                for a in range(0, len(cap), step)), dict(cap.device), size
+    from station.acquisition.capture_csv import iter_csv_chunks
+
+    return ((c.t, c.acc, c.gyro) for c in iter_csv_chunks(path)), {}, size

@@ -1,0 +1,272 @@
+"""Noise terms of an Allan deviation curve on the IEEE Std 952-1997 (Annex C) model.
+
+    sigma^2(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + R^2 tau^2 / 2      (C.1)
+
+Q quantization (unit s), N white noise / angle or velocity random walk (unit/sqrt(Hz)), B bias instability
+(unit; the flat floor is 0.66428 B, 0.66428 = sqrt(2 ln 2 / pi)), K rate random walk (unit sqrt(Hz)/s =
+unit/s/sqrt(Hz)), R rate ramp (unit/s).
+
+The model is linear in c = (Q^2, N^2, B^2, K^2, R^2), so it is fitted by non-negative least squares with
+weights from the equivalent degrees of freedom: var(sigma_hat^2) = 2 sigma^4 / edf, re-weighted with the
+model's own values (iteratively re-weighted least squares). N and K are always fitted; Q, B and R are added
+only where the record shows them: significant (> 3 standard deviations), improving the weighted
+chi-square by more than 9, and dominating the model at three or more measured points.
+
+Beside the fit, the classic slope-line reading (IEEE 952 Annex C; e.g. El-Sheimy, Hou and Niu, "Analysis
+and modeling of inertial sensors using Allan variance", IEEE TIM 57(1), 2008): where the curve's
+log-log slope is -1, -1/2, 0, +1/2, +1, the straight line of that slope through the curve, read at
+tau = 1 s, and the term it gives (Q at tau = sqrt(3), N at 1, B = floor / 0.66428, K at 3, R at sqrt(2)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+
+from station.engines.allan import AllanCurve
+
+TERMS = ("Q", "N", "B", "K", "R")
+B_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.66428
+ALPHA_OF_TERM = {"Q": 2, "N": 0, "B": -1, "K": -2, "R": -2}
+SLOPE_OF_TERM = {"Q": -1.0, "N": -0.5, "B": 0.0, "K": 0.5, "R": 1.0}
+# tau where the slope line equals the term:
+# sigma = sqrt(3) Q / tau, N / sqrt(tau), K sqrt(tau / 3), R tau / sqrt(2)
+READ_TAU = {"Q": math.sqrt(3.0), "N": 1.0, "K": 3.0, "R": math.sqrt(2.0)}
+SLOPE_TOLERANCE = 0.1
+SIGNIFICANCE = 3.0
+CHI2_GAIN = 9.0
+MIN_DOMINANT_POINTS = 3
+K_CROSSING_FRACTION = 20.0  # K needs the N and K lines to cross before T / 20
+
+
+def basis(tau: np.ndarray) -> np.ndarray:
+    """Columns of eq. (C.1) for c = (Q^2, N^2, B^2, K^2, R^2): shape (len(tau), 5)."""
+    tau = np.asarray(tau, dtype=np.float64)
+    return np.column_stack([3.0 / tau**2, 1.0 / tau, np.full_like(tau, B_FACTOR**2), tau / 3.0, tau**2 / 2.0])
+
+
+def model_avar(tau: np.ndarray, coeffs: dict[str, float | None]) -> np.ndarray:
+    """Allan variance of eq. (C.1) for the terms given (None or missing terms count as zero)."""
+    c = np.array([(coeffs.get(t) or 0.0) ** 2 for t in TERMS])
+    return basis(tau) @ c
+
+
+@dataclass
+class TermEstimate:
+    """One noise term of one axis: the fitted value and its 1-sigma, or None with the reason.
+
+    ``slope_line_at_1s`` is the slope line's value at tau = 1 s, ``slope_value`` the term it gives;
+    ``slope_reason`` says why there is none.
+    """
+
+    value: float | None = None
+    stddev: float | None = None
+    reason: str | None = None
+    slope_line_at_1s: float | None = None
+    slope_value: float | None = None
+    slope_tau: float | None = None
+    slope_reason: str | None = None
+
+
+@dataclass
+class AxisNoise:
+    """The noise terms of one axis and the fit that gave them."""
+
+    axis: str
+    terms: dict[str, TermEstimate] = field(default_factory=dict)
+    fitted: tuple[str, ...] = ()
+    coeffs: dict[str, float] = field(default_factory=dict)  # all fitted terms, shown or not
+    reduced_chi2: float = float("nan")
+    crossing_tau_nk: float | None = None
+
+    def value(self, term: str) -> float | None:
+        return self.terms[term].value
+
+    def model(self, tau: np.ndarray) -> np.ndarray:
+        """Allan deviation of the fitted model (every fitted term)."""
+        return np.sqrt(model_avar(tau, self.coeffs))
+
+
+def _irls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: int = 6
+          ) -> tuple[np.ndarray, np.ndarray, float]:
+    """EDF-weighted non-negative least squares of ``a c = avar``; returns (c, covariance, chi2)."""
+    scale = np.max(np.abs(a), axis=0)  # columns span many decades: normalise before NNLS
+    an = a / scale
+    model = avar.copy()
+    c = np.zeros(a.shape[1])
+    for _ in range(iterations):
+        w = np.sqrt(edf / 2.0) / np.maximum(model, np.finfo(float).tiny)
+        cn, _ = optimize.nnls(an * w[:, None], avar * w, maxiter=50 * a.shape[1])
+        c = cn / scale
+        new_model = a @ c
+        if np.allclose(new_model, model, rtol=1e-9):
+            break
+        model = np.where(new_model > 0, new_model, avar)
+    w2 = (edf / 2.0) / np.maximum(model, np.finfo(float).tiny) ** 2
+    chi2 = float(np.sum(w2 * (avar - model) ** 2))
+    active = c > 0
+    cov = np.full((a.shape[1], a.shape[1]), np.nan)
+    if active.any():
+        aa = a[:, active]
+        fisher = aa.T @ (aa * w2[:, None])
+        with np.errstate(all="ignore"):
+            cov_active = np.linalg.pinv(fisher)
+        cov[np.ix_(active, active)] = cov_active
+    return c, cov, chi2
+
+
+def _fit(tau: np.ndarray, avar: np.ndarray, edf: np.ndarray, terms: tuple[str, ...]
+         ) -> tuple[dict[str, float], dict[str, float], float]:
+    cols = [TERMS.index(t) for t in terms]
+    c, cov, chi2 = _irls(basis(tau)[:, cols], avar, edf)
+    dof = max(len(tau) - int(np.count_nonzero(c)), 1)
+    inflate = max(chi2 / dof, 1.0)  # correlated, overlapping points: trust the scatter if it is larger
+    values = {t: float(c[i]) for i, t in enumerate(terms)}
+    var = {t: float(cov[i, i]) * inflate for i, t in enumerate(terms)}
+    return values, var, chi2
+
+
+def _shows(tau: np.ndarray, adev: np.ndarray, c: dict[str, float], term: str) -> bool:
+    """Whether the curve shows an optional term: it dominates the model at MIN_DOMINANT_POINTS or more
+    points spanning a factor of 3 in tau or more, and the curve itself reaches the term's slope there."""
+    parts = {t: basis(tau)[:, TERMS.index(t)] * c[t] for t in c}
+    total = sum(parts.values())
+    where = np.flatnonzero(parts[term] > 0.5 * total)
+    if len(where) < MIN_DOMINANT_POINTS or tau[where[-1]] < 3.0 * tau[where[0]]:
+        return False
+    slope = np.gradient(np.log10(adev), np.log10(tau))
+    return bool(np.any(np.abs(slope[where] - SLOPE_OF_TERM[term]) <= SLOPE_TOLERANCE))
+
+
+def _slope_reading(tau: np.ndarray, adev: np.ndarray, term: str, est: TermEstimate) -> None:
+    """The slope-line reading of IEEE 952 Annex C, written into ``est``."""
+    target = SLOPE_OF_TERM[term]
+    logt = np.log10(tau)
+    loga = np.log10(adev)
+    slope = np.gradient(loga, logt)
+    if term == "B":
+        flat = np.flatnonzero(np.abs(slope) <= SLOPE_TOLERANCE)
+        if len(flat) == 0:
+            est.slope_reason = "the curve has no flat part (slope 0) within the record"
+            return
+        i = int(flat[np.argmin(adev[flat])])
+        est.slope_tau = float(tau[i])
+        est.slope_line_at_1s = float(adev[i])
+        est.slope_value = float(adev[i] / B_FACTOR)
+        return
+    i = int(np.argmin(np.abs(slope - target)))
+    if abs(slope[i] - target) > SLOPE_TOLERANCE:
+        est.slope_reason = (f"the curve never has slope {target:+g} (closest {slope[i]:+.2f} at tau = "
+                            f"{tau[i]:.3g} s)")
+        return
+    b = loga[i] - target * logt[i]
+    est.slope_tau = float(tau[i])
+    est.slope_line_at_1s = float(10.0**b)
+    est.slope_value = float(10.0 ** (b + target * math.log10(READ_TAU[term])))
+
+
+def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: float,
+             axis: str = "") -> AxisNoise:
+    """Noise terms of one axis from its Allan deviation curve, eq. (C.1).
+
+    Parameters
+    ----------
+    tau, adev, edf : ndarray
+        The curve: averaging times (s), Allan deviations, equivalent degrees of freedom.
+    duration_s : float
+        Length T of the record; K is reported only where the white-noise and random-walk lines cross
+        before T / 20.
+    axis : str
+        Name of the axis, for the report.
+
+    Returns
+    -------
+    AxisNoise
+        Every term of ``TERMS`` with value and 1-sigma, or None and the reason.
+    """
+    tau = np.asarray(tau, dtype=np.float64)
+    adev = np.asarray(adev, dtype=np.float64)
+    edf = np.asarray(edf, dtype=np.float64)
+    ok = np.isfinite(adev) & (adev > 0) & np.isfinite(edf) & (edf > 0)
+    tau, adev, edf = tau[ok], adev[ok], edf[ok]
+    avar = adev**2
+    active: tuple[str, ...] = ("N", "K")
+    values, var, chi2 = _fit(tau, avar, edf, active)
+    while True:
+        best = None
+        for extra in ("Q", "B", "R"):
+            if extra in active:
+                continue
+            trial = tuple(t for t in TERMS if t in active or t == extra)
+            v, s2, c2 = _fit(tau, avar, edf, trial)
+            if v[extra] <= 0 or not np.isfinite(s2[extra]) or v[extra] < SIGNIFICANCE * math.sqrt(s2[extra]):
+                continue
+            if chi2 - c2 < CHI2_GAIN or not _shows(tau, adev, v, extra):
+                continue
+            if best is None or c2 < best[3]:
+                best = (trial, v, s2, c2)
+        if best is None:
+            break
+        active, values, var, chi2 = best
+    result = AxisNoise(axis=axis, fitted=active, reduced_chi2=chi2 / max(len(tau) - len(active), 1))
+    result.coeffs = {t: math.sqrt(values[t]) for t in active if values[t] > 0}
+    for term in TERMS:
+        est = TermEstimate()
+        if term not in active:
+            est.reason = {"Q": "quantization is not visible: no slope -1 region above the white noise",
+                          "B": "no flat floor: bias instability is hidden by white noise and random walk",
+                          "R": "no slope +1 region: rate ramp is not visible in this record"}[term]
+        else:
+            c = values[term]
+            sd_c = math.sqrt(var[term]) if np.isfinite(var[term]) else float("nan")
+            if c <= 0:
+                est.reason = "the fit gives zero: the record does not show this term"
+            elif not c >= SIGNIFICANCE * sd_c:
+                est.reason = (f"not significant: {math.sqrt(c):.3g} with a 1-sigma of the variance term of "
+                              f"{sd_c / c:.0%}")
+            else:
+                est.value = math.sqrt(c)
+                est.stddev = sd_c / (2.0 * est.value)  # delta method: d sqrt(c) = dc / (2 sqrt(c))
+        _slope_reading(tau, adev, term, est)
+        result.terms[term] = est
+    n_val = values.get("N", 0.0)
+    k_val = values.get("K", 0.0)
+    if n_val > 0 and k_val > 0:
+        result.crossing_tau_nk = math.sqrt(3.0) * math.sqrt(n_val) / math.sqrt(k_val)  # N^2/tau = K^2 tau / 3
+    k_est = result.terms["K"]
+    if k_est.value is not None and result.crossing_tau_nk is not None:
+        limit = duration_s / K_CROSSING_FRACTION
+        if result.crossing_tau_nk > limit:
+            k_est.reason = (f"record too short: the white-noise and random-walk lines cross at tau = "
+                            f"{result.crossing_tau_nk:.3g} s, beyond T/20 = {limit:.3g} s; record at least "
+                            f"{K_CROSSING_FRACTION * result.crossing_tau_nk / 3600:.2g} h still")
+            k_est.value = None
+            k_est.stddev = None
+    return result
+
+
+def dominant_alpha(tau: np.ndarray, noise: AxisNoise) -> np.ndarray:
+    """Power-law noise type of the model term that dominates at each tau (for Greenhall's EDF)."""
+    if not noise.coeffs:
+        return np.zeros(len(tau), dtype=np.int64)
+    names = list(noise.coeffs)
+    parts = np.column_stack([basis(tau)[:, TERMS.index(t)] * noise.coeffs[t] ** 2 for t in names])
+    return np.array([ALPHA_OF_TERM[names[i]] for i in np.argmax(parts, axis=1)], dtype=np.int64)
+
+
+def identify_noise(curve: AllanCurve) -> tuple[AllanCurve, list[AxisNoise]]:
+    """Fit every axis, then recompute EDF and intervals with the fitted noise types and fit again.
+
+    The first pass takes each point's noise type from the curve's local slope; the second from the
+    term that dominates the first fit there, which is steadier at long tau where the slope is noisy.
+    """
+    first = [fit_axis(curve.tau, curve.adev[:, j], curve.edf[:, j], curve.duration_s, name)
+             for j, name in enumerate(curve.axes)]
+    alpha = np.column_stack([dominant_alpha(curve.tau, f) for f in first])
+    refined = curve.with_alpha(alpha)
+    noise = [fit_axis(refined.tau, refined.adev[:, j], refined.edf[:, j], refined.duration_s, name)
+             for j, name in enumerate(refined.axes)]
+    return refined, noise
