@@ -1,0 +1,318 @@
+"""MAVLink 1 and 2 IMU telemetry: RAW_IMU, SCALED_IMU, SCALED_IMU2/3 and HIGHRES_IMU.
+
+MAVLink IMU messages are **processed telemetry at low rates** (an autopilot streams them at
+a few to a few tens of hertz, often filtered and decimated): fit for pose and rotation
+sequences (six/twelve-position, turns), not for Allan variance or noise characterisation,
+which need the sensor's full-rate raw output.
+
+The framing is read here (so a false start inside garbage never hides the good frame after
+it, and each error lands in one counter); message definitions, CRC extras and payload
+decoding come from pymavlink (the optional extra ``mavlink``), with the ArduPilot dialect,
+a superset of the common one. Unit conversions:
+
+- HIGHRES_IMU: m/s^2, rad/s, degC as sent; ``t_us`` = time_usec.
+- SCALED_IMU, SCALED_IMU2, SCALED_IMU3: mG x 9.80665e-3 -> m/s^2, mrad/s x 1e-3 -> rad/s,
+  cdegC x 0.01 -> degC (0 means "no temperature": NaN); ``t_us`` = time_boot_ms x 1000,
+  unwrapped past 2^32 ms.
+- RAW_IMU: the standard leaves the units to the sender; ArduPilot sends mG and mrad/s like
+  SCALED_IMU, the default scales here (``raw_acc_scale``, ``raw_gyro_scale``); ``t_us`` =
+  time_usec.
+
+One IMU makes the samples: the first IMU message seen (or the first of ``source``) fixes the
+message name, system, component and IMU id; other IMU messages are returned as messages and
+counted in ``sources_seen``. ``seq`` counts the samples (MAVLink has no per-sample counter).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any
+
+import numpy as np
+
+from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+
+STX_V1 = 0xFE
+STX_V2 = 0xFD
+HEADER_V1 = 6
+HEADER_V2 = 10
+SIGNATURE_LEN = 13
+IFLAG_SIGNED = 0x01
+MILLI_G = 9.80665e-3
+
+IMU_MESSAGES = ("HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU")
+_STX = re.compile(rb"[\xfd\xfe]")
+
+
+class MavlinkUnavailable(RuntimeError):
+    """pymavlink is not installed."""
+
+
+def load_dialect() -> Any:
+    """The pymavlink ArduPilot dialect module (MAVLink 2 capable), or ``MavlinkUnavailable``."""
+    try:
+        from pymavlink.dialects.v20 import ardupilotmega
+    except ImportError:
+        raise MavlinkUnavailable(
+            "the MAVLink protocol needs pymavlink: pip install 'imu-station[mavlink]'") from None
+    return ardupilotmega
+
+
+def pymavlink_available() -> bool:
+    try:
+        load_dialect()
+    except MavlinkUnavailable:
+        return False
+    return True
+
+
+class MavlinkDecoder(StreamDecoderBase):
+    """Incremental decoder of MAVLink 1/2 frames; IMU messages of one source become samples.
+
+    ``source`` picks the IMU message (one of ``IMU_MESSAGES``); None takes the first one seen.
+    ``messages_seen`` counts every decoded message by name, ``sources_seen`` the IMU sources
+    as ``"NAME sys/comp id"``.
+    """
+
+    name = "mavlink"
+
+    def __init__(self, source: str | None = None, raw_acc_scale: float = MILLI_G,
+                 raw_gyro_scale: float = 1e-3) -> None:
+        super().__init__()
+        if source is not None and source not in IMU_MESSAGES:
+            raise ValueError(f"unknown MAVLink IMU message {source!r}; use one of {', '.join(IMU_MESSAGES)}")
+        self._dialect = load_dialect()
+        self._mav = self._dialect.MAVLink(None)
+        self._map = self._dialect.mavlink_map
+        self.source = source
+        self.raw_acc_scale = raw_acc_scale
+        self.raw_gyro_scale = raw_gyro_scale
+        self.messages_seen: dict[str, int] = {}
+        self.sources_seen: dict[str, int] = {}
+        self._key: tuple | None = None
+        self._count = 0
+        self._boot_ms: int | None = None  # unwrapped time_boot_ms
+
+    # -------------------------------------------------------------- framing
+
+    def _frame_length(self, pos: int) -> int:
+        """Length of the frame announced at ``pos``: 0 if not a frame start, -1 if incomplete."""
+        buf = self._buf
+        avail = len(buf) - pos
+        if buf[pos] == STX_V1:
+            if avail < 2:
+                return -1
+            return HEADER_V1 + buf[pos + 1] + 2
+        if avail < 3:
+            return -1
+        incompat = buf[pos + 2]
+        if incompat & ~IFLAG_SIGNED:
+            return 0
+        return HEADER_V2 + buf[pos + 1] + 2 + (SIGNATURE_LEN if incompat & IFLAG_SIGNED else 0)
+
+    def _msg_id(self, pos: int) -> int:
+        buf = self._buf
+        if buf[pos] == STX_V1:
+            return buf[pos + 5]
+        return buf[pos + 7] | (buf[pos + 8] << 8) | (buf[pos + 9] << 16)
+
+    def _crc_ok(self, pos: int, length: int) -> bool | None:
+        """CRC check of a complete frame; None when the message id is unknown (no CRC extra)."""
+        buf = self._buf
+        msgtype = self._map.get(self._msg_id(pos))
+        if msgtype is None:
+            return None
+        sig = SIGNATURE_LEN if buf[pos] == STX_V2 and buf[pos + 2] & IFLAG_SIGNED else 0
+        end = pos + length - sig
+        crc = buf[end - 2] | (buf[end - 1] << 8)
+        body = bytearray(buf[pos + 1 : end - 2])
+        body.append(msgtype.crc_extra)
+        return self._dialect.x25crc(body).crc == crc
+
+    def _valid_frame_inside(self, start: int, end: int) -> bool:
+        """Whether a complete frame with a good CRC starts in ``buf[start:end]``."""
+        for m in _STX.finditer(self._buf, start, end):
+            p = m.start()
+            length = self._frame_length(p)
+            if length > 0 and p + length <= len(self._buf) and self._crc_ok(p, length):
+                return True
+        return False
+
+    def feed(self, data: bytes) -> Decoded:
+        return self._decode(data, final=False)
+
+    def _decode(self, data: bytes, final: bool) -> Decoded:
+        buf = self._buf
+        buf += data
+        rows: list[tuple] = []
+        messages: list[Message] = []
+        stats = self.stats
+        pos = 0
+        while True:
+            m = _STX.search(buf, pos)
+            if m is None:
+                if len(buf) > pos:
+                    stats.garbage_bytes += len(buf) - pos
+                    stats.resyncs += 1
+                pos = len(buf)
+                break
+            if m.start() > pos:
+                stats.garbage_bytes += m.start() - pos
+                stats.resyncs += 1
+                pos = m.start()
+            length = self._frame_length(pos)
+            if length == 0:
+                pos = self._skip(pos)
+                continue
+            if length < 0 or pos + length > len(buf):
+                break
+            crc_ok = self._crc_ok(pos, length)
+            if crc_ok is None:
+                # Unknown message: no CRC extra to check it with. Believe it only when the next
+                # frame starts right after it (or the stream ends there) and no good frame
+                # starts inside it.
+                after = pos + length
+                if after == len(buf) and not final:
+                    break
+                if (after < len(buf) and buf[after] not in (STX_V1, STX_V2)) or self._valid_frame_inside(
+                        pos + 1, after):
+                    pos = self._skip(pos)
+                    continue
+                stats.frames += 1
+                stats.unknown_ids += 1
+                messages.append(Message(self._msg_id(pos), bytes(buf[pos:after])))
+                pos = after
+                continue
+            if not crc_ok:
+                if self._valid_frame_inside(pos + 1, pos + length):
+                    stats.truncated += 1
+                else:
+                    stats.crc_errors += 1
+                pos = self._skip(pos)
+                continue
+            frame = bytearray(buf[pos : pos + length])
+            pos += length
+            try:
+                msg = self._mav.decode(frame)
+            except self._dialect.MAVError:
+                stats.bad_payloads += 1
+                continue
+            stats.frames += 1
+            name = msg.get_type()
+            self.messages_seen[name] = self.messages_seen.get(name, 0) + 1
+            row = self._imu_row(msg, name) if name in IMU_MESSAGES else None
+            if row is None:
+                messages.append(Message(msg.get_msgId(), bytes(frame)))
+            else:
+                rows.append(row)
+        if pos:
+            del buf[:pos]
+        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        stats.samples += len(samples)
+        return Decoded(samples, messages)
+
+    def _skip(self, pos: int) -> int:
+        """Drop the frame start at ``pos``: resume at the next one (counted as garbage)."""
+        self.stats.resyncs += 1
+        m = _STX.search(self._buf, pos + 1)
+        nxt = len(self._buf) if m is None else m.start()
+        self.stats.garbage_bytes += nxt - pos
+        return nxt
+
+    def flush(self) -> Decoded:
+        """End of stream: an unfinished frame is truncated; what follows its start is decoded."""
+        out = self._decode(b"", final=True)
+        batches, messages = [out.samples], list(out.messages)
+        while self._buf:
+            self.stats.truncated += 1
+            del self._buf[: self._skip(0)]
+            out = self._decode(b"", final=True)
+            batches.append(out.samples)
+            messages += out.messages
+        return Decoded(np.concatenate(batches), messages)
+
+    # -------------------------------------------------------------- IMU messages
+
+    def _imu_row(self, msg: Any, name: str) -> tuple | None:
+        header = msg.get_header()
+        imu_id = msg.id if "id" in msg.get_fieldnames() else 0  # SCALED_IMU* have no IMU id field
+        key = (name, header.srcSystem, header.srcComponent, imu_id)
+        label = f"{name} {key[1]}/{key[2]} id {key[3]}"
+        self.sources_seen[label] = self.sources_seen.get(label, 0) + 1
+        if self._key is None and (self.source is None or self.source == name):
+            self._key = key
+        if key != self._key:
+            return None
+        if name == "HIGHRES_IMU":
+            acc = (msg.xacc, msg.yacc, msg.zacc)
+            gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
+            temp = float(msg.temperature)
+            t_us = int(msg.time_usec)
+        else:
+            if name == "RAW_IMU":
+                acc_scale, gyro_scale = self.raw_acc_scale, self.raw_gyro_scale
+                t_us = int(msg.time_usec)
+            else:
+                acc_scale, gyro_scale = MILLI_G, 1e-3
+                t_us = self._unwrap_boot_ms(int(msg.time_boot_ms)) * 1000
+            acc = (msg.xacc * acc_scale, msg.yacc * acc_scale, msg.zacc * acc_scale)
+            gyro = (msg.xgyro * gyro_scale, msg.ygyro * gyro_scale, msg.zgyro * gyro_scale)
+            cdeg = getattr(msg, "temperature", 0)
+            temp = cdeg * 0.01 if cdeg else math.nan
+        seq = self._count & 0xFFFFFFFF
+        self._count += 1
+        return (seq, t_us, acc, gyro, temp)
+
+    def _unwrap_boot_ms(self, ms: int) -> int:
+        if self._boot_ms is None:
+            self._boot_ms = ms
+        else:
+            self._boot_ms += (ms - self._boot_ms) & 0xFFFFFFFF
+        return self._boot_ms
+
+
+# ---------------------------------------------------------------------------------- encoder
+
+
+def _i16(values) -> list[int]:
+    return [max(-32768, min(32767, round(float(v)))) for v in values]
+
+
+def encode_samples(samples: np.ndarray, message: str = "HIGHRES_IMU", system: int = 1, component: int = 1,
+                   mavlink1: bool = False, heartbeat_every: int = 0) -> bytes:
+    """MAVLink frames of one IMU message per ``SAMPLE_DTYPE`` record, as an autopilot sends them.
+
+    ``heartbeat_every`` > 0 puts a HEARTBEAT before every that many samples (and the first).
+    """
+    if message not in IMU_MESSAGES:
+        raise ValueError(f"unknown MAVLink IMU message {message!r}; use one of {', '.join(IMU_MESSAGES)}")
+    dialect = load_dialect()
+    mav = dialect.MAVLink(None, srcSystem=system, srcComponent=component)
+    out = bytearray()
+
+    def pack(msg: Any) -> None:
+        out.extend(msg.pack(mav, force_mavlink1=mavlink1))
+        mav.seq = (mav.seq + 1) % 256
+
+    for i, s in enumerate(np.asarray(samples, dtype=SAMPLE_DTYPE)):
+        if heartbeat_every and i % heartbeat_every == 0:
+            pack(mav.heartbeat_encode(dialect.MAV_TYPE_QUADROTOR, dialect.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                      0, 0, 0))
+        acc, gyro, temp, t_us = s["acc"], s["gyro"], float(s["temp"]), int(s["t_us"])
+        known = math.isfinite(temp)
+        if message == "HIGHRES_IMU":
+            updated = 0x1FFF if known else 0x0FFF  # bit 12: temperature
+            pack(mav.highres_imu_encode(t_us, *map(float, acc), *map(float, gyro), 0.2, 0.0, -0.4, 1013.25,
+                                        0.0, 0.0, temp if known else 0.0, updated))
+            continue
+        a = _i16(acc / MILLI_G)
+        g = _i16(gyro * 1000.0)
+        cdeg = (round(temp * 100) or 1) if known else 0  # 0 means "no temperature"; 0.00 degC is sent as 1
+        if message == "RAW_IMU":
+            pack(mav.raw_imu_encode(t_us, *a, *g, 200, 0, -400, 0, cdeg))
+        else:
+            encode = getattr(mav, message.lower() + "_encode")
+            pack(encode((t_us // 1000) & 0xFFFFFFFF, *a, *g, 200, 0, -400, cdeg))
+    return bytes(out)
+
