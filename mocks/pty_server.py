@@ -129,6 +129,11 @@ class PtyServer:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    @property
+    def host_connected(self) -> bool:
+        """Whether a host has the port open (as of the last block)."""
+        return self._host
+
     def wait_closed(self, timeout: float | None = None) -> bool:
         """Wait until the port is gone (a disconnect fault ended it, or stop)."""
         return self._closed.wait(timeout)

@@ -33,9 +33,10 @@ STANDARD_GRAVITY = 9.80665
 
 # Allan deviation of flicker bias noise sits at sqrt(2 ln2 / pi) B (IEEE Std 952, Annex C).
 FLICKER_FLOOR = float(np.sqrt(2.0 * np.log(2.0) / np.pi))  # 0.6643
-# A first-order Gauss-Markov process of variance s^2 has its Allan deviation peak, about
-# 0.6182 s, at tau = 1.89 correlation times (numerical maximum of the closed form below).
-GM_ADEV_PEAK = 0.6182
+# A first-order Gauss-Markov process of variance s^2 and correlation time Tc has the Allan
+# variance q^2 Tc^2 / tau [1 - Tc / (2 tau) (3 - 4 exp(-tau/Tc) + exp(-2 tau/Tc))], q^2 = 2 s^2 / Tc;
+# its numerical maximum is a deviation of 0.6174 s at tau = 1.89 Tc.
+GM_ADEV_PEAK = 0.6174
 
 
 def _arr3(value: object) -> np.ndarray:

@@ -1,0 +1,136 @@
+"""``imu-station simulate``: a simulated unit on a pseudo-terminal, until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from station.errors import StationError
+
+if TYPE_CHECKING:
+    from mocks.pty_server import PtyServer
+
+NAME = "simulate"
+HELP = "serve a simulated unit on a pseudo-terminal (a serial port path any tool can open)"
+DESCRIPTION = """\
+Serve a simulated IMU on a pseudo-terminal, as a real unit on a serial port: it speaks the native
+protocol, streams from power-up on an absolute schedule (no drift), and answers GET_INFO, SET_RATE,
+START_STREAM and STOP_STREAM. The unit's intrinsics, noise and motion come from --seed and
+--scenario; the same seed gives the same unit and the same bytes. Faults can be injected on the
+link. It prints the port path and runs until Ctrl-C (exit 0), --duration, or a disconnect fault,
+then prints a summary.
+
+scenarios: still (lying flat, +z up), six-position, twelve-position (the capture-csv sequences
+with their rotations, looped), six-position-static (no rotations), handheld (imu_tk-style random
+poses, looped).
+
+faults (probabilities per frame, comma separated): garbage=P, bitflip=P, truncate=P, drop=P,
+stall=P with stall_s=S, garbage_max=N, disconnect_bytes=N, disconnect_s=S, seed=N."""
+EPILOG = """\
+examples:
+  imu-station simulate --seed 3 --rate 400 --link /tmp/imu
+  imu-station simulate --scenario six-position --faults garbage=0.01,drop=0.001
+  imu-station capture --port /tmp/imu --duration 10 -o still.csv   (in another terminal)"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from mocks.device import ENCODERS, SCENARIOS
+
+    parser.add_argument("--seed", type=int, default=0, help="unit, noise and scenario seed (default: 0)")
+    parser.add_argument("--rate", type=int, default=200, metavar="HZ",
+                        help="sample rate at power-up (default: 200)")
+    parser.add_argument("--scenario", default="still", choices=list(SCENARIOS),
+                        help="how the unit moves (default: still)")
+    parser.add_argument("--hold", action="store_true",
+                        help="hold the last pose at the end of the scenario instead of looping it")
+    parser.add_argument("--grade", default="mems", choices=["mems", "tactical"],
+                        help="intrinsics and noise of the random unit (default: mems)")
+    parser.add_argument("--ideal", action="store_true", help="an ideal unit: identity intrinsics, no noise")
+    parser.add_argument("--protocol", default="native", choices=sorted(ENCODERS),
+                        help="wire format of the samples (default: native)")
+    parser.add_argument("--faults", default="", metavar="SPEC",
+                        help="link faults, e.g. garbage=0.01,drop=0.001 (default: none)")
+    parser.add_argument("--link", type=Path, metavar="PATH",
+                        help="also make a symlink at PATH to the port (removed at exit)")
+    parser.add_argument("--duration", type=float, metavar="S",
+                        help="stop after S seconds (default: until Ctrl-C)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ, SimDevice
+    from mocks.faults import FaultSpec
+    from mocks.pty_server import PtyServer
+    from mocks.truth import UnitTruth
+
+    try:
+        faults = FaultSpec.parse(args.faults)
+    except ValueError as exc:
+        raise StationError(f"--faults {args.faults!r}: {exc}") from None
+    if not MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:
+        raise StationError(f"--rate {args.rate}: the simulated unit runs at {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
+    if args.link is not None and os.path.lexists(args.link) and not args.link.is_symlink():
+        raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
+    truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
+    device = SimDevice(truth, seed=args.seed, rate_hz=args.rate, scenario=args.scenario,
+                       loop=False if args.hold else None, encoder=args.protocol)
+    server = PtyServer(device, faults=faults, link=args.link)
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        server.start()
+        print(f"simulated unit {truth.serial} ({truth.model}), {args.rate} Hz, scenario {args.scenario}, "
+              f"faults {faults.describe()}")
+        print(f"port: {server.port_path}")
+        if args.link is not None:
+            print(f"link: {args.link} -> {server.port_path}")
+        print("press Ctrl-C to stop", flush=True)
+        try:
+            _wait(server, stop, args.duration)
+        except KeyboardInterrupt:
+            pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        server.stop()
+    _summary(server)
+    return 0
+
+
+def _wait(server: PtyServer, stop: threading.Event, duration: float | None) -> None:
+    status = sys.stderr.isatty()
+    while not stop.is_set():
+        if server.wait_closed(0.5):
+            break
+        elapsed = server.elapsed_s()
+        if status:
+            s = server.stats
+            host = "host connected" if server.host_connected else "no host"
+            print(f"\r{elapsed:8.1f} s  {s.samples} samples  {s.samples_sent} sent  {host}   ",
+                  end="", file=sys.stderr, flush=True)
+        if duration is not None and elapsed >= duration:
+            break
+    if status:
+        print(file=sys.stderr)
+
+
+def _summary(server: PtyServer) -> None:
+    s = server.stats
+    print(f"ran {s.elapsed_s:.1f} s: {s.samples} samples ({s.rate_hz:.1f}/s), "
+          f"{s.samples_sent} sent to a host, {s.samples_unheard} with no host, "
+          f"{s.samples_overrun} dropped (host not reading), "
+          f"{s.bytes_written} bytes written")
+    commands = ", ".join(f"{k} x{v}" for k, v in sorted(s.commands.items())) or "none"
+    print(f"host opened the port {s.host_opens} time(s); commands: {commands}; "
+          f"blocks late by more than one period: {s.late_blocks} (worst {s.max_lateness_s * 1e3:.1f} ms)")
+    if server.injector is not None:
+        c = server.injector.counts
+        print(f"faults: {c.frames} frames, {c.intact} intact, {c.dropped} dropped, {c.truncated} truncated, "
+              f"{c.bitflips} bit flips, {c.garbage_runs} garbage runs ({c.garbage_bytes} bytes), "
+              f"{c.stalls} stalls")
+    if s.disconnected:
+        print("the link was disconnected by the fault injector")
