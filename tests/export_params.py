@@ -1,0 +1,65 @@
+"""Parameter files with realistic values for the export tests (the engines' output stands in here).
+
+Intrinsics near identity with millirad misalignment, biases of a MEMS unit, and a thermal model
+of several segments holding every term, dT ones included, over -10..60 degC.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station.engines.sensor_model import SensorCalibration
+from station.engines.thermal_model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
+from station.export.params_file import ParamsFile
+
+# Exact in float32, so a temperature sitting on a boundary picks the same segment everywhere.
+BREAKS = (-10.0, 13.5, 37.0, 60.0)
+# Per-term spread of the coefficients (TERMS order: t^3, t^2, t, dT^2, dT, t*dT, 1), accel units.
+TERM_SCALE = np.array([3e-7, 2e-5, 1e-3, 1e-3, 5e-3, 1e-4, 1e-2])
+
+
+def thermal_triad(rng: np.random.Generator, breaks: tuple[float, ...], unit: float, dtemp_terms: bool,
+                  dt_clamp: float) -> ThermalBias:
+    segments = []
+    for lo, hi in zip(breaks[:-1], breaks[1:], strict=True):
+        coeffs = rng.normal(0.0, 1.0, (3, 7)) * TERM_SCALE * unit
+        if not dtemp_terms:
+            coeffs[:, 3:6] = 0.0
+        segments.append(ThermalSegment(lo, hi, coeffs))
+    return ThermalBias(segments, -dt_clamp, dt_clamp)
+
+
+def sensor(rng: np.random.Generator, scale_sd: float, misalign_sd: float, bias_sd: float,
+           method: str) -> SensorCalibration:
+    misalignment = rng.normal(0.0, misalign_sd, (3, 3)) * (1 - np.eye(3))
+    return SensorCalibration.from_parts(1 + rng.normal(0.0, scale_sd, 3), misalignment,
+                                        rng.normal(0.0, bias_sd, 3), method=method, residual_rms=0.004)
+
+
+def make_params(seed: int = 0, breaks: tuple[float, ...] = BREAKS, dtemp_terms: bool = True,
+                accel: bool = True, gyro: bool = True, thermal: bool = True,
+                device: dict | None = None) -> ParamsFile:
+    rng = np.random.default_rng(seed)
+    params = ParamsFile(device=device if device is not None else
+                        {"serial": "SN-0042", "model": "IMU-9", "firmware": "1.2.3"},
+                        created="2026-11-22T10:00:00Z")
+    params.accel = sensor(rng, 0.01, 2e-3, 0.15, "six-pose") if accel else None
+    params.gyro = sensor(rng, 0.005, 3e-3, 0.01, "turntable") if gyro else None
+    if thermal:
+        params.thermal = ThermalModel(
+            25.0, DtempFilter("ema", 12.0),
+            thermal_triad(rng, breaks, 1.0, dtemp_terms, 0.5) if accel else None,
+            thermal_triad(rng, breaks, 0.1, dtemp_terms, 1.0) if gyro else None,
+        )
+    return params
+
+
+def cubic_params(seed: int = 0) -> ParamsFile:
+    """What an autopilot can hold exactly: diagonal accel matrix, unit gyro scale, no misalignment,
+    one thermal segment with only t^3, t^2, t and 1 terms."""
+    rng = np.random.default_rng(seed)
+    params = make_params(seed, breaks=(-5.0, 55.0), dtemp_terms=False)
+    params.accel = SensorCalibration.from_parts(1 + rng.normal(0, 0.01, 3), np.zeros((3, 3)),
+                                                rng.normal(0, 0.15, 3))
+    params.gyro = SensorCalibration.from_parts(np.ones(3), np.zeros((3, 3)), rng.normal(0, 0.01, 3))
+    return params
