@@ -73,10 +73,10 @@ class NoiseSpec:
         ``x_k = a x_{k-1} + sqrt(1 - a^2) s w_k`` with ``a = exp(-dt / b_corr_time_s)`` and
         ``s = FLICKER_FLOOR B / GM_ADEV_PEAK``, so the Allan deviation peaks at 0.664 B near
         ``tau = 1.89 b_corr_time_s``. ``"flicker"``: a sum of Gauss-Markov processes with
-        correlation times spaced by a factor r = sqrt(10) from ``20 dt`` up to
-        ``b_corr_time_s``, each of variance ``s^2 = B^2 ln(r) / (2 pi)``; their summed PSD
-        approximates the flicker PSD ``B^2 / (2 pi f)`` between the corners, giving a flat
-        Allan floor of 0.664 B over that band.
+        correlation times spaced by a factor r = sqrt(10) from ``dt`` up to
+        ``10 b_corr_time_s``, each of variance ``s^2 = B^2 ln(r) / pi``; their summed one-sided
+        PSD approximates ``B^2 / (pi f)`` (IEEE 952's two-sided ``B^2 / (2 pi f)``) between the
+        corners, giving an Allan floor of 0.664 B from about ``10 dt`` to ``b_corr_time_s``.
     """
 
     N: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -101,15 +101,16 @@ class NoiseSpec:
         """Correlation times of the Gauss-Markov processes that make up the bias instability."""
         if self.bias_model == "gauss-markov":
             return np.array([self.b_corr_time_s])
-        shortest = min(20.0 / rate_hz, self.b_corr_time_s)
-        n = int(np.floor(np.log(self.b_corr_time_s / shortest) / np.log(np.sqrt(10.0)))) + 1
-        return self.b_corr_time_s / np.sqrt(10.0) ** np.arange(n)[::-1]
+        longest = 10.0 * self.b_corr_time_s
+        shortest = min(1.0 / rate_hz, longest)
+        n = int(np.floor(np.log(longest / shortest) / np.log(np.sqrt(10.0)))) + 1
+        return longest / np.sqrt(10.0) ** np.arange(n)[::-1]
 
     def gm_sigma(self) -> np.ndarray:
         """Steady-state standard deviation of each Gauss-Markov process, per axis (3,)."""
         if self.bias_model == "gauss-markov":
             return FLICKER_FLOOR * self.B / GM_ADEV_PEAK
-        return self.B * np.sqrt(np.log(np.sqrt(10.0)) / (2.0 * np.pi))
+        return self.B * np.sqrt(np.log(np.sqrt(10.0)) / np.pi)
 
 
 class NoiseGenerator:
