@@ -1,0 +1,160 @@
+"""ArduPilot parameters (``.param``: ``NAME,VALUE`` lines, ``#`` comments).
+
+ArduPilot corrects (``AP_InertialSensor_Backend::_rotate_and_correct_accel`` / ``_gyro``):
+
+    acc  = ((raw - P(T) + P(T_cal)) - INS_ACCOFFS) .* INS_ACCSCAL
+    gyro =  (raw - P(T) + P(T_cal)) - INS_GYROFFS
+
+with the temperature calibration of ``AP_InertialSensor_tempcal.cpp``: T and T_cal clamped to
+[INS_TCALn_TMIN, INS_TCALn_TMAX], P a cubic without constant about TEMP_REFERENCE = 35 degC,
+
+    P(T) = (c1 x + c2 x^2 + c3 x^3),  x = T - 35,  c_k = INS_TCALn_ACCk_* / 1e6 (GYRk for gyro),
+
+and T_cal the INS_ACCn_CALTEMP / INS_GYRn_CALTEMP at which the offsets hold. Our re-fit of the
+thermal bias is c0 + P(T), so the offsets are b + c0 + P(T_cal). ArduPilot holds no misalignment,
+no gyro scale, no dT terms, and one temperature range per IMU for both sensors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station import __version__
+from station.export import autopilot as ap
+from station.export.params_file import ParamsFile
+
+AXES = ("X", "Y", "Z")
+TEMP_REFERENCE = 35.0
+SCALE_FACTOR = 1.0e6
+MAX_INSTANCE = 2
+ACCEL_SCALE_RANGE = (0.8, 1.2)  # INS_ACCSCAL_* @Range
+ACCEL_OFFSET_LIMIT = 3.5  # INS_ACCOFFS_* @Range, m/s^2
+
+
+def names(instance: int) -> dict[str, str]:
+    """Parameter name prefixes of IMU ``instance`` (0-based: 0 is ArduPilot's first IMU)."""
+    n = instance + 1
+    first = n == 1
+    return {
+        "acc_off": "INS_ACCOFFS_" if first else f"INS_ACC{n}OFFS_",
+        "acc_scal": "INS_ACCSCAL_" if first else f"INS_ACC{n}SCAL_",
+        "gyr_off": "INS_GYROFFS_" if first else f"INS_GYR{n}OFFS_",
+        "acc_id": "INS_ACC_ID" if first else f"INS_ACC{n}_ID",
+        "gyr_id": "INS_GYR_ID" if first else f"INS_GYR{n}_ID",
+        "tcal": f"INS_TCAL{n}_",
+        "acc_caltemp": f"INS_ACC{n}_CALTEMP",
+        "gyr_caltemp": f"INS_GYR{n}_CALTEMP",
+    }
+
+
+def _poly(values: dict[str, float], prefix: str, x: np.ndarray) -> np.ndarray:
+    c = [np.array([values.get(f"{prefix}{k}_{a}", 0.0) for a in AXES]) for k in (1, 2, 3)]
+    x = np.asarray(x, float)[:, None]
+    return (c[0] + (c[1] + c[2] * x) * x) * x / SCALE_FACTOR
+
+
+def _tcal(values: dict[str, float], tcal: str, sensor: str, caltemp_name: str,
+          temp: np.ndarray) -> np.ndarray:
+    if values.get(f"{tcal}ENABLE", 0) != 1:
+        return np.zeros((len(temp), 3))
+    lo, hi = values[f"{tcal}TMIN"], values[f"{tcal}TMAX"]
+    t = np.clip(temp, lo, hi)
+    t_cal = np.full(len(temp), np.clip(values[caltemp_name], lo, hi))
+    prefix = f"{tcal}{sensor}"
+    return _poly(values, prefix, t - TEMP_REFERENCE) - _poly(values, prefix, t_cal - TEMP_REFERENCE)
+
+
+def ardupilot_correct(values: dict[str, float], instance: int, raw_acc: np.ndarray, raw_gyro: np.ndarray,
+                      temp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ArduPilot's correction (sensor frame) with ``values``; absent parameters at ArduPilot's defaults."""
+    n = names(instance)
+    acc_off = np.array([values.get(f"{n['acc_off']}{a}", 0.0) for a in AXES])
+    acc_scal = np.array([values.get(f"{n['acc_scal']}{a}", 1.0) for a in AXES])
+    gyr_off = np.array([values.get(f"{n['gyr_off']}{a}", 0.0) for a in AXES])
+    acc = (raw_acc - _tcal(values, n["tcal"], "ACC", n["acc_caltemp"], temp) - acc_off) * acc_scal
+    gyro = raw_gyro - _tcal(values, n["tcal"], "GYR", n["gyr_caltemp"], temp) - gyr_off
+    return acc, gyro
+
+
+def _temperature_range(params: ParamsFile) -> tuple[float, float]:
+    """One range for both sensors: where both models are valid, or their union if disjoint."""
+    triads = [t for t in (params.thermal.accel, params.thermal.gyro) if t is not None]
+    lo, hi = max(t.t_min for t in triads), min(t.t_max for t in triads)
+    if lo >= hi:
+        lo, hi = min(t.t_min for t in triads), max(t.t_max for t in triads)
+    return lo, hi
+
+
+def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None = None,
+                    gyro_device_id: int | None = None) -> ap.AutopilotExport:
+    """ArduPilot parameters for IMU ``instance`` (0-based; 0 writes INS_ACCOFFS_*, INS_TCAL1_*, ...)."""
+    if not 0 <= instance <= MAX_INSTANCE:
+        raise ValueError(f"ArduPilot IMU instance {instance} is out of 0..{MAX_INSTANCE}")
+    gyro_device_id = device_id if gyro_device_id is None else gyro_device_id
+    n = names(instance)
+    out: list[ap.Param] = []
+    notes: list[str] = []
+    thermal = params.thermal
+    has_thermal = thermal is not None and (thermal.accel is not None or thermal.gyro is not None)
+    fits: dict[str, ap.CubicFit | None] = {"accel": None, "gyro": None}
+    offsets = {"accel": None if params.accel is None else params.accel.bias.copy(),
+               "gyro": None if params.gyro is None else params.gyro.bias.copy()}
+    tcal: list[ap.Param] = [ap.Param(f"{n['tcal']}ENABLE", 1 if has_thermal else 0, "int")]
+    if has_thermal:
+        lo, hi = _temperature_range(params)
+        t_cal = float(np.clip(thermal.reference_temp, lo, hi))
+        tcal += [ap.Param(f"{n['tcal']}TMIN", lo, "float"), ap.Param(f"{n['tcal']}TMAX", hi, "float")]
+        for name, sensor, caltemp in (("accel", "ACC", n["acc_caltemp"]), ("gyro", "GYR", n["gyr_caltemp"])):
+            triad = getattr(thermal, name)
+            coeffs = np.zeros((3, 4))
+            if triad is not None:
+                fit = ap.fit_cubic(triad, thermal.reference_temp, TEMP_REFERENCE, lo, hi)
+                fits[name] = fit
+                coeffs = fit.coeffs
+                x = t_cal - TEMP_REFERENCE
+                shift = coeffs[:, 0] + coeffs[:, 1] * x + coeffs[:, 2] * x**2 + coeffs[:, 3] * x**3
+                offsets[name] = (offsets[name] if offsets[name] is not None else np.zeros(3)) + shift
+            for k in (1, 2, 3):
+                tcal += ap.vector_params(f"{n['tcal']}{sensor}{k}_", AXES, coeffs[:, k] * SCALE_FACTOR)
+            tcal.append(ap.Param(caltemp, t_cal, "float"))
+    if params.accel is not None or offsets["accel"] is not None:
+        if device_id is not None:
+            out.append(ap.Param(n["acc_id"], device_id, "int"))
+        out += ap.vector_params(n["acc_off"], AXES, offsets["accel"])
+        scale = 1.0 / params.accel.scale if params.accel is not None else np.ones(3)
+        out += ap.vector_params(n["acc_scal"], AXES, scale)
+        lo_s, hi_s = ACCEL_SCALE_RANGE
+        if np.any((scale < lo_s) | (scale > hi_s)):
+            notes.append(f"warning: accel scale {np.round(scale, 4).tolist()} is outside ArduPilot's "
+                         f"{lo_s}..{hi_s}; its accel calibration would reject it")
+        if np.any(np.abs(offsets["accel"]) > ACCEL_OFFSET_LIMIT):
+            notes.append(f"warning: accel offsets {np.round(offsets['accel'], 4).tolist()} exceed "
+                         f"ArduPilot's +-{ACCEL_OFFSET_LIMIT} m/s^2 range")
+    if params.gyro is not None or offsets["gyro"] is not None:
+        if gyro_device_id is not None:
+            out.append(ap.Param(n["gyr_id"], gyro_device_id, "int"))
+        out += ap.vector_params(n["gyr_off"], AXES, offsets["gyro"])
+        notes.append("ArduPilot re-measures gyro offsets at every boot unless INS_GYR_CAL = 0; "
+                     "set it to keep these")
+    out += tcal
+    notes.append("ArduPilot applies the sensor's orientation before these corrections; the values are in the "
+                 "unit's own axes, as calibrated")
+    result = ap.AutopilotExport("ardupilot", out, notes=notes)
+    values = result.values()
+    result.pose_errors = ap.assess(params, values, lambda v, a, g, t: ardupilot_correct(v, instance, a, g, t))
+    result.limitations = ap.limitations(params, result.pose_errors, cubic_fits=fits)
+    return result
+
+
+def render_ardupilot(result: ap.AutopilotExport, params: ParamsFile, station_id: str, exported: str) -> str:
+    """The ``.param`` text (Mission Planner / MAVProxy ``NAME,VALUE``)."""
+    device = params.device
+    lines = [
+        f"# ArduPilot IMU calibration written by imu-station {__version__} at "
+        f"{ap.sanitize_comment(exported)} on station {ap.sanitize_comment(station_id)}",
+        f"# Unit serial {ap.sanitize_comment(str(device.get('serial', '')))}, "
+        f"model {ap.sanitize_comment(str(device.get('model', '')))}, "
+        f"firmware {ap.sanitize_comment(str(device.get('firmware', '')))}",
+    ]
+    lines += [f"{p.name},{p.text()}" for p in result.params]
+    return "\n".join(lines) + "\n"

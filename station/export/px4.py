@@ -1,0 +1,115 @@
+"""PX4 parameters (QGroundControl ``.params``: ``vehicle-id<TAB>component-id<TAB>NAME<TAB>VALUE<TAB>TYPE``).
+
+PX4 corrects (``sensor_calibration::Accelerometer::Correct`` and ``Gyroscope::Correct``):
+
+    acc  = R ((raw - TC_A(T) - CAL_ACCn_OFF) .* CAL_ACCn_SCALE)
+    gyro = R  (raw - TC_G(T) - CAL_GYROn_OFF)
+
+with R the board rotation (not ours to set) and the thermal offset of
+``TemperatureCompensation::calc_thermal_offsets_3D``:
+
+    TC(T) = X0 + X1 dt + X2 dt^2 + X3 dt^3,   dt = clamp(T, TMIN, TMAX) - TREF.
+
+So offsets are our bias b, scales 1/K (the six-pose optimum), TREF our reference temperature and
+X0..X3 a cubic re-fitted on it. PX4 holds no misalignment, no gyro scale and no dT terms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station import __version__
+from station.export import autopilot as ap
+from station.export.params_file import ParamsFile
+
+AXES = ("X", "Y", "Z")
+MAV_PARAM_TYPE_INT32 = 6
+MAV_PARAM_TYPE_REAL32 = 9
+MAX_INSTANCE = 3
+
+
+def _tc_offset(values: dict[str, float], prefix: str, enable: str, temp: np.ndarray) -> np.ndarray:
+    if values.get(enable, 0) != 1 or f"{prefix}TREF" not in values:
+        return np.zeros((len(temp), 3))
+    t = np.clip(temp, values[f"{prefix}TMIN"], values[f"{prefix}TMAX"]) - values[f"{prefix}TREF"]
+    coeff = np.array([[values[f"{prefix}X{k}_{axis}"] for k in range(4)] for axis in range(3)])
+    return np.stack([t**0, t, t**2, t**3], axis=-1) @ coeff.T
+
+
+def px4_correct(values: dict[str, float], instance: int, raw_acc: np.ndarray, raw_gyro: np.ndarray,
+                temp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """PX4's correction (sensor frame, R = I) with ``values``; absent parameters at PX4's defaults."""
+    acc_off = np.array([values.get(f"CAL_ACC{instance}_{a}OFF", 0.0) for a in AXES])
+    acc_scale = np.array([values.get(f"CAL_ACC{instance}_{a}SCALE", 1.0) for a in AXES])
+    gyr_off = np.array([values.get(f"CAL_GYRO{instance}_{a}OFF", 0.0) for a in AXES])
+    acc = (raw_acc - _tc_offset(values, f"TC_A{instance}_", "TC_A_ENABLE", temp) - acc_off) * acc_scale
+    gyro = raw_gyro - _tc_offset(values, f"TC_G{instance}_", "TC_G_ENABLE", temp) - gyr_off
+    return acc, gyro
+
+
+def build_px4(params: ParamsFile, instance: int = 0, device_id: int | None = None,
+              gyro_device_id: int | None = None) -> ap.AutopilotExport:
+    """PX4 parameters for sensor ``instance`` (CAL_ACCn / CAL_GYROn / TC_An / TC_Gn)."""
+    if not 0 <= instance <= MAX_INSTANCE:
+        raise ValueError(f"PX4 sensor instance {instance} is out of 0..{MAX_INSTANCE}")
+    gyro_device_id = device_id if gyro_device_id is None else gyro_device_id
+    out: list[ap.Param] = []
+    notes = []
+    if params.accel is not None:
+        if device_id is not None:
+            out.append(ap.Param(f"CAL_ACC{instance}_ID", device_id, "int"))
+        out += ap.vector_params(f"CAL_ACC{instance}_", tuple(f"{a}OFF" for a in AXES), params.accel.bias)
+        scale = 1.0 / params.accel.scale
+        out += ap.vector_params(f"CAL_ACC{instance}_", tuple(f"{a}SCALE" for a in AXES), scale)
+    if params.gyro is not None:
+        if gyro_device_id is not None:
+            out.append(ap.Param(f"CAL_GYRO{instance}_ID", gyro_device_id, "int"))
+        out += ap.vector_params(f"CAL_GYRO{instance}_", tuple(f"{a}OFF" for a in AXES), params.gyro.bias)
+    fits: dict[str, ap.CubicFit | None] = {"accel": None, "gyro": None}
+    thermal = params.thermal
+    for name, letter, dev in (("accel", "A", device_id), ("gyro", "G", gyro_device_id)):
+        triad = getattr(thermal, name) if thermal is not None else None
+        if triad is None:
+            continue
+        fit = ap.fit_cubic(triad, thermal.reference_temp, thermal.reference_temp, triad.t_min, triad.t_max)
+        fits[name] = fit
+        prefix = f"TC_{letter}{instance}_"
+        out.append(ap.Param(f"TC_{letter}_ENABLE", 1, "int"))
+        if dev is not None:
+            out.append(ap.Param(f"{prefix}ID", dev, "int"))
+        out += [ap.Param(f"{prefix}TREF", fit.centre, "float"), ap.Param(f"{prefix}TMIN", fit.t_min, "float"),
+                ap.Param(f"{prefix}TMAX", fit.t_max, "float")]
+        for k in range(4):
+            out += ap.vector_params(f"{prefix}X{k}_", ("0", "1", "2"), fit.coeffs[:, k])
+    if device_id is None:
+        notes.append("no --device-id: CAL_*_ID and TC_*_ID are not written, so PX4 applies these values to "
+                     f"whichever sensor its instance {instance} already names; give the sensor's device id "
+                     "(from 'listener sensor_accel' / 'sensor_gyro') to bind them")
+    notes.append("PX4 rotates the corrected vector by the sensor's rotation afterwards; these values are in "
+                 "the unit's own axes, as calibrated")
+    result = ap.AutopilotExport("px4", out, notes=notes)
+    values = result.values()
+    result.pose_errors = ap.assess(params, values, lambda v, a, g, t: px4_correct(v, instance, a, g, t))
+    result.limitations = ap.limitations(params, result.pose_errors, cubic_fits=fits)
+    return result
+
+
+def render_px4(result: ap.AutopilotExport, params: ParamsFile, station_id: str, exported: str) -> str:
+    """The QGroundControl parameter file text (tab-separated, ``#`` comments)."""
+    device = params.device
+    lines = [
+        "# Onboard parameters for Vehicle 1",
+        "#",
+        "# Stack: PX4 Pro",
+        f"# Written by imu-station {__version__} at {ap.sanitize_comment(exported)} on station "
+        f"{ap.sanitize_comment(station_id)}",
+        f"# Unit serial {ap.sanitize_comment(str(device.get('serial', '')))}, "
+        f"model {ap.sanitize_comment(str(device.get('model', '')))}, "
+        f"firmware {ap.sanitize_comment(str(device.get('firmware', '')))}",
+        "#",
+        "# Vehicle-Id Component-Id Name Value Type",
+    ]
+    for p in result.params:
+        kind = MAV_PARAM_TYPE_INT32 if p.kind == "int" else MAV_PARAM_TYPE_REAL32
+        lines.append(f"1\t1\t{p.name}\t{p.text()}\t{kind}")
+    return "\n".join(lines) + "\n"

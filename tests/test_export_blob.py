@@ -1,0 +1,97 @@
+"""The parameter blob: its documented layout byte by byte, a lossless round trip to float32, and
+refusal of damaged or impossible content with a message that says what is wrong."""
+
+from __future__ import annotations
+
+import datetime as dt
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from export_params import make_params
+
+from station.engines.thermal_model import ThermalSegment
+from station.export import blob as blobfmt
+from station.export.params_file import ParamsFile
+
+
+def test_layout_matches_the_documented_table() -> None:
+    params = make_params(seed=1)
+    data = blobfmt.build_blob(params, "bench-7", 1_795_000_123)
+    assert data[0:4] == b"IMUC"
+    version, header_size, total, schema, flags = struct.unpack_from("<HHIHH", data, 4)
+    assert (version, header_size, total, schema) == (1, 96, len(data), 1)
+    assert flags == 0b1111
+    created, exported = struct.unpack_from("<qq", data, 16)
+    assert created == int(dt.datetime(2026, 11, 22, 10, tzinfo=dt.UTC).timestamp())
+    assert exported == 1_795_000_123
+    assert data[32:64] == b"SN-0042".ljust(32, b"\0")
+    assert data[64:80] == b"bench-7".ljust(16, b"\0")
+    assert data[80:96] == bytes(16)
+    assert struct.unpack_from("<I", data, len(data) - 4)[0] == zlib.crc32(data[:-4])
+    t_ref, tau = struct.unpack_from("<ff", data, 96)
+    assert (t_ref, tau) == (25.0, 12.0)
+    correction = np.array(struct.unpack_from("<9f", data, 104)).reshape(3, 3)
+    assert np.allclose(correction, params.accel.correction, rtol=1e-6)
+    assert struct.unpack_from("<3f", data, 104 + 36) == tuple(np.float32(params.accel.bias).tolist())
+    n, dt_min, dt_max = struct.unpack_from("<Iff", data, 104 + 96)
+    assert (n, dt_min, dt_max) == (3, -0.5, 0.5)
+    seg0 = struct.unpack_from("<23f", data, 104 + 96 + 12)
+    assert seg0[:2] == (-10.0, 13.5)
+    assert np.array_equal(np.array(seg0[2:]), np.float32(params.thermal.accel.segments[0].coeffs).ravel())
+    assert len(data) == 96 + 8 + 2 * 48 + 2 * (12 + 3 * 92) + 4
+
+
+def test_round_trip_to_float32() -> None:
+    params = make_params(seed=2)
+    back = blobfmt.parse_blob(blobfmt.build_blob(params, "st", 0))
+    assert back.serial == "SN-0042" and back.station_id == "st" and back.flags == 15
+    assert np.allclose(back.accel.correction, params.accel.correction, rtol=1e-6, atol=1e-7)
+    assert np.allclose(back.gyro.bias, params.gyro.bias, rtol=1e-7)
+    temp = np.linspace(-20, 70, 50)
+    dtemp = np.linspace(-2, 2, 50)
+    for name in ("accel", "gyro"):
+        ours = getattr(params.thermal, name).evaluate(temp, dtemp, 25.0)
+        theirs = getattr(back.thermal, name).evaluate(temp, dtemp, back.reference_temp)
+        assert np.allclose(ours, theirs, rtol=1e-6, atol=1e-9)
+
+
+def test_sections_absent_become_identity_and_zero_segments() -> None:
+    params = make_params(seed=3, gyro=False, thermal=False)
+    back = blobfmt.parse_blob(blobfmt.build_blob(params, "st", 0))
+    assert back.flags == blobfmt.FLAG_ACCEL and back.thermal is None
+    assert np.array_equal(back.gyro.matrix, np.eye(3)) and np.array_equal(back.gyro.bias, np.zeros(3))
+
+
+def test_long_strings_cut_on_a_character_boundary() -> None:
+    params = make_params(seed=4, device={"serial": "é" * 20})
+    back = blobfmt.parse_blob(blobfmt.build_blob(params, "station-with-a-long-name", 0))
+    assert back.serial == "é" * 15 and back.station_id == "station-with-a-"
+
+
+@pytest.mark.parametrize(("damage", "message"), [
+    (lambda b: b"ABCD" + b[4:], "bad magic"),
+    (lambda b: b[:4] + struct.pack("<H", 9) + b[6:], "version 9 is unknown"),
+    (lambda b: b[:-3], "bytes long but"),
+    (lambda b: b[:6], "shorter than"),
+    (lambda b: b[:200] + bytes([b[200] ^ 4]) + b[201:], "CRC-32 mismatch"),
+])
+def test_damage_refused_with_a_reason(damage, message: str) -> None:
+    data = blobfmt.build_blob(make_params(seed=5), "st", 0)
+    with pytest.raises(blobfmt.BlobError, match=message):
+        blobfmt.parse_blob(damage(data))
+
+
+def test_impossible_parameter_files_refused() -> None:
+    with pytest.raises(blobfmt.BlobError, match="nothing to export"):
+        blobfmt.build_blob(ParamsFile(), "st", 0)
+    params = make_params(seed=6)
+    segs = params.thermal.accel.segments
+    segs[0], segs[1] = segs[1], segs[0]
+    with pytest.raises(blobfmt.BlobError, match="increasing order"):
+        blobfmt.build_blob(params, "st", 0)
+    params = make_params(seed=6)
+    params.thermal.gyro.segments[1] = ThermalSegment(20.0, 20.0, np.zeros((3, 7)))
+    with pytest.raises(blobfmt.BlobError, match="must be below"):
+        blobfmt.build_blob(params, "st", 0)
