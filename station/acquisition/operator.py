@@ -1,0 +1,232 @@
+"""The operator the sequence runner talks to: whoever places the unit and answers its questions.
+
+The runner asks an :class:`Operator` to place the unit for a step, to turn it, and to confirm
+(start, review a failed check, give up waiting); it tells it the live state at most ~20 times a
+second and polls it for asynchronous requests (redo, skip, abort). The TUI, a factory script,
+a turntable and the tests each implement it:
+
+- :class:`ScriptedOperator`: answers from a script (a mapping of prompt kinds to answers, or a
+  callable), for factory lines with a manual fixture and for tests; keeps a transcript.
+- :class:`SimulatedOperator`: wraps another operator and moves the simulated unit as each step
+  asks, so a whole sequence runs unattended against the simulator.
+"""
+
+from __future__ import annotations
+
+import enum
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
+
+if TYPE_CHECKING:
+    from station.acquisition.runner import LiveStatus, RunResult, StepRecord
+
+
+class Action(enum.Enum):
+    """What the operator can answer or request."""
+
+    ACCEPT = "accept"
+    REDO = "redo"
+    SKIP = "skip"
+    ABORT = "abort"
+
+
+@dataclass(frozen=True)
+class Prompt:
+    """A question the runner blocks on. ``default`` is what Enter answers in the TUI.
+
+    ``kind``: ``start`` (begin the sequence), ``review`` (a step failed a check),
+    ``timeout`` (the unit did not reach the asked state in time).
+    """
+
+    kind: str
+    text: str
+    choices: tuple[Action, ...]
+    default: Action
+    step: Step | None = None
+    details: tuple[str, ...] = ()
+
+
+class Operator(Protocol):
+    """What the runner needs of whoever handles the unit. See the module docstring."""
+
+    def begin(self, sequence: Sequence) -> None: ...
+
+    def place(self, step: Step, index: int, total: int) -> None:
+        """Ask for the unit in the step's pose (a rotation's start pose); returns at once."""
+
+    def rotate(self, step: RotationStep) -> None:
+        """Ask for the turn of a rotation step now (the unit is in its start pose and still)."""
+
+    def status(self, status: LiveStatus) -> None:
+        """The live state; called at most ``RunOptions.status_rate_hz`` times a second."""
+
+    def poll(self) -> Action | None:
+        """An asynchronous request (redo, skip or abort the current step), or None."""
+
+    def confirm(self, prompt: Prompt) -> Action:
+        """Block until the operator answers one of ``prompt.choices``."""
+
+    def step_finished(self, record: StepRecord) -> None: ...
+
+    def end(self, result: RunResult) -> None: ...
+
+
+class BaseOperator:
+    """Does nothing on every call and accepts every prompt's default; subclass what you need."""
+
+    def begin(self, sequence: Sequence) -> None:
+        pass
+
+    def place(self, step: Step, index: int, total: int) -> None:
+        pass
+
+    def rotate(self, step: RotationStep) -> None:
+        pass
+
+    def status(self, status: LiveStatus) -> None:
+        pass
+
+    def poll(self) -> Action | None:
+        return None
+
+    def confirm(self, prompt: Prompt) -> Action:
+        return prompt.default
+
+    def step_finished(self, record: StepRecord) -> None:
+        pass
+
+    def end(self, result: RunResult) -> None:
+        pass
+
+
+Answer = Action | str | Callable[[Prompt], Action | str]
+
+# What a factory line wants when nobody is there: go on, retry a failed step a few times
+# (counted by the runner's max_attempts), give up on a unit that never gets into position.
+FACTORY_ANSWERS: dict[str, Answer] = {"start": Action.ACCEPT, "review": Action.REDO, "timeout": Action.ABORT}
+
+
+@dataclass
+class TranscriptEntry:
+    event: str
+    label: str = ""
+    detail: str = ""
+
+
+@dataclass
+class ScriptedOperator(BaseOperator):
+    """Answers prompts from ``answers`` (prompt kind -> Action, its name, or a callable of the prompt).
+
+    Kinds missing from ``answers`` get the prompt's default. ``on_place``/``on_rotate`` let a
+    factory script drive a fixture or tell a person at the line; ``requests`` queues
+    asynchronous requests (as a TUI key would) for :meth:`poll`. Every call is recorded in
+    ``transcript``.
+    """
+
+    answers: Mapping[str, Answer] = field(default_factory=dict)
+    on_place: Callable[[Step, int, int], None] | None = None
+    on_rotate: Callable[[RotationStep], None] | None = None
+    transcript: list[TranscriptEntry] = field(default_factory=list)
+    statuses: int = 0
+
+    def __post_init__(self) -> None:
+        self._requests: list[Action] = []
+        self._lock = threading.Lock()
+
+    def request(self, action: Action | str) -> None:
+        """Queue an asynchronous request (redo, skip, abort), as an operator's key press would."""
+        with self._lock:
+            self._requests.append(Action(action))
+
+    def begin(self, sequence: Sequence) -> None:
+        self.transcript.append(TranscriptEntry("begin", sequence.name))
+
+    def place(self, step: Step, index: int, total: int) -> None:
+        self.transcript.append(TranscriptEntry("place", step.label, f"{index + 1}/{total}"))
+        if self.on_place is not None:
+            self.on_place(step, index, total)
+
+    def rotate(self, step: RotationStep) -> None:
+        self.transcript.append(TranscriptEntry("rotate", step.label))
+        if self.on_rotate is not None:
+            self.on_rotate(step)
+
+    def status(self, status: LiveStatus) -> None:
+        self.statuses += 1
+
+    def poll(self) -> Action | None:
+        with self._lock:
+            return self._requests.pop(0) if self._requests else None
+
+    def confirm(self, prompt: Prompt) -> Action:
+        answer: Any = self.answers.get(prompt.kind, prompt.default)
+        if callable(answer) and not isinstance(answer, Action):
+            answer = answer(prompt)
+        action = Action(answer)
+        if action not in prompt.choices:
+            raise ValueError(f"scripted answer {action.value!r} to a {prompt.kind!r} prompt is not one of "
+                             f"{', '.join(c.value for c in prompt.choices)}")
+        label = prompt.step.label if prompt.step is not None else ""
+        self.transcript.append(TranscriptEntry(f"confirm:{prompt.kind}", label, action.value))
+        return action
+
+    def step_finished(self, record: StepRecord) -> None:
+        self.transcript.append(TranscriptEntry("finished", record.label, record.status))
+
+    def end(self, result: RunResult) -> None:
+        self.transcript.append(TranscriptEntry("end", result.outcome))
+
+
+class Rig(Protocol):
+    """What moves a simulated (or motorized) unit: a pose by label, a turn about a sensor axis."""
+
+    def set_pose(self, pose: str, move_s: float = ...) -> None: ...
+
+    def rotate(self, axis: str, angle_deg: float, rate_dps: float, settle_s: float = ...) -> None: ...
+
+
+class SimulatedOperator(BaseOperator):
+    """Moves the simulated unit as each step asks, then lets ``inner`` see and answer everything.
+
+    ``inner`` is the TUI (so a person watches and presses Enter) or a :class:`ScriptedOperator`.
+    ``move_s`` is how long the simulated hand takes between poses; ``settle_s`` how long it holds
+    still before and after a turn (the runner has already captured its own settle when it asks).
+    """
+
+    def __init__(self, rig: Rig, inner: Operator | None = None, move_s: float = 0.5, settle_s: float = 0.2):
+        self.rig = rig
+        self.inner: Operator = inner if inner is not None else BaseOperator()
+        self.move_s = move_s
+        self.settle_s = settle_s
+
+    def begin(self, sequence: Sequence) -> None:
+        self.inner.begin(sequence)
+
+    def place(self, step: Step, index: int, total: int) -> None:
+        self.inner.place(step, index, total)
+        pose = step.label if isinstance(step, PoseStep) else step.start_pose
+        self.rig.set_pose(pose, self.move_s)
+
+    def rotate(self, step: RotationStep) -> None:
+        self.inner.rotate(step)
+        sign = "+" if step.angle_deg > 0 else "-"
+        self.rig.rotate(sign + "xyz"[step.axis], abs(step.angle_deg), step.rate_dps, self.settle_s)
+
+    def status(self, status: LiveStatus) -> None:
+        self.inner.status(status)
+
+    def poll(self) -> Action | None:
+        return self.inner.poll()
+
+    def confirm(self, prompt: Prompt) -> Action:
+        return self.inner.confirm(prompt)
+
+    def step_finished(self, record: StepRecord) -> None:
+        self.inner.step_finished(record)
+
+    def end(self, result: RunResult) -> None:
+        self.inner.end(result)
