@@ -1,0 +1,173 @@
+"""Pieces every calibration method shares: step labels, covariances, the result type, conventions.
+
+The forward model of every triad is raw = M true + b with M = K (I + S) (``sensor_model``);
+the fits below estimate either M and b directly (linear least squares) or a correction
+C = M^-1 (nonlinear fits, like imu_tk's X' = T K (X - B)), converted here.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from station.engines.sensor_model import SensorCalibration
+from station.errors import EngineInputError
+
+AXES = "xyz"
+_POSE = re.compile(r"^(?:[+-][xyz])+$")
+_ROTATION = re.compile(r"^rot([+-])([xyz])(?::([+-]?\d+(?:\.\d*)?))?$")
+
+
+def pose_vector(label: str) -> np.ndarray | None:
+    """The unit vector (sensor frame) that points up in a static pose label, or None.
+
+    ``+z`` -> (0, 0, 1); ``+x+y`` -> (1, 1, 0)/sqrt(2) (``shared/specs/capture-csv.md``).
+    """
+    label = label.strip()
+    if not _POSE.match(label):
+        return None
+    v = np.zeros(3)
+    for sign, axis in re.findall(r"([+-])([xyz])", label):
+        idx = AXES.index(axis)
+        if v[idx] != 0:
+            return None
+        v[idx] = 1.0 if sign == "+" else -1.0
+    return v / np.linalg.norm(v)
+
+
+def rotation_of(label: str) -> tuple[np.ndarray, float] | None:
+    """(axis unit vector, angle in rad) of a rotation label, or None: ``rot-z`` is -360 deg about +z."""
+    m = _ROTATION.match(label.strip())
+    if not m:
+        return None
+    sign, axis, degrees = m.groups()
+    vec = np.zeros(3)
+    vec[AXES.index(axis)] = 1.0
+    angle = np.radians(float(degrees) if degrees else 360.0)
+    return vec, (angle if sign == "+" else -angle)
+
+
+def segments(step: np.ndarray) -> list[tuple[str, slice]]:
+    """Contiguous runs of one non-empty label: [(label, slice), ...] (the same rule as Capture)."""
+    labels = np.asarray(step).astype(str)
+    if len(labels) == 0:
+        return []
+    change = np.flatnonzero(labels[1:] != labels[:-1]) + 1
+    bounds = np.concatenate([[0], change, [len(labels)]])
+    return [(str(labels[a]), slice(int(a), int(b))) for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+            if labels[a].strip() != ""]
+
+
+def covariance(jac: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, float]:
+    """Parameter covariance s^2 (J^T J)^-1 with s^2 = r^T r / (m - p), and s^2.
+
+    The usual Gauss-Newton estimate at the optimum (e.g. Nocedal & Wright eq. 10.2 with
+    the residual variance estimated from the fit).
+    """
+    m, p = jac.shape
+    dof = m - p
+    s2 = float(residual @ residual / dof) if dof > 0 else float("nan")
+    jtj = jac.T @ jac
+    return s2 * np.linalg.pinv(jtj), s2
+
+
+def propagate(fun: Callable[[np.ndarray], np.ndarray], p: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Covariance of fun(p) by first-order propagation J cov J^T (J by central differences)."""
+    p = np.asarray(p, float)
+    f0 = np.asarray(fun(p), float).ravel()
+    jac = np.empty((len(f0), len(p)))
+    for k in range(len(p)):
+        h = 1e-6 * max(abs(p[k]), 1e-3 * np.sqrt(max(cov[k, k], 0.0)), 1e-12)
+        dp = np.zeros_like(p)
+        dp[k] = h
+        jac[:, k] = (np.asarray(fun(p + dp)).ravel() - np.asarray(fun(p - dp)).ravel()) / (2 * h)
+    return jac @ cov @ jac.T
+
+
+def _forward_parts(matrix: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """[M (9), b (3), K (3), S (9)] flattened, for uncertainty propagation."""
+    scale = np.diag(matrix)
+    mis = matrix / scale[:, None] - np.eye(3)
+    np.fill_diagonal(mis, 0.0)
+    return np.concatenate([matrix.ravel(), bias, scale, mis.ravel()])
+
+
+def stddev_from(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], p: np.ndarray,
+                cov: np.ndarray) -> dict[str, Any]:
+    """1-sigma of matrix, bias, scale and misalignment when (M, b) = fun(p) and cov(p) is known."""
+    def parts(q: np.ndarray) -> np.ndarray:
+        return _forward_parts(*fun(q))
+
+    sd = np.sqrt(np.clip(np.diag(propagate(parts, p, cov)), 0.0, None))
+    return {
+        "matrix": sd[0:9].reshape(3, 3),
+        "bias": sd[9:12],
+        "scale": sd[12:15],
+        "misalignment": sd[15:24].reshape(3, 3),
+    }
+
+
+def describe_null(vector: np.ndarray, names: list[str]) -> str:
+    """Name the parameter combination a rank-deficient design leaves free (largest entries)."""
+    v = np.asarray(vector, float)
+    v = v / np.max(np.abs(v))
+    terms = [f"{v[i]:+.2g}*{names[i]}" for i in np.argsort(-np.abs(v)) if abs(v[i]) > 0.05]
+    return " ".join(terms)
+
+
+@dataclass
+class CalibrationReport:
+    """What a calibration produced: the two triads plus what a user needs to judge it."""
+
+    accel: SensorCalibration | None
+    gyro: SensorCalibration | None
+    method: str
+    gravity: float
+    poses: list[dict[str, Any]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+def triangular_correction(correction: np.ndarray, convention: str) -> tuple[np.ndarray, np.ndarray]:
+    """Split a correction C into a rotation Q and a triangular C' with C = Q C' (diag(C') > 0).
+
+    ``upper``: C' upper triangular (imu_tk's T K, T unit upper triangular), by QR of C.
+    ``lower``: C' lower triangular (the lecture's body frame: body x = sensor x, body xy plane =
+    sensor xy plane), by QR of the row- and column-reversed C (a "QL" decomposition).
+    The two conventions of one sensor therefore differ exactly by the rotation between
+    their body frames: C_upper = Q_u^T C = Q_u^T Q_l C_lower.
+    """
+    c = np.asarray(correction, float)
+    if convention == "upper":
+        q, r = np.linalg.qr(c)
+    elif convention == "lower":
+        flip = np.eye(3)[::-1]
+        q0, r0 = np.linalg.qr(flip @ c @ flip)
+        q, r = flip @ q0 @ flip, flip @ r0 @ flip
+    else:
+        raise ValueError(f"convention must be 'lower' or 'upper', got {convention!r}")
+    signs = np.sign(np.diag(r))
+    signs[signs == 0] = 1.0
+    return q * signs, signs[:, None] * r
+
+
+def convert_convention(accel_correction: np.ndarray, gyro_correction: np.ndarray | None,
+                       to: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """Re-express an (accel, gyro) correction pair in the body frame of convention ``to``.
+
+    The accelerometer's correction becomes triangular (see :func:`triangular_correction`),
+    the gyroscope's is rotated with it (its rates are expressed in the same body frame).
+    Returns (accel C', gyro C', Q^T) where Q^T rotates old body vectors into the new frame.
+    """
+    q, acc_c = triangular_correction(accel_correction, to)
+    gyro_c = None if gyro_correction is None else q.T @ np.asarray(gyro_correction, float)
+    return acc_c, gyro_c, q.T
+
+
+def require(condition: bool, message: str) -> None:
+    if not condition:
+        raise EngineInputError(message)
