@@ -204,27 +204,35 @@ class SerialDevice(Device):
     def closed(self) -> bool:
         return self._closed
 
+    @property
+    def transport(self) -> serial.SerialBase:
+        """The pyserial port underneath (for diagnostics; the reader thread owns its reads)."""
+        return self._serial
+
     # -- commands ------------------------------------------------------------------------------
 
     def get_info(self, timeout: float = 1.0, retries: int = 2) -> dict[str, Any]:
-        message = self._command(native.GET_INFO, b"", timeout, retries)
+        message = self.command(native.GET_INFO, b"", timeout, retries)
         return native.parse_device_info(message.payload)
 
     def set_rate(self, rate_hz: int, timeout: float = 1.0, retries: int = 2) -> None:
         if not 1 <= rate_hz <= 0xFFFF:
             raise CommandRejected(f"{self.port}: rate {rate_hz} Hz does not fit SET_RATE (1..65535 Hz)",
                                   self.port, native.ACK_BAD_ARGUMENT)
-        self._command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout, retries)
+        self.command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout, retries)
 
     def start(self, timeout: float = 1.0, retries: int = 2) -> None:
-        self._command(native.START_STREAM, b"", timeout, retries)
+        self.command(native.START_STREAM, b"", timeout, retries)
 
     def stop(self, timeout: float = 1.0, retries: int = 2) -> None:
-        self._command(native.STOP_STREAM, b"", timeout, retries)
+        self.command(native.STOP_STREAM, b"", timeout, retries)
 
-    def _command(self, command_id: int, payload: bytes, timeout: float, retries: int) -> Message:
-        """Send a command and wait for its answer; resend on timeout (all commands are idempotent)."""
-        name = _COMMAND_NAMES[command_id]
+    def command(self, command_id: int, payload: bytes = b"", timeout: float = 1.0,
+                retries: int = 2) -> Message:
+        """Send any native command and wait for its answer: DEVICE_INFO for GET_INFO, else the ACK
+        that names ``command_id``. Resent on timeout (the spec's commands are idempotent); an ACK
+        with an error status raises ``CommandRejected``."""
+        name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
         if self.protocol != "native":
             raise CommandUnsupported(f"{self.port}: the {self.protocol} protocol has no {name} command; "
                                      f"configure the unit with its vendor's tool", self.port)

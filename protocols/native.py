@@ -156,8 +156,8 @@ class NativeDecoder(StreamDecoderBase):
         while True:
             start = buf.find(SYNC, pos)
             if start < 0:
-                # Keep a trailing first sync byte: the second may come in the next chunk.
-                keep = 1 if buf.endswith(SYNC[:1]) else 0
+                # Keep a trailing first sync byte, unless it ended a frame already consumed.
+                keep = 1 if len(buf) > pos and buf.endswith(SYNC[:1]) else 0
                 skipped = len(buf) - pos - keep
                 if skipped > 0:
                     stats.garbage_bytes += skipped
@@ -215,8 +215,11 @@ class NativeDecoder(StreamDecoderBase):
     def _skip_candidate(self, pos: int) -> int:
         """Drop the sync candidate at ``pos``: resume at the next one (counted as garbage)."""
         self.stats.resyncs += 1
-        nxt = self._buf.find(SYNC, pos + 1)
-        nxt = len(self._buf) if nxt < 0 else nxt
+        buf = self._buf
+        nxt = buf.find(SYNC, pos + 1)
+        if nxt < 0:
+            # Keep a trailing first sync byte (not the candidate's own): the second may come next.
+            nxt = len(buf) - (1 if len(buf) - 1 > pos and buf.endswith(SYNC[:1]) else 0)
         self.stats.garbage_bytes += nxt - pos
         return nxt
 

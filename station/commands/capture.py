@@ -19,6 +19,7 @@ from drivers import (
     PortLost,
     open_device,
 )
+from mocks import register_sim_url
 from protocols.registry import DECODERS
 from station.acquisition.recorder import CaptureResult, record
 from station.cli import EXIT_INTERRUPTED
@@ -89,6 +90,8 @@ def capture_to_file(port: str, output: Path, protocol: str = "native", duration_
                     err: IO[str] | None = None) -> CaptureResult:
     """Open the unit at ``port``, prepare it, and record into ``output`` with a live status line."""
     err = err if err is not None else sys.stderr
+    if port.startswith("sim://"):
+        register_sim_url()
     with open_device(port, protocol=protocol, baudrate=baudrate) as device:
         try:
             prepare_device(device, rate_hz, err)
