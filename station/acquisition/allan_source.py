@@ -99,7 +99,8 @@ class TimingChecker:
             steps = steps[steps > 0]
             if len(steps) == 0:
                 raise EngineInputError("cannot tell the sample rate from the first timestamps; give --rate")
-            r.rate_hz = float(1.0 / np.median(steps))
+            # 6 significant digits: timestamps printed to microseconds would otherwise give 200.0000000002 Hz
+            r.rate_hz = float(f"{1.0 / np.median(steps):.6g}")
         newest = np.maximum.accumulate(np.concatenate([[self._last], t]))[:-1]
         keep = t > newest
         r.duplicates += int(np.count_nonzero(t == newest))

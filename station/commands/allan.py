@@ -1,0 +1,156 @@
+"""``imu-station allan``: Allan deviation of a still recording and the IMU noise terms filters need."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import IO, Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
+from station.engines.allan import allan_curve, cluster_sizes
+from station.engines.allan_fit import identify_noise
+from station.errors import EngineInputError
+from station.export import allan_report, kalibr
+from station.export.params_file import ParamsFile, to_plain
+from station.files import atomic_write_text
+
+NAME = "allan"
+HELP = "Allan deviation of a still recording: noise terms (N, K, B, Q, R), Kalibr/VINS/ORB-SLAM3 values"
+DESCRIPTION = """\
+Compute the overlapping Allan deviation of every axis (gx gy gz ax ay az) of a still recording and
+identify the IEEE 952 noise terms: N white noise (angle/velocity random walk), K rate random walk,
+B bias instability, Q quantization, R rate ramp. N and K are always fitted; B, Q and R only where the
+curve shows them. A term the record cannot show is null, with the reason (for example K when the
+white-noise and random-walk lines cross beyond a twentieth of the record).
+
+INPUT is a capture CSV, a station capture file (.h5) or a ROS 1/ROS 2 bag with sensor_msgs/Imu
+(header stamps are used; needs the 'ros' extra). Timestamps are checked: gaps, repeated and
+out-of-order stamps are reported; a record missing more than --max-missing of its samples is refused.
+Records of any length are processed in bounded memory (temporary files of 48 bytes per sample).
+
+exit codes: 0 done, 4 unusable input or options."""
+EPILOG = """\
+examples:
+  imu-station allan still.csv -o unit.yaml --plot allan.png --curve allan.csv
+  imu-station allan imu.bag --topic /imu/data --kalibr imu.yaml --vins vins.yaml --json"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", type=Path, metavar="INPUT",
+                        help="capture CSV (.csv, .csv.gz), capture file (.h5) or ROS bag (.bag, ROS 2 dir)")
+    parser.add_argument("-o", "--output", type=Path, metavar="PARAMS",
+                        help="parameter file to write the 'noise' section into (other sections are kept)")
+    parser.add_argument("--curve", type=Path, metavar="FILE.csv",
+                        help="write the curve: tau, gx..az, n, then EDF and 68%% interval columns per axis")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write the log-log plot as PNG")
+    parser.add_argument("--kalibr", type=Path, metavar="FILE.yaml", help="write Kalibr's imu.yaml")
+    parser.add_argument("--vins", type=Path, metavar="FILE.yaml", help="write VINS-Fusion's IMU noise lines")
+    parser.add_argument("--orbslam3", type=Path, metavar="FILE.yaml", help="write the ORB-SLAM3 IMU lines")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    parser.add_argument("--topic", help="IMU topic of a ROS bag holding several (default: the only one)")
+    parser.add_argument("--rostopic", help="rostopic for Kalibr's imu.yaml (default: --topic or /imu0)")
+    parser.add_argument("--rate", type=_positive_float, metavar="HZ",
+                        help="nominal sample rate (default: from the median timestamp step)")
+    parser.add_argument("--max-missing", type=_fraction, default=0.001, metavar="FRACTION",
+                        help="refuse records whose gaps miss more than this fraction of samples (0.001)")
+    parser.add_argument("--per-decade", type=int, default=10, metavar="N",
+                        help="cluster sizes per decade of tau, at least 10 (default 10)")
+    parser.add_argument("--workdir", type=Path, metavar="DIR",
+                        help="folder for the temporary cumulative sums (default: the system's temp folder)")
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _fraction(text: str) -> float:
+    value = float(text)
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1), got {text}")
+    return value
+
+
+def _progress(err: IO[str]) -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=Console(file=err), transient=True, disable=not err.isatty())
+
+
+def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
+    """Read, integrate, compute and fit; write every requested file; return the JSON-able result."""
+    if args.per_decade < 10:
+        raise EngineInputError(f"--per-decade {args.per_decade}: use at least 10 points per decade")
+    chunks, device, size = capture_chunks(args.input, args.topic)
+    with _progress(err) as progress:
+        reading = progress.add_task("reading", total=None)
+        record = integrate_stream(chunks, str(args.input), rate_hz=args.rate, workdir=args.workdir,
+                                  device=device, on_rows=lambda n: progress.advance(reading, n))
+        with record:
+            timing = record.timing
+            if timing.missing_fraction > args.max_missing:
+                raise EngineInputError(
+                    f"{args.input}: {'; '.join(timing.problems())}. The Allan deviation needs evenly spaced "
+                    "samples: cut the record at the gap, or accept it with --max-missing "
+                    f"{min(0.99, 2 * timing.missing_fraction):.3g}")
+            m = cluster_sizes(record.n_samples, per_decade=args.per_decade)
+            computing = progress.add_task("Allan deviation", total=len(m) * len(AXES))
+            curve = allan_curve(record.phase, record.rate_hz, AXES, m,
+                                on_progress=lambda done, total: progress.update(computing, completed=done))
+    curve, noise = identify_noise(curve)
+    source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
+              "timing_problems": timing.problems()}
+    section = to_plain(allan_report.noise_section(noise, curve, source))
+    outputs: dict[str, str] = {}
+    rostopic = args.rostopic or args.topic or "/imu0"
+    texts = {}
+    if args.kalibr:
+        texts[args.kalibr] = kalibr.kalibr_yaml(section, rostopic=rostopic)
+    if args.vins:
+        texts[args.vins] = kalibr.vins_snippet(section)
+    if args.orbslam3:
+        texts[args.orbslam3] = kalibr.orbslam3_snippet(section)
+    for path, text in texts.items():
+        atomic_write_text(path, text)
+        outputs[str(path)] = "written"
+    if args.curve:
+        allan_report.write_curve_csv(args.curve, curve)
+        outputs[str(args.curve)] = "written"
+    if args.plot:
+        from station.export.allan_plot import write_png
+
+        write_png(args.plot, curve, noise, title=f"imu-station allan {args.input.name}")
+        outputs[str(args.plot)] = "written"
+    if args.output:
+        params = ParamsFile.load_or_new(args.output)
+        params.update_device(device)
+        params.noise = section
+        params.save(args.output)
+        outputs[str(args.output)] = "noise section written"
+    return {"noise": section, "outputs": outputs}
+
+
+def run(args: argparse.Namespace) -> int:
+    result = analyse(args, sys.stderr)
+    section = result["noise"]
+    if args.json:
+        json.dump(result, sys.stdout, indent=1, allow_nan=False)
+        sys.stdout.write("\n")
+        return 0
+    rec = section["record"]
+    print(f"{rec['source']}: {rec['samples']} samples at {rec['rate_hz']:.6g} Hz, "
+          f"{rec['duration_s'] / 3600:.3g} h; tau {rec['tau_range_s'][0]:.3g} .. "
+          f"{rec['tau_range_s'][1]:.4g} s")
+    for problem in rec["timing_problems"]:
+        print(f"warning: {problem}")
+    for line in allan_report.summary_lines(section):
+        print(line)
+    for path, what in result["outputs"].items():
+        print(f"{path}: {what}")
+    return 0

@@ -1,0 +1,135 @@
+"""What ``imu-station allan`` writes: the ``noise`` section of the parameter file and the curve CSV.
+
+Units are spelled out beside every number; gyroscope terms are also given in the units of datasheets
+(deg/sqrt(h), deg/h, ...), accelerometer terms in m/s/sqrt(h) and micro-g.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from station.engines.allan import AllanCurve
+from station.engines.allan_fit import TERMS, AxisNoise
+from station.files import atomic_write_text
+
+METHOD = ("overlapping Allan deviation (demeaned cumulative sum), IEEE 952 model fitted with weights from "
+          "Greenhall-Riley EDF")
+STANDARD_GRAVITY = 9.80665
+DEG = 180.0 / math.pi
+
+# SI unit of each term, then (datasheet unit, factor from SI)
+UNITS: dict[str, dict[str, tuple[str, str, float]]] = {
+    "gyro": {
+        "N": ("rad/s/sqrt(Hz)", "deg/sqrt(h)", DEG * 60.0),  # angle random walk
+        "K": ("rad/s^2/sqrt(Hz)", "deg/h/sqrt(h)", DEG * 3600.0 * 60.0),  # rate random walk
+        "B": ("rad/s", "deg/h", DEG * 3600.0),  # bias instability
+        "Q": ("rad", "deg", DEG),  # angle quantization
+        "R": ("rad/s^2", "deg/h^2", DEG * 3600.0**2),  # rate ramp
+    },
+    "accel": {
+        "N": ("m/s^2/sqrt(Hz)", "m/s/sqrt(h)", 60.0),  # velocity random walk
+        "K": ("m/s^3/sqrt(Hz)", "m/s^2/sqrt(h)", 60.0),  # acceleration random walk
+        "B": ("m/s^2", "ug", 1e6 / STANDARD_GRAVITY),  # bias instability
+        "Q": ("m/s", "mm/s", 1e3),  # velocity quantization
+        "R": ("m/s^3", "m/s^2/h", 3600.0),  # acceleration ramp
+    },
+}
+NAMES = {"N": "white noise (angle / velocity random walk)", "K": "rate random walk", "B": "bias instability",
+         "Q": "quantization", "R": "rate ramp"}
+SENSOR_AXES = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}
+
+
+def _per_axis(values: list[float | None]) -> list[float | None] | None:
+    """Per-axis list, or None (YAML null) when no axis shows the term."""
+    return None if all(v is None for v in values) else values
+
+
+def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
+    """The ``noise.gyro`` / ``noise.accel`` mapping of params-file.md, with stddev, reasons and readings."""
+    units = UNITS[sensor]
+    out: dict[str, Any] = {}
+    for term in TERMS:
+        out[term] = _per_axis([a.terms[term].value for a in noise])
+    out["stddev"] = {t: _per_axis([a.terms[t].stddev for a in noise]) for t in TERMS}
+    out["reasons"] = {t: [a.terms[t].reason for a in noise] for t in TERMS
+                      if any(a.terms[t].reason for a in noise)}
+    out["datasheet_units"] = {
+        f"{t} [{units[t][1]}]": _per_axis([None if (v := a.terms[t].value) is None else v * units[t][2]
+                                           for a in noise])
+        for t in TERMS}
+    out["slope_line"] = {
+        t: {"at_tau_1s": [a.terms[t].slope_line_at_1s for a in noise],
+            "value": [a.terms[t].slope_value for a in noise],
+            "tau_s": [a.terms[t].slope_tau for a in noise],
+            "reason": [a.terms[t].slope_reason for a in noise]}
+        for t in TERMS}
+    out["crossing_tau_N_K_s"] = [a.crossing_tau_nk for a in noise]
+    out["reduced_chi2"] = [a.reduced_chi2 for a in noise]
+    return out
+
+
+def noise_section(noise: list[AxisNoise], curve: AllanCurve, record: dict[str, Any]) -> dict[str, Any]:
+    """The whole ``noise`` section: per-sensor terms, units, method and the record they came from."""
+    by_axis = {a.axis: a for a in noise}
+    section: dict[str, Any] = {
+        "method": METHOD,
+        "units": {s: {t: UNITS[s][t][0] for t in TERMS} for s in UNITS},
+        "model": "sigma^2(tau) = 3 Q^2/tau^2 + N^2/tau + (2 ln2/pi) B^2 + K^2 tau/3 + R^2 tau^2/2",
+    }
+    for sensor, axes in SENSOR_AXES.items():
+        if all(a in by_axis for a in axes):
+            section[sensor] = sensor_noise([by_axis[a] for a in axes], sensor)
+    section["record"] = {"samples": curve.n_samples, "rate_hz": curve.rate_hz, "duration_s": curve.duration_s,
+                         "tau_range_s": [float(curve.tau[0]), float(curve.tau[-1])], **record}
+    return section
+
+
+def curve_csv(curve: AllanCurve) -> str:
+    """tau, one deviation column per axis, then n, and per axis its EDF and 68 % interval."""
+    cols = ["tau"] + list(curve.axes) + ["n"]
+    cols += [f"edf_{a}" for a in curve.axes]
+    cols += [f"{a}_lo" for a in curve.axes] + [f"{a}_hi" for a in curve.axes]
+    block = np.column_stack([curve.tau, curve.adev, curve.n, curve.edf, curve.ci_low, curve.ci_high])
+    buf = io.StringIO()
+    buf.write(",".join(cols) + "\n")
+    fmt = ["%.9g"] + ["%.9g"] * len(curve.axes) + ["%d"] + ["%.6g"] * (3 * len(curve.axes))
+    np.savetxt(buf, block, delimiter=",", fmt=fmt)
+    return buf.getvalue()
+
+
+def write_curve_csv(path: str | Path, curve: AllanCurve) -> None:
+    atomic_write_text(path, curve_csv(curve))
+
+
+def summary_lines(section: dict[str, Any]) -> list[str]:
+    """Human-readable table of the terms, both unit systems, for the terminal."""
+    lines = []
+    for sensor in ("gyro", "accel"):
+        if sensor not in section:
+            continue
+        s = section[sensor]
+        lines.append(f"{sensor}:")
+        for t in TERMS:
+            si, alt, factor = UNITS[sensor][t]
+            vals = s[t] or [None, None, None]
+            sds = s["stddev"][t] or [None, None, None]
+            cells = []
+            for v, sd in zip(vals, sds, strict=True):
+                if v is None:
+                    cells.append("null")
+                else:
+                    cells.append(f"{v:.4g}" + (f" +/- {sd:.2g}" if sd is not None else "")
+                                 + f" ({v * factor:.4g} {alt})")
+            lines.append(f"  {t} {NAMES[t]} [{si}]: " + " | ".join(cells))
+        for t, reasons in s["reasons"].items():
+            if t not in ("N", "K"):  # the optional terms' absence is the normal case
+                continue
+            shown = {r for r in reasons if r}
+            for r in sorted(shown):
+                lines.append(f"  {t}: {r}")
+    return lines
