@@ -45,8 +45,8 @@ IMU_MESSAGES = ("HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_
 _STX = re.compile(rb"[\xfd\xfe]")
 
 
-class MavlinkUnavailable(RuntimeError):
-    """pymavlink is not installed."""
+class MavlinkUnavailable(ValueError):
+    """pymavlink is not installed (a ValueError, as any protocol the station cannot decode)."""
 
 
 def load_dialect() -> Any:

@@ -20,7 +20,23 @@ DECODERS: dict[str, Callable[[], StreamDecoderBase]] = {
 }
 
 
+# Decoders that take one option, given as ``name:option``: the CSV column spec of ``ascii``
+# (``ascii:t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``), the IMU message of ``mavlink``
+# (``mavlink:SCALED_IMU2``).
+DECODER_OPTIONS: dict[str, Callable[[str], StreamDecoderBase]] = {
+    "ascii": lambda spec: AsciiDecoder(columns=spec),
+    "mavlink": lambda source: MavlinkDecoder(source=source),
+}
+
+
 def make_decoder(name: str) -> StreamDecoderBase:
+    """The decoder of ``name`` (a key of ``DECODERS``), or of ``name:option`` (``DECODER_OPTIONS``)."""
+    base, has_option, option = name.partition(":")
+    if has_option:
+        if base not in DECODER_OPTIONS:
+            raise ValueError(f"protocol {base!r} takes no option (those that do: "
+                             f"{', '.join(DECODER_OPTIONS)})")
+        return DECODER_OPTIONS[base](option)
     try:
         return DECODERS[name]()
     except KeyError:

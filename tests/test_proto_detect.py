@@ -131,3 +131,11 @@ def test_registry_knows_every_protocol() -> None:
     assert make_decoder("xsens").name == "xsens"
     with pytest.raises(ValueError, match="unknown protocol"):
         make_decoder("nmea")
+    ascii_dec = make_decoder("ascii:t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps")
+    out = ascii_dec.feed(b"10,0,0,1,0,0,90\n").samples
+    assert out["t_us"][0] == 10_000 and out["acc"][0][2] == pytest.approx(9.80665)
+    assert out["gyro"][0][2] == pytest.approx(np.pi / 2)
+    with pytest.raises(ValueError, match="takes no option"):
+        make_decoder("xsens:fast")
+    with pytest.raises(ValueError, match="unknown unit"):
+        make_decoder("ascii:t:fortnights,ax,ay,az,gx,gy,gz")
