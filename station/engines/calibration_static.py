@@ -1,0 +1,108 @@
+"""Accelerometer from known static poses: least squares over any set, and the six-position solution.
+
+In a pose whose up direction is the unit vector u (sensor frame), the accelerometer reads the
+specific force g u, so the mean raw reading of pose p is
+
+    y_p = M g u_p + b                                                              (1)
+
+Stacked over P poses, Y = X Theta with X = [g u_p^T, 1] (P x 4), Theta = [M^T; b^T] (4 x 3):
+twelve unknowns, solved by linear least squares
+
+    Theta = (X^T X)^-1 X^T Y                                                       (2)
+
+(the lecture's y = x theta). The six-position analytic solution of the up/down pairs is the
+special case (Ferraris et al. 1995, eqs. 19-23; imucal's FerrarisCalibration):
+
+    b = 1/6 sum_p y_p,     M[:, i] = (y_{+i} - y_{-i}) / (2 g)                        (3)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.errors import EngineInputError
+
+_UNKNOWNS = ["M[:,x] (x-axis sensitivity)", "M[:,y] (y-axis sensitivity)", "M[:,z] (z-axis sensitivity)",
+             "b (bias)"]
+
+
+@dataclass
+class PoseFit:
+    """Result of eq. (2): M, b, their covariance and the per-pose residuals (raw units)."""
+
+    matrix: np.ndarray
+    bias: np.ndarray
+    cov: np.ndarray           # (12, 12) over [M.ravel() (row-major), b]
+    residual: np.ndarray      # (P, 3) y_p - (M g u_p + b)
+    condition: float
+
+
+def _design(up: np.ndarray, g: float) -> np.ndarray:
+    return np.hstack([g * np.asarray(up, float), np.ones((len(up), 1))])
+
+
+def explain_rank_deficiency(up: np.ndarray, labels: list[str]) -> str:
+    """Name what a set of poses fails to excite (for the error message)."""
+    up = np.asarray(up, float)
+    reasons = []
+    for i, axis in enumerate("xyz"):
+        comp = up[:, i]
+        if np.all(np.abs(comp) < 1e-9):
+            reasons.append(f"no pose has gravity along the {axis} axis "
+                           f"(hold {axis} up and down: +{axis}, -{axis})")
+        elif np.ptp(comp) < 1e-9:
+            side = "up" if comp[0] > 0 else "down"
+            reasons.append(f"the {axis} axis is only ever {side} by the same amount, so its bias and scale "
+                           f"cannot be told apart (add the opposite pose)")
+    if not reasons:
+        x = _design(up, 1.0)
+        vt = np.linalg.svd(x / np.linalg.norm(x, axis=0))[2]
+        v = vt[-1] / np.max(np.abs(vt[-1]))
+        free = " + ".join(f"{c:+.2f}*{_UNKNOWNS[k]}" for k, c in enumerate(v) if abs(c) > 0.05)
+        reasons.append(f"the poses are linearly dependent; the combination {free} is free")
+    return (f"the static poses {', '.join(labels)} cannot determine the accelerometer's 12 parameters: "
+            + "; ".join(reasons))
+
+
+def fit_poses(means: np.ndarray, up: np.ndarray, g: float, mean_var: np.ndarray,
+              labels: list[str]) -> PoseFit:
+    """Eq. (2) over poses with mean readings ``means`` (P, 3) and up vectors ``up`` (P, 3).
+
+    ``mean_var`` (P, 3) is the variance of each mean from the samples' scatter; the covariance
+    of Theta is sigma_j^2 (X^T X)^-1 per output axis j, with sigma_j^2 the larger of the fit's
+    residual variance (when there are spare poses) and the mean variance of the means.
+    """
+    means = np.asarray(means, float)
+    x = _design(up, g)
+    if len(means) < 4 or np.linalg.matrix_rank(x / np.linalg.norm(x, axis=0), tol=1e-9) < 4:
+        if len(means) < 4:
+            raise EngineInputError(f"only {len(means)} static poses ({', '.join(labels)}): the accelerometer "
+                                   "needs at least 4 (six-position: +x -x +y -y +z -z)")
+        raise EngineInputError(explain_rank_deficiency(up, labels))
+    theta, *_ = np.linalg.lstsq(x, means, rcond=None)
+    residual = means - x @ theta
+    xtx_inv = np.linalg.inv(x.T @ x)
+    dof = len(means) - 4
+    noise_var = np.mean(mean_var, axis=0)
+    fit_var = np.sum(residual**2, axis=0) / dof if dof > 0 else np.zeros(3)
+    sigma2 = np.maximum(fit_var, noise_var)
+    cov = np.zeros((12, 12))
+    # Theta[k, j] = M[j, k] (k < 3) or b[j] (k = 3); index in [M.ravel(), b]
+    index = [[3 * j + k if k < 3 else 9 + j for k in range(4)] for j in range(3)]
+    for j in range(3):
+        idx = index[j]
+        cov[np.ix_(idx, idx)] = sigma2[j] * xtx_inv
+    xn = x / np.linalg.norm(x, axis=0)
+    return PoseFit(theta[:3].T, theta[3], cov, residual, float(np.linalg.cond(xn)))
+
+
+def six_position(means: dict[str, np.ndarray], g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (3): (M, b) from the mean readings of the poses +x -x +y -y +z -z."""
+    missing = [p for p in ("+x", "-x", "+y", "-y", "+z", "-z") if p not in means]
+    if missing:
+        raise EngineInputError(f"the six-position solution needs the poses {missing} as well")
+    m = np.column_stack([(np.asarray(means[f"+{a}"]) - np.asarray(means[f"-{a}"])) / (2 * g) for a in "xyz"])
+    b = np.mean([np.asarray(means[p]) for p in ("+x", "-x", "+y", "-y", "+z", "-z")], axis=0)
+    return m, b

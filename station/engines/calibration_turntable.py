@@ -1,0 +1,216 @@
+"""Calibration from a labelled capture of known poses and rotations (turntable, fixture, or the
+station's guided sequences): checks the data, then runs ``calibration_static`` (accelerometer,
+eq. 2 there) and ``calibration_rotation`` (gyroscope, eqs. 1-2 there)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station.engines.calibration_common import (
+    CalibrationReport,
+    pose_vector,
+    rotation_of,
+    segments,
+    stddev_from,
+)
+from station.engines.calibration_rotation import fit_rotations, integrate
+from station.engines.calibration_static import fit_poses
+from station.engines.earth import earth_rate_vertical
+from station.engines.sensor_model import SensorCalibration
+from station.errors import EngineInputError
+
+# A static step whose scatter exceeds this many times the typical static scatter has moved.
+MOTION_FACTOR = 4.0
+# ... and by at least this fraction of the accelerometer's gravity reading (ignores tiny noise).
+MOTION_FLOOR = 0.005
+# Fewest consecutive samples pinned at an axis's extreme that count as saturation.
+SATURATION_RUN = 5
+# Largest relative disagreement between a stated sample rate and the timestamps.
+RATE_TOLERANCE = 0.02
+
+
+def _span(t: np.ndarray, sl: slice) -> str:
+    return f"t = {t[sl.start]:.2f}..{t[sl.stop - 1]:.2f} s"
+
+
+def _check_rate(t: np.ndarray, rate_hz: float | None) -> None:
+    if len(t) < 2:
+        raise EngineInputError("the capture has fewer than two samples")
+    measured = 1.0 / float(np.median(np.diff(t)))
+    if rate_hz is not None and abs(measured - rate_hz) > RATE_TOLERANCE * rate_hz:
+        raise EngineInputError(
+            f"the stated sample rate {rate_hz:g} Hz disagrees with the timestamps ({measured:.3f} Hz from "
+            "the median step): check the device's rate setting or the capture's time column")
+
+
+def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label: str) -> None:
+    """Refuse a step where an axis sits at the capture's extreme value for several samples."""
+    seg = x[sl]
+    for i, axis in enumerate("xyz"):
+        for extreme in (x[:, i].max(), x[:, i].min()):
+            pinned = seg[:, i] == extreme
+            if pinned.sum() < SATURATION_RUN:
+                continue
+            runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], pinned.astype(np.int8), [0]]))))[::2]
+            if runs.size and runs.max() >= SATURATION_RUN:
+                raise EngineInputError(
+                    f"step '{label}' ({_span(t, sl)}): the {name} {axis} axis is saturated (held at "
+                    f"{extreme:g} for {int(runs.max())} samples); lower the rotation rate or raise the range")
+
+
+def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: np.ndarray, gravity: float,
+                        latitude_deg: float | None = None, rate_hz: float | None = None) -> CalibrationReport:
+    """Accelerometer and gyroscope from a capture labelled per ``shared/specs/capture-csv.md``.
+
+    Parameters
+    ----------
+    t : (N,) s.  acc, gyro : (N, 3) raw, any unit.  step : (N,) labels ("" between steps).
+    gravity : local g (m/s^2) of eq. (1) in ``calibration_static``.
+    latitude_deg : if given, the Earth rate's vertical part Omega sin(phi) is compensated
+        (``calibration_rotation`` eqs. 1-2); the horizontal part is not (heading unknown).
+    rate_hz : the sample rate the device was set to, checked against the timestamps.
+
+    Returns
+    -------
+    CalibrationReport with accel (poses) and gyro (rotations) and per-step residuals.
+
+    Raises
+    ------
+    EngineInputError for data that cannot determine the parameters: too few or degenerate
+    poses, missing rotations, motion during a static step, saturation, a wrong sample rate.
+    """
+    t = np.asarray(t, float)
+    acc = np.asarray(acc, float)
+    gyro = np.asarray(gyro, float)
+    if step is None:
+        raise EngineInputError("the capture has no step labels: the turntable method needs labelled poses "
+                               "and rotations (a 'step' column); use --method free for unlabelled "
+                               "hand-held data")
+    _check_rate(t, rate_hz)
+    statics, rotations, unknown = [], [], []
+    for label, sl in segments(step):
+        if sl.stop - sl.start < 2:
+            continue
+        if pose_vector(label) is not None:
+            statics.append((label, sl))
+        elif rotation_of(label) is not None:
+            rotations.append((label, sl))
+        else:
+            unknown.append(label)
+    warnings = []
+    if unknown:
+        warnings.append(f"steps with labels that are neither poses nor rotations were ignored: "
+                        f"{', '.join(sorted(set(unknown)))}")
+    if not statics:
+        raise EngineInputError("no static pose steps (labels such as +x, -x, +x+y): the accelerometer needs "
+                               "at least the six poses +x -x +y -y +z -z")
+
+    # --- static steps: motion and saturation checks, means --------------------------------------
+    spread = np.array([acc[sl].std(axis=0).max() for _, sl in statics])
+    typical = float(np.median(spread))
+    level = float(np.median([np.linalg.norm(acc[sl].mean(axis=0)) for _, sl in statics]))
+    noisy = bool(np.any([acc[sl].std(axis=0).max() > 0 for _, sl in statics]))
+    for (label, sl), s in zip(statics, spread, strict=True):
+        if s > MOTION_FACTOR * typical and s > MOTION_FLOOR * level:
+            raise EngineInputError(
+                f"the unit moved during static step '{label}' ({_span(t, sl)}): its accelerometer scatter "
+                f"{s:.4g} is {s / max(typical, 1e-300):.0f} times that of the other static steps; repeat the "
+                "step holding the unit still")
+        if noisy:
+            _check_saturation(acc, "accelerometer", t, sl, label)
+    if noisy:
+        for label, sl in rotations:
+            _check_saturation(gyro, "gyroscope", t, sl, label)
+
+    labels = [lab for lab, _ in statics]
+    up = np.array([pose_vector(lab) for lab in labels])
+    means = np.array([acc[sl].mean(axis=0) for _, sl in statics])
+    counts = np.array([sl.stop - sl.start for _, sl in statics])
+    mean_var = np.array([acc[sl].var(axis=0, ddof=1) for _, sl in statics]) / counts[:, None]
+    pose = fit_poses(means, up, gravity, mean_var, labels)
+    m_acc, b_acc = pose.matrix, pose.bias
+    for i, axis in enumerate("xyz"):
+        if up[:, i].max() < 0.5 or up[:, i].min() > -0.5:
+            warnings.append(f"accelerometer: the {axis} axis was never held near both up and down; its bias "
+                            "and scale rest on tilted poses only")
+    if pose.condition > 50:
+        warnings.append(f"accelerometer: the poses determine the parameters poorly (condition number "
+                        f"{pose.condition:.0f}); add opposite poses")
+
+    def acc_parts(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return p[:9].reshape(3, 3), p[9:12]
+
+    p_acc = np.concatenate([m_acc.ravel(), b_acc])
+    acc_sd = stddev_from(acc_parts, p_acc, pose.cov)
+    calibrated = (means - b_acc) @ np.linalg.inv(m_acc).T
+    norm_err = np.linalg.norm(calibrated, axis=1) - gravity
+    residual_si = pose.residual @ np.linalg.inv(m_acc).T
+    six = sorted(labels) == sorted(["+x", "-x", "+y", "-y", "+z", "-z"])
+    acc_method = ("turntable: six-position (least squares = Ferraris analytic)" if six
+                  else f"turntable: {len(labels)}-pose least squares")
+    accel = SensorCalibration(m_acc, b_acc, method=acc_method,
+                              residual_rms=float(np.sqrt(np.mean(residual_si**2))), stddev=acc_sd,
+                              extra={"poses": len(labels), "residual": "mean reading - (M g u + b), m/s^2"})
+    poses = [{"label": lab, "t0": float(t[sl.start]), "t1": float(t[sl.stop - 1]), "kind": "static",
+              "residual": residual_si[k].tolist(), "norm_error": float(norm_err[k])}
+             for k, (lab, sl) in enumerate(statics)]
+
+    # --- gyroscope --------------------------------------------------------------------------------
+    omega_v = earth_rate_vertical(latitude_deg) if latitude_deg is not None else 0.0
+    static_gyro = np.concatenate([gyro[sl] for _, sl in statics])
+    gyro_mean = static_gyro.mean(axis=0)
+    gyro_cal = None
+    if rotations:
+        rot_labels = [lab for lab, _ in rotations]
+        integrals = np.array([integrate(t[sl], gyro[sl]) for _, sl in rotations])
+        durations = np.array([t[sl.stop - 1] - t[sl.start] for _, sl in rotations])
+        info = [rotation_of(lab) for lab in rot_labels]
+        axes = np.array([i[0] for i in info])
+        angles = np.array([i[1] for i in info])
+        for label, sl in rotations:
+            gaps = np.diff(t[sl])
+            if gaps.max() > 2.5 * np.median(np.diff(t)):
+                raise EngineInputError(f"rotation step '{label}' ({_span(t, sl)}) has a gap of "
+                                       f"{gaps.max():.3f} s in its timestamps (lost samples): the integrated "
+                                       "angle would be wrong; repeat the rotation")
+        static_var = static_gyro.var(axis=0, ddof=1)
+        noise_var = np.array([static_var * np.sum(np.diff(t[sl]) ** 2) for _, sl in rotations])
+        earth = None
+        if latitude_deg is not None:
+            correction = np.linalg.inv(m_acc)
+            up_rot = np.array([correction @ (acc[sl].mean(axis=0) - b_acc) for _, sl in rotations])
+            up_rot /= np.linalg.norm(up_rot, axis=1, keepdims=True)
+            earth = omega_v * durations[:, None] * up_rot
+        rot = fit_rotations(integrals, angles, axes, durations, noise_var, rot_labels, earth)
+        m_g = rot.matrix
+        if latitude_deg is not None:
+            up_static = up[np.repeat(np.arange(len(statics)), counts)]
+            gyro_mean = static_gyro.mean(axis=0) - m_g @ (omega_v * up_static.mean(axis=0))
+        # Between-step scatter of the step means shows the in-run bias wander that white noise misses.
+        step_means = np.array([gyro[sl].mean(axis=0) for _, sl in statics])
+        wander = step_means.std(axis=0, ddof=1) / np.sqrt(len(statics)) if len(statics) > 1 else 0.0
+        b_sd = np.maximum(np.sqrt(static_var / len(static_gyro)), wander)
+
+        def gyro_parts(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return p[:9].reshape(3, 3), gyro_mean
+
+        gyro_sd = stddev_from(gyro_parts, np.concatenate([m_g.ravel(), rot.bias_rotation]), rot.cov)
+        gyro_sd["bias"] = b_sd
+        if rot.condition > 50:
+            warnings.append(f"gyroscope: the rotations determine the parameters poorly (condition number "
+                            f"{rot.condition:.0f}); turn about each axis both ways")
+        gyro_cal = SensorCalibration(
+            m_g, gyro_mean, method="turntable: rotations by integrated angle, bias from static steps",
+            residual_rms=float(np.sqrt(np.mean(rot.angle_error**2))), stddev=gyro_sd,
+            extra={"rotations": len(rotations), "residual": "integrated angle error, rad",
+                   "earth_rate_compensated": latitude_deg is not None,
+                   "bias_from_rotations": rot.bias_rotation.tolist()})
+        poses += [{"label": lab, "t0": float(t[sl.start]), "t1": float(t[sl.stop - 1]), "kind": "rotation",
+                   "angle_error_deg": float(np.degrees(rot.angle_error[k]))}
+                  for k, (lab, sl) in enumerate(rotations)]
+    else:
+        warnings.append("no rotation steps: the gyroscope gets its bias only (scale and misalignment need "
+                        "rot+x rot-x rot+y rot-y rot+z rot-z); its section is not written")
+    details = {"poses": labels, "rotations": [lab for lab, _ in rotations],
+               "gyro_bias_static": gyro_mean.tolist(), "latitude_deg": latitude_deg}
+    return CalibrationReport(accel, gyro_cal, "turntable", gravity, poses, warnings, details)
