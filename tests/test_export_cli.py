@@ -80,10 +80,14 @@ def test_autopilot_formats_report_limitations_in_json(fmt: str, first: str, unit
     assert first in out.read_text()
 
 
-def test_text_report_names_the_losses(unit_file: Path, tmp_path: Path, capsys) -> None:
-    assert main(["export", str(unit_file), "-f", "px4", "-o", str(tmp_path / "u.params")]) == 0
+def test_text_report_names_the_losses_and_plots_them(unit_file: Path, tmp_path: Path, capsys) -> None:
+    png = tmp_path / "loss.png"
+    argv = ["export", str(unit_file), "-f", "px4", "-o", str(tmp_path / "u.params"), "--plot", str(png)]
+    assert main(argv) == 0
     text = capsys.readouterr().out
     assert "what px4 cannot hold" in text and "misalignment" in text and "no --device-id" in text
+    assert f"wrote {png}" in text
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
 
 
 @pytest.mark.parametrize(("argv", "message"), [

@@ -14,6 +14,7 @@ from station.errors import StationError
 from station.export import ardupilot, c_export, json_export, px4
 from station.export.autopilot import AutopilotExport
 from station.export.blob import build_blob
+from station.export.loss_plot import plot_losses
 from station.export.params_file import ParamsFile
 from station.files import atomic_write_bytes, atomic_write_text
 
@@ -69,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--instance", type=int, default=0, metavar="N",
                         help="px4/ardupilot: sensor instance, 0-based (px4 CAL_ACC0 / ardupilot first IMU); "
                         "default 0")
+    parser.add_argument("--plot", metavar="FILE.png",
+                        help="px4/ardupilot: PNG of the offset the target subtracts against ours, "
+                        "over temperature")
     parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
 
 
@@ -160,10 +164,16 @@ def run(args: argparse.Namespace) -> int:
     else:
         path, result = _write_autopilot(args, params, station_id, exported)
         report["files"] = [str(path)]
+        if args.plot:
+            plot_losses(params, result, args.plot)
+            report["files"].append(str(args.plot))
         report.update(result.to_dict())
-    ids_given = args.device_id is not None or args.gyro_device_id is not None
-    if args.format not in ("px4", "ardupilot") and ids_given:
-        report.setdefault("notes", []).append("--device-id is used by px4 and ardupilot only; ignored")
+    autopilot_only = [name for name, given in (("--device-id", args.device_id is not None),
+                                               ("--gyro-device-id", args.gyro_device_id is not None),
+                                               ("--plot", args.plot is not None)) if given]
+    if args.format not in ("px4", "ardupilot") and autopilot_only:
+        names = ", ".join(autopilot_only)
+        report.setdefault("notes", []).append(f"{names}: for px4 and ardupilot only; ignored")
     if args.json:
         print(json.dumps(report, indent=2, allow_nan=False))
     else:

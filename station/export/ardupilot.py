@@ -64,16 +64,22 @@ def _tcal(values: dict[str, float], tcal: str, sensor: str, caltemp_name: str,
     return _poly(values, prefix, t - TEMP_REFERENCE) - _poly(values, prefix, t_cal - TEMP_REFERENCE)
 
 
+def ardupilot_offsets(values: dict[str, float], instance: int,
+                      temp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What ArduPilot subtracts from raw accel and gyro at ``temp``: P(T) - P(T_cal) + offsets."""
+    n = names(instance)
+    acc_off = np.array([values.get(f"{n['acc_off']}{a}", 0.0) for a in AXES])
+    gyr_off = np.array([values.get(f"{n['gyr_off']}{a}", 0.0) for a in AXES])
+    return (_tcal(values, n["tcal"], "ACC", n["acc_caltemp"], temp) + acc_off,
+            _tcal(values, n["tcal"], "GYR", n["gyr_caltemp"], temp) + gyr_off)
+
+
 def ardupilot_correct(values: dict[str, float], instance: int, raw_acc: np.ndarray, raw_gyro: np.ndarray,
                       temp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """ArduPilot's correction (sensor frame) with ``values``; absent parameters at ArduPilot's defaults."""
-    n = names(instance)
-    acc_off = np.array([values.get(f"{n['acc_off']}{a}", 0.0) for a in AXES])
-    acc_scal = np.array([values.get(f"{n['acc_scal']}{a}", 1.0) for a in AXES])
-    gyr_off = np.array([values.get(f"{n['gyr_off']}{a}", 0.0) for a in AXES])
-    acc = (raw_acc - _tcal(values, n["tcal"], "ACC", n["acc_caltemp"], temp) - acc_off) * acc_scal
-    gyro = raw_gyro - _tcal(values, n["tcal"], "GYR", n["gyr_caltemp"], temp) - gyr_off
-    return acc, gyro
+    acc_scal = np.array([values.get(f"{names(instance)['acc_scal']}{a}", 1.0) for a in AXES])
+    acc_off, gyr_off = ardupilot_offsets(values, instance, temp)
+    return (raw_acc - acc_off) * acc_scal, raw_gyro - gyr_off
 
 
 def _temperature_range(params: ParamsFile) -> tuple[float, float]:
@@ -142,6 +148,7 @@ def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None
     result = ap.AutopilotExport("ardupilot", out, notes=notes)
     values = result.values()
     result.pose_errors = ap.assess(params, values, lambda v, a, g, t: ardupilot_correct(v, instance, a, g, t))
+    result.offsets = lambda temp: ardupilot_offsets(values, instance, temp)
     result.limitations = ap.limitations(params, result.pose_errors, cubic_fits=fits)
     return result
 

@@ -67,6 +67,8 @@ class AutopilotExport:
     limitations: list[Limitation] = field(default_factory=list)
     pose_errors: dict[str, dict[str, Any]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    # What the target subtracts from raw accel and gyro at given temperatures (for the plot).
+    offsets: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
 
     def values(self) -> dict[str, float]:
         return {p.name: float(p.text()) for p in self.params}

@@ -36,15 +36,20 @@ def _tc_offset(values: dict[str, float], prefix: str, enable: str, temp: np.ndar
     return np.stack([t**0, t, t**2, t**3], axis=-1) @ coeff.T
 
 
+def px4_offsets(values: dict[str, float], instance: int, temp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What PX4 subtracts from raw accel and gyro at temperatures ``temp``: TC(T) + CAL offset."""
+    acc_off = np.array([values.get(f"CAL_ACC{instance}_{a}OFF", 0.0) for a in AXES])
+    gyr_off = np.array([values.get(f"CAL_GYRO{instance}_{a}OFF", 0.0) for a in AXES])
+    return (_tc_offset(values, f"TC_A{instance}_", "TC_A_ENABLE", temp) + acc_off,
+            _tc_offset(values, f"TC_G{instance}_", "TC_G_ENABLE", temp) + gyr_off)
+
+
 def px4_correct(values: dict[str, float], instance: int, raw_acc: np.ndarray, raw_gyro: np.ndarray,
                 temp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """PX4's correction (sensor frame, R = I) with ``values``; absent parameters at PX4's defaults."""
-    acc_off = np.array([values.get(f"CAL_ACC{instance}_{a}OFF", 0.0) for a in AXES])
     acc_scale = np.array([values.get(f"CAL_ACC{instance}_{a}SCALE", 1.0) for a in AXES])
-    gyr_off = np.array([values.get(f"CAL_GYRO{instance}_{a}OFF", 0.0) for a in AXES])
-    acc = (raw_acc - _tc_offset(values, f"TC_A{instance}_", "TC_A_ENABLE", temp) - acc_off) * acc_scale
-    gyro = raw_gyro - _tc_offset(values, f"TC_G{instance}_", "TC_G_ENABLE", temp) - gyr_off
-    return acc, gyro
+    acc_off, gyr_off = px4_offsets(values, instance, temp)
+    return (raw_acc - acc_off) * acc_scale, raw_gyro - gyr_off
 
 
 def build_px4(params: ParamsFile, instance: int = 0, device_id: int | None = None,
@@ -90,6 +95,7 @@ def build_px4(params: ParamsFile, instance: int = 0, device_id: int | None = Non
     result = ap.AutopilotExport("px4", out, notes=notes)
     values = result.values()
     result.pose_errors = ap.assess(params, values, lambda v, a, g, t: px4_correct(v, instance, a, g, t))
+    result.offsets = lambda temp: px4_offsets(values, instance, temp)
     result.limitations = ap.limitations(params, result.pose_errors, cubic_fits=fits)
     return result
 
