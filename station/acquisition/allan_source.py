@@ -28,6 +28,7 @@ AXES = ("gx", "gy", "gz", "ax", "ay", "az")
 GAP_FACTOR = 1.5
 MAX_EXAMPLES = 5
 PASS2_ROWS = 1 << 20
+FIRST_ROWS = 1000
 
 Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]  # t (n,), acc (n, 3), gyro (n, 3)
 
@@ -176,7 +177,7 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
         try:
             for f in files:
                 f.write(np.zeros(1).tobytes())
-            for t, acc, gyro in chunks:
+            for t, acc, gyro in _merge_first(chunks):
                 t = np.asarray(t, dtype=np.float64)
                 keep = checker.check(t)
                 block = np.column_stack([np.asarray(gyro, np.float64), np.asarray(acc, np.float64)])[keep]
@@ -211,6 +212,20 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
     except BaseException:
         tmp.cleanup()
         raise
+
+
+def _merge_first(chunks: Iterable[Chunk], rows: int = FIRST_ROWS) -> Iterator[Chunk]:
+    """The chunks, the first merged until they hold ``rows`` samples (the nominal rate comes from them)."""
+    head: list[Chunk] = []
+    it = iter(chunks)
+    for chunk in it:
+        head.append(chunk)
+        if sum(len(c[0]) for c in head) >= rows:
+            break
+    if head:
+        yield (np.concatenate([c[0] for c in head]), np.concatenate([c[1] for c in head]),
+               np.concatenate([c[2] for c in head]))
+    yield from it
 
 
 def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterator[Chunk], dict[str, Any], int]:

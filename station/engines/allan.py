@@ -182,6 +182,25 @@ def overlapping_adev(rates: np.ndarray, rate_hz: float, cluster_sizes: Sequence[
     return adev[:, 0] if y.ndim == 1 else adev
 
 
+def nonoverlapping_adev(rates: np.ndarray, rate_hz: float, cluster_sizes: Sequence[int] | np.ndarray
+                        ) -> np.ndarray:
+    """Non-overlapping Allan deviation (NIST SP 1065, eq. 7) of a 1-D rate record, for comparison.
+
+    ``sigma^2(m tau0) = 1 / (2 tau^2 (K - 2)) sum_{k} (x_{(k+2)m} - 2 x_{(k+1)m} + x_{km})^2`` over the
+    ``K = floor((P - 1) / m) + 1`` phase points ``x_0, x_m, x_2m, ...`` of eq. (1).
+    """
+    x = integrate_rates(np.asarray(rates, dtype=np.float64).reshape(-1), rate_hz)[0]
+    out = np.empty(len(cluster_sizes))
+    for i, m in enumerate(np.asarray(cluster_sizes, dtype=np.int64)):
+        xs = x[::m]
+        if len(xs) < 3:
+            raise EngineInputError(f"cluster size {m} is too large for {len(x) - 1} samples")
+        v = xs[2:] - 2.0 * xs[1:-1] + xs[:-2]
+        tau = m / float(rate_hz)
+        out[i] = math.sqrt(float(np.dot(v, v)) / (2.0 * tau**2 * len(v)))
+    return out
+
+
 # --- Greenhall & Riley (2003): equivalent degrees of freedom, d = 2 (Allan), F = m, S = m ----------------
 
 _J_MAX = 100
