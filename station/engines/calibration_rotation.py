@@ -48,7 +48,7 @@ def explain_rotations(axes: np.ndarray, labels: list[str]) -> str:
         comp = axes[:, i]
         if np.all(np.abs(comp) < 1e-9):
             reasons.append(f"no rotation about the {name} axis (add rot+{name} and rot-{name})")
-        elif np.all(comp > 0) or np.all(comp < 0):
+        elif np.all(comp[np.abs(comp) > 1e-9] > 0) or np.all(comp[np.abs(comp) > 1e-9] < 0):
             reasons.append(f"rotations about {name} turn one way only; add the opposite turn (rot+{name} and "
                            f"rot-{name}) so the bias separates from the scale")
     detail = "; ".join(reasons) if reasons else "the rotations are linearly dependent"
@@ -57,39 +57,52 @@ def explain_rotations(axes: np.ndarray, labels: list[str]) -> str:
 
 
 def fit_rotations(integrals: np.ndarray, angles: np.ndarray, axes: np.ndarray, durations: np.ndarray,
-                  noise_var: np.ndarray, labels: list[str], earth_terms: np.ndarray | None = None
-                  ) -> RotationFit:
+                  noise_var: np.ndarray, labels: list[str], static_bias: np.ndarray,
+                  earth_terms: np.ndarray | None = None) -> tuple[RotationFit, bool]:
     """Eq. (1) by least squares over rotation steps.
 
     integrals (R, 3): Y_r; angles (R,) rad; axes (R, 3) unit vectors; durations (R,) s;
-    noise_var (R, 3): variance of each Y_r from the sample noise; earth_terms (R, 3):
-    Omega_v T_r u_r, or None.
+    noise_var (R, 3): variance of each Y_r from the sample noise; static_bias: b of eq. (2);
+    earth_terms (R, 3): Omega_v T_r u_r, or None.
+
+    With turns both ways (rank 4) b is solved for and cancels; with one turn per axis only
+    (Ferraris' three rotations) the static bias is subtracted instead and M alone is solved.
+    Returns the fit and whether the bias was solved for.
     """
     integrals = np.asarray(integrals, float)
+    durations = np.asarray(durations, float)
     angle_vec = np.asarray(angles, float)[:, None] * np.asarray(axes, float)
     reference = angle_vec if earth_terms is None else angle_vec + earth_terms
-    x = np.hstack([reference, np.asarray(durations, float)[:, None]])
     signed_axes = angle_vec / np.maximum(np.linalg.norm(angle_vec, axis=1, keepdims=True), 1e-300)
-    if len(integrals) < 4:
+    if len(integrals) < 3:
         raise EngineInputError(explain_rotations(signed_axes, labels) if len(integrals) else
                                "no rotation steps (labels rot+x, rot-x, ...): the gyroscope's scale and "
                                "misalignment need rotations about every axis, both ways")
+    x = np.hstack([reference, durations[:, None]])
     xn = x / np.linalg.norm(x, axis=0)
-    if np.linalg.matrix_rank(xn, tol=1e-6) < 4:
-        raise EngineInputError(explain_rotations(signed_axes, labels))
-    theta, *_ = np.linalg.lstsq(x, integrals, rcond=None)
-    residual = integrals - x @ theta
-    dof = len(integrals) - 4
+    with_bias = len(integrals) >= 4 and np.linalg.matrix_rank(xn, tol=1e-6) == 4
+    if with_bias:
+        y = integrals
+    else:
+        x = reference
+        xn = x / np.linalg.norm(x, axis=0)
+        if np.linalg.matrix_rank(xn, tol=1e-6) < 3:
+            raise EngineInputError(explain_rotations(signed_axes, labels))
+        y = integrals - np.outer(durations, static_bias)
+    k = x.shape[1]
+    theta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    residual = y - x @ theta
+    dof = len(y) - k
     fit_var = np.sum(residual**2, axis=0) / dof if dof > 0 else np.zeros(3)
     sigma2 = np.maximum(fit_var, np.mean(noise_var, axis=0))
     xtx_inv = np.linalg.inv(x.T @ x)
     cov = np.zeros((12, 12))
     for j in range(3):
-        idx = [3 * j, 3 * j + 1, 3 * j + 2, 9 + j]
+        idx = [3 * j, 3 * j + 1, 3 * j + 2, 9 + j][:k]
         cov[np.ix_(idx, idx)] = sigma2[j] * xtx_inv
     m = theta[:3].T
-    b = theta[3]
+    b = theta[3] if with_bias else np.asarray(static_bias, float)
     calibrated = (integrals - np.outer(durations, b)) @ np.linalg.inv(m).T
     unit = signed_axes * np.sign(np.asarray(angles))[:, None]
     angle_error = np.sum(calibrated * unit, axis=1) - np.asarray(angles, float)
-    return RotationFit(m, b, cov, angle_error, float(np.linalg.cond(xn)))
+    return RotationFit(m, b, cov, angle_error, float(np.linalg.cond(xn))), with_bias

@@ -11,9 +11,13 @@ twelve unknowns, solved by linear least squares
     Theta = (X^T X)^-1 X^T Y                                                       (2)
 
 (the lecture's y = x theta). The six-position analytic solution of the up/down pairs is the
-special case (Ferraris et al. 1995, eqs. 19-23; imucal's FerrarisCalibration):
+special case, except for the bias: Ferraris et al. 1995 (eqs. 19-23; imucal's
+FerrarisCalibration) take each bias component from the pair along that axis only,
 
-    b = 1/6 sum_p y_p,     M[:, i] = (y_{+i} - y_{-i}) / (2 g)                        (3)
+    b_i = (y_{+i} + y_{-i})_i / 2,     M[:, i] = (y_{+i} - y_{-i}) / (2 g)                  (3)
+
+which a tilted fixture disturbs only at second order (cos of the tilt), where the mean of
+all six poses picks it up at first order through the cross-axis components.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ class PoseFit:
     cov: np.ndarray           # (12, 12) over [M.ravel() (row-major), b]
     residual: np.ndarray      # (P, 3) y_p - (M g u_p + b)
     condition: float
+    sigma2: np.ndarray        # (3,) variance of one pose mean, per axis
 
 
 def _design(up: np.ndarray, g: float) -> np.ndarray:
@@ -95,14 +100,32 @@ def fit_poses(means: np.ndarray, up: np.ndarray, g: float, mean_var: np.ndarray,
         idx = index[j]
         cov[np.ix_(idx, idx)] = sigma2[j] * xtx_inv
     xn = x / np.linalg.norm(x, axis=0)
-    return PoseFit(theta[:3].T, theta[3], cov, residual, float(np.linalg.cond(xn)))
+    return PoseFit(theta[:3].T, theta[3], cov, residual, float(np.linalg.cond(xn)), sigma2)
+
+
+SIX = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 
 def six_position(means: dict[str, np.ndarray], g: float) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (3): (M, b) from the mean readings of the poses +x -x +y -y +z -z."""
-    missing = [p for p in ("+x", "-x", "+y", "-y", "+z", "-z") if p not in means]
+    missing = [p for p in SIX if p not in means]
     if missing:
         raise EngineInputError(f"the six-position solution needs the poses {missing} as well")
-    m = np.column_stack([(np.asarray(means[f"+{a}"]) - np.asarray(means[f"-{a}"])) / (2 * g) for a in "xyz"])
-    b = np.mean([np.asarray(means[p]) for p in ("+x", "-x", "+y", "-y", "+z", "-z")], axis=0)
+    y = {k: np.asarray(v, float) for k, v in means.items()}
+    m = np.column_stack([(y[f"+{a}"] - y[f"-{a}"]) / (2 * g) for a in "xyz"])
+    b = np.array([(y[f"+{a}"][i] + y[f"-{a}"][i]) / 2 for i, a in enumerate("xyz")])
     return m, b
+
+
+def six_position_cov(means: dict[str, np.ndarray], g: float, sigma2: np.ndarray) -> np.ndarray:
+    """Covariance (12, 12) of eq. (3) over [M.ravel(), b] for pose means of variance ``sigma2``."""
+    flat = np.concatenate([np.asarray(means[p], float) for p in SIX])
+
+    def solution(v: np.ndarray) -> np.ndarray:
+        m, b = six_position({p: v[3 * k:3 * k + 3] for k, p in enumerate(SIX)}, g)
+        return np.concatenate([m.ravel(), b])
+
+    # eq. (3) is linear in the means, so a unit step gives its exact Jacobian
+    base = solution(flat)
+    jac = np.column_stack([solution(flat + np.eye(18)[k]) - base for k in range(18)])
+    return jac @ np.diag(np.tile(sigma2, 6)) @ jac.T

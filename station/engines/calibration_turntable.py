@@ -14,7 +14,7 @@ from station.engines.calibration_common import (
     stddev_from,
 )
 from station.engines.calibration_rotation import fit_rotations, integrate
-from station.engines.calibration_static import fit_poses
+from station.engines.calibration_static import SIX, fit_poses, six_position, six_position_cov
 from station.engines.earth import earth_rate_vertical
 from station.engines.sensor_model import SensorCalibration
 from station.errors import EngineInputError
@@ -128,7 +128,12 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
     counts = np.array([sl.stop - sl.start for _, sl in statics])
     mean_var = np.array([acc[sl].var(axis=0, ddof=1) for _, sl in statics]) / counts[:, None]
     pose = fit_poses(means, up, gravity, mean_var, labels)
-    m_acc, b_acc = pose.matrix, pose.bias
+    m_acc, b_acc, acc_cov = pose.matrix, pose.bias, pose.cov
+    six = sorted(labels) == sorted(SIX)
+    if six:
+        by_label = dict(zip(labels, means, strict=True))
+        m_acc, b_acc = six_position(by_label, gravity)
+        acc_cov = six_position_cov(by_label, gravity, pose.sigma2)
     for i, axis in enumerate("xyz"):
         if up[:, i].max() < 0.5 or up[:, i].min() > -0.5:
             warnings.append(f"accelerometer: the {axis} axis was never held near both up and down; its bias "
@@ -141,12 +146,11 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
         return p[:9].reshape(3, 3), p[9:12]
 
     p_acc = np.concatenate([m_acc.ravel(), b_acc])
-    acc_sd = stddev_from(acc_parts, p_acc, pose.cov)
+    acc_sd = stddev_from(acc_parts, p_acc, acc_cov)
     calibrated = (means - b_acc) @ np.linalg.inv(m_acc).T
     norm_err = np.linalg.norm(calibrated, axis=1) - gravity
-    residual_si = pose.residual @ np.linalg.inv(m_acc).T
-    six = sorted(labels) == sorted(["+x", "-x", "+y", "-y", "+z", "-z"])
-    acc_method = ("turntable: six-position (least squares = Ferraris analytic)" if six
+    residual_si = (means - (gravity * up @ m_acc.T + b_acc)) @ np.linalg.inv(m_acc).T
+    acc_method = ("turntable: six-position analytic (Ferraris)" if six
                   else f"turntable: {len(labels)}-pose least squares")
     accel = SensorCalibration(m_acc, b_acc, method=acc_method,
                               residual_rms=float(np.sqrt(np.mean(residual_si**2))), stddev=acc_sd,
@@ -181,11 +185,19 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
             up_rot = np.array([correction @ (acc[sl].mean(axis=0) - b_acc) for _, sl in rotations])
             up_rot /= np.linalg.norm(up_rot, axis=1, keepdims=True)
             earth = omega_v * durations[:, None] * up_rot
-        rot = fit_rotations(integrals, angles, axes, durations, noise_var, rot_labels, earth)
-        m_g = rot.matrix
+        up_static = up[np.repeat(np.arange(len(statics)), counts)].mean(axis=0)
+        rot, bias_solved = fit_rotations(integrals, angles, axes, durations, noise_var, rot_labels,
+                                         gyro_mean, earth)
         if latitude_deg is not None:
-            up_static = up[np.repeat(np.arange(len(statics)), counts)]
-            gyro_mean = static_gyro.mean(axis=0) - m_g @ (omega_v * up_static.mean(axis=0))
+            # eq. (2) needs M; one refinement with the fitted M is enough (the Earth term is tiny)
+            gyro_mean = static_gyro.mean(axis=0) - rot.matrix @ (omega_v * up_static)
+            if not bias_solved:
+                rot, _ = fit_rotations(integrals, angles, axes, durations, noise_var, rot_labels,
+                                       gyro_mean, earth)
+        m_g = rot.matrix
+        if not bias_solved:
+            warnings.append("gyroscope: the rotations turn one way only about each axis, so the bias does "
+                            "not cancel; the static bias was subtracted instead (add the opposite turns)")
         # Between-step scatter of the step means shows the in-run bias wander that white noise misses.
         step_means = np.array([gyro[sl].mean(axis=0) for _, sl in statics])
         wander = step_means.std(axis=0, ddof=1) / np.sqrt(len(statics)) if len(statics) > 1 else 0.0
