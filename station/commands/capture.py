@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 from typing import IO
 
@@ -16,13 +17,19 @@ from drivers import (
     CommandUnsupported,
     Device,
     LinkStats,
+    NoSamples,
     PortLost,
     open_device,
 )
+from drivers.serial_device import open_serial
 from mocks import register_sim_url
+from protocols.ascii_lines import parse_columns
+from protocols.detect import ENOUGH_BYTES, Detection, detect
+from protocols.mavlink import pymavlink_available
 from protocols.registry import DECODERS
 from station.acquisition.recorder import CaptureResult, record
 from station.cli import EXIT_INTERRUPTED
+from station.errors import StationError
 
 NAME = "capture"
 HELP = "record samples from a unit (serial port, pty or sim://) into a CSV or HDF5 capture file"
@@ -38,14 +45,21 @@ exit codes: 0 done, 3 device or link error (after saving what was received), 4 u
 EPILOG = """\
 examples:
   imu-station capture --port /dev/ttyUSB0 --duration 60 -o still.csv
-  imu-station capture --port sim:// --rate 400 --duration 10 -o sim.h5"""
+  imu-station capture --port sim:// --rate 400 --duration 10 -o sim.h5
+  imu-station capture --port /dev/ttyUSB0 --protocol auto --baud 115200 --duration 60 -o mti.csv
+  imu-station capture --port /dev/ttyACM0 --protocol ascii \
+      --columns t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps --duration 30 -o arduino.csv"""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", required=True,
                         help="serial device path (/dev/ttyUSB0, a pty), or pyserial URL (sim://, loop://)")
     parser.add_argument("--protocol", default="native", choices=sorted(DECODERS),
-                        help="wire protocol of the unit (default: native)")
+                        help="wire protocol of the unit (default: native); auto: recognise it from the "
+                             "first bytes and say what was found")
+    parser.add_argument("--columns", metavar="SPEC",
+                        help="with --protocol ascii: CSV columns and units, e.g. t:ms,ax:g,ay:g,az:g,gx:dps,"
+                             "gy:dps,gz:dps (default: t,ax,ay,az,gx,gy,gz,temp in s, m/s^2, rad/s, degC)")
     parser.add_argument("--duration", type=_positive_float, metavar="S",
                         help="seconds of device clock to record (default: until Ctrl-C)")
     parser.add_argument("--rate", type=int, metavar="HZ", help="set the unit's output rate first (SET_RATE)")
@@ -137,8 +151,53 @@ def report(result: CaptureResult, out: IO[str]) -> None:
         print(f"left out {result.non_increasing} samples whose device time did not increase", file=out)
 
 
+def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 3.0) -> Detection:
+    """Read the first bytes at ``port`` until a protocol is recognised, or for ``timeout_s``."""
+    if port.startswith("sim://"):
+        register_sim_url()
+    data = bytearray()
+    found = detect(b"")
+    deadline = time.monotonic() + timeout_s
+    with open_serial(port, baudrate) as ser:
+        while time.monotonic() < deadline and len(data) < 16 * ENOUGH_BYTES:
+            tried = len(data)
+            while len(data) < tried + max(64, tried // 4) and time.monotonic() < deadline:
+                data += ser.read(max(1, ser.in_waiting))
+            found = detect(bytes(data))
+            if found.protocol is not None:
+                break
+    if found.protocol is None and not data:
+        found.explanation = (f"the unit sent nothing in {timeout_s:g} s: check that it is powered and "
+                             f"streaming, and the baud rate")
+    return found
+
+
+def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | None, err: IO[str]) -> str:
+    """The decoder name for ``--protocol`` and ``--columns``; ``auto`` sniffs the port and says what
+    it found."""
+    if columns is not None:
+        if protocol != "ascii":
+            raise StationError(f"--columns applies to --protocol ascii, not {protocol}")
+        try:
+            parse_columns(columns)
+        except ValueError as exc:
+            raise StationError(f"--columns: {exc}") from None
+    if protocol == "mavlink" and not pymavlink_available():
+        raise StationError("--protocol mavlink needs pymavlink: pip install 'imu-station[mavlink]'")
+    if protocol == "auto":
+        found = sniff_protocol(port, baudrate)
+        if found.protocol is None:
+            raise NoSamples(f"{port}: {found.explanation}", port)
+        print(f"protocol: {found.protocol}: {found.explanation}", file=err)
+        protocol = found.protocol
+    if columns is not None and protocol == "ascii":
+        protocol = f"ascii:{columns}"
+    return protocol
+
+
 def run(args: argparse.Namespace) -> int:
-    result = capture_to_file(args.port, args.output, protocol=args.protocol, duration_s=args.duration,
+    protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr)
+    result = capture_to_file(args.port, args.output, protocol=protocol, duration_s=args.duration,
                              rate_hz=args.rate, baudrate=args.baud)
     report(result, sys.stdout)
     if result.error is not None:

@@ -39,6 +39,7 @@ examples:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    import mocks.encoders_extra  # noqa: F401  (registers the xsens, mavlink and text encoders)
     from mocks.device import ENCODERS, SCENARIOS
 
     parser.add_argument("--seed", type=int, default=0, help="unit, noise and scenario seed (default: 0)")
