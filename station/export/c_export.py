@@ -212,6 +212,7 @@ typedef struct {
 typedef struct {
     float temp_f;                         /* low-passed temperature, degC */
     float dtemp;                          /* low-passed rate, degC/s */
+    float last_temp;                      /* last finite reading, stands in for unknown ones */
     int started;
 } imu_calib_dtemp_t;
 
@@ -227,7 +228,8 @@ void imu_calib_apply(const imu_calib_t *p, float temp_c, float dtemp_c_per_s,
 
 /* dT the way the station estimates it: a first-order low-pass of T with time constant tau,
    alpha = dt / (tau + dt) on each sample's own dt, then the difference quotient of the filtered
-   T low-passed again. Call once per temperature sample with the time since the previous one. */
+   T low-passed again. Call once per temperature sample with the time since the previous one;
+   an unknown (non-finite) reading counts as the last known one, as the station does. */
 void imu_calib_dtemp_init(imu_calib_dtemp_t *s);
 float imu_calib_dtemp_update(imu_calib_dtemp_t *s, const imu_calib_t *p, float dt_s, float temp_c);
 
@@ -502,20 +504,27 @@ void imu_calib_dtemp_init(imu_calib_dtemp_t *s)
 {
     s->temp_f = 0.0f;
     s->dtemp = 0.0f;
+    s->last_temp = 0.0f;
     s->started = 0;
 }
 
 float imu_calib_dtemp_update(imu_calib_dtemp_t *s, const imu_calib_t *p, float dt_s, float temp_c)
 {
     float alpha, step;
-    if (!isfinite(temp_c)) {
-        return s->dtemp;
-    }
     if (!s->started) {
+        if (!isfinite(temp_c)) {
+            return 0.0f;
+        }
         s->temp_f = temp_c;
+        s->last_temp = temp_c;
         s->dtemp = 0.0f;
         s->started = 1;
         return 0.0f;
+    }
+    if (isfinite(temp_c)) {
+        s->last_temp = temp_c;
+    } else {
+        temp_c = s->last_temp;
     }
     if (!(dt_s > 0.0f)) {
         return s->dtemp;
