@@ -33,7 +33,7 @@ def _span(t: np.ndarray, sl: slice) -> str:
     return f"t = {t[sl.start]:.2f}..{t[sl.stop - 1]:.2f} s"
 
 
-def _check_rate(t: np.ndarray, rate_hz: float | None) -> None:
+def check_rate(t: np.ndarray, rate_hz: float | None) -> None:
     if len(t) < 2:
         raise EngineInputError("the capture has fewer than two samples")
     measured = 1.0 / float(np.median(np.diff(t)))
@@ -82,11 +82,11 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
     t = np.asarray(t, float)
     acc = np.asarray(acc, float)
     gyro = np.asarray(gyro, float)
-    if step is None:
+    if step is None or not any(str(s).strip() for s in step):
         raise EngineInputError("the capture has no step labels: the turntable method needs labelled poses "
                                "and rotations (a 'step' column); use --method free for unlabelled "
                                "hand-held data")
-    _check_rate(t, rate_hz)
+    check_rate(t, rate_hz)
     statics, rotations, unknown = [], [], []
     for label, sl in segments(step):
         if sl.stop - sl.start < 2:

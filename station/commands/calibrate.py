@@ -1,0 +1,249 @@
+"""``imu-station calibrate``: accelerometer and gyroscope intrinsics from a capture."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from rich.console import Console
+from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from station.acquisition.capture import Capture, read_capture
+from station.engines.calibration_common import CalibrationReport
+from station.engines.calibration_free import FreeSettings, calibrate_free
+from station.engines.calibration_turntable import calibrate_turntable, check_rate
+from station.engines.earth import STANDARD_GRAVITY, normal_gravity
+from station.errors import StationError
+from station.export.params_file import ParamsFile, sensor_to_dict, to_plain
+
+NAME = "calibrate"
+HELP = "accelerometer and gyroscope scale, misalignment and bias from a capture (turntable or hand-held)"
+DESCRIPTION = """\
+Estimate the intrinsics of both triads, raw = K (I + S) true + b, from a capture and merge the
+'accel' and 'gyro' sections into PARAMS (other sections are kept; the file is written atomically).
+
+--method turntable: a capture whose rows carry step labels (+x, -x, +x+y, ..., rot+z, rot-z:180):
+  accelerometer by least squares over the static poses (six-position: Ferraris' analytic solution),
+  gyroscope bias from the static steps and scale/misalignment from the rotations' integrated angles.
+--method free: an unlabelled hand-held session (Tedaldi et al. 2014, imu_tk): an initial still period,
+  then many still orientations joined by moves. Static intervals by moving variance; the accelerometer
+  fit minimises r = g - |a| (analytic Jacobian, Levenberg-Marquardt); the gyroscope fit integrates the
+  calibrated rates (RK4) between static intervals and matches the gravity directions.
+--method auto (default): turntable when the capture has step labels, else free.
+
+Input may be in any raw unit (counts included): initial guesses come from the data.
+Every parameter is printed with its 1-sigma uncertainty; per-pose residuals and warnings follow.
+
+exit codes: 0 done, 4 unusable input (the message says what the data fail to determine)."""
+EPILOG = """\
+examples:
+  imu-station calibrate twelve.csv --method turntable -o unit.yaml
+  imu-station calibrate handheld.csv --method free --initial-still 30 --convention upper -o unit.yaml
+  imu-station calibrate session.csv --latitude 45.07 --height 240 --json"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", type=Path, metavar="INPUT",
+                        help="capture CSV (.csv, .csv.gz) or capture file (.h5)")
+    parser.add_argument("--method", choices=("auto", "turntable", "free"), default="auto",
+                        help="turntable (labelled poses and rotations), free (hand-held), auto (default)")
+    parser.add_argument("-o", "--output", type=Path, metavar="PARAMS.yaml",
+                        help="parameter file to merge the accel and gyro sections into")
+    parser.add_argument("--gravity", type=float, metavar="G",
+                        help=f"local gravity in m/s^2 (default {STANDARD_GRAVITY}, "
+                             "or normal gravity from --latitude)")
+    parser.add_argument("--latitude", type=float, metavar="DEG",
+                        help="latitude: WGS-84 normal gravity (Somigliana + free-air with --height) and, "
+                             "for the turntable method, the Earth rate's vertical part")
+    parser.add_argument("--height", type=float, default=0.0, metavar="M",
+                        help="height above the ellipsoid (m)")
+    parser.add_argument("--no-earth-rate", action="store_true",
+                        help="with --latitude, do not compensate the Earth rate (gravity only)")
+    parser.add_argument("--initial-still", type=float, metavar="S",
+                        help="free method: length of the initial still period (default: detected)")
+    parser.add_argument("--convention", choices=("lower", "upper"), default="lower",
+                        help="free method: accelerometer misalignment triangle; lower = body x along "
+                             "accel x, body xy plane = accel xy plane (default); upper = imu_tk's T")
+    parser.add_argument("--window", type=float, default=1.0, metavar="S",
+                        help="free method: moving-variance window in seconds (default 1)")
+    parser.add_argument("--imu-tk", action="store_true",
+                        help="free method: imu_tk's detector and cost (101-sample window, first 100 "
+                             "samples of each interval, 1/2 sum r^2)")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="the sample rate the device was set to; refused if the timestamps disagree")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write a residual plot (PNG)")
+
+
+def local_gravity(args: argparse.Namespace) -> float:
+    if args.gravity is not None and args.latitude is not None:
+        raise StationError("give either --gravity or --latitude/--height, not both")
+    if args.gravity is not None:
+        if not 9.7 <= args.gravity <= 9.9:
+            raise StationError(f"--gravity {args.gravity}: local gravity on Earth is 9.78..9.84 m/s^2")
+        return float(args.gravity)
+    if args.latitude is not None:
+        if not -90 <= args.latitude <= 90:
+            raise StationError(f"--latitude {args.latitude}: must be within -90..90 degrees")
+        return normal_gravity(args.latitude, args.height)
+    return STANDARD_GRAVITY
+
+
+def calibrate_capture(capture: Capture, args: argparse.Namespace) -> CalibrationReport:
+    """Run the chosen method on a capture (the CLI's composition of engine and options)."""
+    gravity = local_gravity(args)
+    has_labels = capture.step is not None and any(str(s).strip() for s in capture.step)
+    method = args.method if args.method != "auto" else ("turntable" if has_labels else "free")
+    if method == "turntable":
+        latitude = None if args.no_earth_rate else args.latitude
+        return calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
+                                   latitude_deg=latitude, rate_hz=args.rate)
+    settings = FreeSettings.imu_tk() if args.imu_tk else FreeSettings(window_s=args.window)
+    if args.rate is not None:
+        check_rate(capture.t, args.rate)
+    return calibrate_free(capture.t, capture.acc, capture.gyro, gravity, args.initial_still,
+                          args.convention, settings)
+
+
+def report_dict(report: CalibrationReport, source: str) -> dict[str, Any]:
+    out: dict[str, Any] = {"source": source, "method": report.method, "gravity": report.gravity}
+    for name in ("accel", "gyro"):
+        cal = getattr(report, name)
+        out[name] = sensor_to_dict(cal) if cal is not None else None
+    out["poses"] = report.poses
+    out["warnings"] = report.warnings
+    details = {k: v for k, v in report.details.items() if k not in ("accel_correction", "gyro_correction")}
+    out["details"] = details
+    return to_plain(out)
+
+
+def _fmt(value: float, sd: float | None) -> str:
+    if sd is None or not np.isfinite(sd) or sd == 0:
+        return f"{value:.7g}"
+    return f"{value:.7g} ± {sd:.2g}"
+
+
+def print_report(report: CalibrationReport, console: Console) -> None:
+    console.print(f"[bold]{report.method}[/] calibration, g = {report.gravity:.6f} m/s^2")
+    for name, unit in (("accel", "raw per m/s^2"), ("gyro", "raw per rad/s")):
+        cal = getattr(report, name)
+        if cal is None:
+            continue
+        sd = cal.stddev
+        table = Table(title=f"{name}: {cal.method} (forward model raw = M true + b; scale in {unit})")
+        table.add_column("parameter")
+        for axis in "xyz":
+            table.add_column(axis, justify="right")
+        table.add_row("scale K", *[_fmt(cal.scale[i], sd.get("scale", [None] * 3)[i]) for i in range(3)])
+        mis = cal.misalignment
+        mis_sd = np.asarray(sd.get("misalignment", np.zeros((3, 3))))
+        for i, row in enumerate("xyz"):
+            table.add_row(f"misalignment S, row {row}",
+                          *[("0" if i == j else _fmt(mis[i, j], mis_sd[i, j])) for j in range(3)])
+        bias_sd = np.asarray(sd.get("bias", [None] * 3))
+        table.add_row("bias b", *[_fmt(cal.bias[i], bias_sd[i]) for i in range(3)])
+        console.print(table)
+        console.print(f"{name} residual RMS: {cal.residual_rms:.4g} ({cal.extra.get('residual', '')})")
+    trials = report.details.get("trials")
+    if trials:
+        table = Table(title="static-interval detection (threshold = k x still-period variance)")
+        for col in ("k", "intervals", "cost"):
+            table.add_column(col, justify="right")
+        chosen = report.details.get("chosen_multiplier")
+        for tr in trials:
+            mark = " *" if tr["multiplier"] == chosen else ""
+            table.add_row(f"{tr['multiplier']:g}{mark}", str(tr["intervals"]),
+                          "too few" if tr["cost"] is None else f"{tr['cost']:.6g}")
+        console.print(table)
+    if report.poses:
+        table = Table(title="per-pose residuals")
+        table.add_column("step")
+        table.add_column("t (s)", justify="right")
+        table.add_column("residual", justify="right")
+        for p in report.poses:
+            if "angle_error_deg" in p:
+                value = f"angle error {p['angle_error_deg']:+.4f} deg"
+            elif "norm_error" in p:
+                value = f"|a| - g {p['norm_error']:+.5f} m/s^2"
+            else:
+                value = f"g - |a| {p['residual']:+.5f} m/s^2"
+                if p.get("gyro_residual") is not None:
+                    value += f", gyro {p['gyro_residual']:.4f}"
+            table.add_row(p["label"], f"{p['t0']:.1f}..{p['t1']:.1f}", value)
+        console.print(table)
+    for w in report.warnings:
+        console.print(f"[yellow]warning:[/] {w}")
+
+
+def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from station.files import atomic_open
+
+    statics = [p for p in report.poses if p.get("kind", "static") == "static"]
+    rotations = [p for p in report.poses if "angle_error_deg" in p]
+    fig, axes = plt.subplots(2 if rotations else 1, 1, figsize=(9, 6 if rotations else 3.5), squeeze=False)
+    ax = axes[0, 0]
+    values = [p.get("norm_error", p.get("residual")) for p in statics]
+    if report.method == "free":
+        values = [-v for v in values]
+    ax.bar(range(len(values)), values, color="tab:blue")
+    ax.set_xticks(range(len(values)), [p["label"] for p in statics], rotation=90, fontsize=7)
+    ax.set_ylabel("|a| - g (m/s^2)")
+    ax.set_title(f"imu-station calibrate {source}: calibrated gravity magnitude per static pose")
+    ax.axhline(0, color="k", lw=0.5)
+    if rotations:
+        ax2 = axes[1, 0]
+        ax2.bar(range(len(rotations)), [p["angle_error_deg"] for p in rotations], color="tab:orange")
+        ax2.set_xticks(range(len(rotations)), [p["label"] for p in rotations])
+        ax2.set_ylabel("angle error (deg)")
+        ax2.axhline(0, color="k", lw=0.5)
+    fig.tight_layout()
+    with atomic_open(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+
+
+def _progress(err: IO[str]) -> Progress:
+    return Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                    console=Console(file=err), transient=True, disable=not err.isatty())
+
+
+def run(args: argparse.Namespace) -> int:
+    with _progress(sys.stderr) as progress:
+        task = progress.add_task(f"reading {args.input}", total=None)
+        capture = read_capture(args.input)
+        progress.update(task, description="calibrating")
+        report = calibrate_capture(capture, args)
+    outputs = {}
+    if args.output:
+        params = ParamsFile.load_or_new(args.output)
+        params.update_device(capture.device)
+        params.accel = report.accel
+        if report.gyro is not None:
+            params.gyro = report.gyro
+        params.save(args.output)
+        written = "accel and gyro sections" if report.gyro is not None else "accel section"
+        outputs[str(args.output)] = f"{written} written"
+    if args.plot:
+        write_plot(args.plot, report, args.input.name)
+        outputs[str(args.plot)] = "written"
+    if args.json:
+        result = report_dict(report, str(args.input))
+        result["outputs"] = outputs
+        json.dump(result, sys.stdout, indent=1, allow_nan=False)
+        sys.stdout.write("\n")
+        return 0
+    console = Console(file=sys.stdout, width=140)
+    print_report(report, console)
+    for path, what in outputs.items():
+        console.print(f"{path}: {what}")
+    return 0
