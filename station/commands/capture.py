@@ -22,7 +22,6 @@ from drivers import (
     open_device,
 )
 from drivers.serial_device import open_serial
-from mocks import register_sim_url
 from protocols.ascii_lines import parse_columns
 from protocols.detect import ENOUGH_BYTES, Detection, detect
 from protocols.mavlink import pymavlink_available
@@ -105,6 +104,8 @@ def capture_to_file(port: str, output: Path, protocol: str = "native", duration_
     """Open the unit at ``port``, prepare it, and record into ``output`` with a live status line."""
     err = err if err is not None else sys.stderr
     if port.startswith("sim://"):
+        from mocks import register_sim_url  # the simulated unit, loaded only when asked for
+
         register_sim_url()
     with open_device(port, protocol=protocol, baudrate=baudrate) as device:
         try:
@@ -154,6 +155,8 @@ def report(result: CaptureResult, out: IO[str]) -> None:
 def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 3.0) -> Detection:
     """Read the first bytes at ``port`` until a protocol is recognised, or for ``timeout_s``."""
     if port.startswith("sim://"):
+        from mocks import register_sim_url  # the simulated unit, loaded only when asked for
+
         register_sim_url()
     data = bytearray()
     found = detect(b"")
