@@ -167,8 +167,7 @@ class MavlinkDecoder(StreamDecoderBase):
                 continue
             if length < 0 or pos + length > len(buf):
                 break
-            crc_ok = self._crc_ok(pos, length)
-            if crc_ok is None:
+            if self._msg_id(pos) not in self._map:
                 # Unknown message: no CRC extra to check it with. Believe it only when the next
                 # frame starts right after it (or the stream ends there) and no good frame
                 # starts inside it.
@@ -184,20 +183,21 @@ class MavlinkDecoder(StreamDecoderBase):
                 messages.append(Message(self._msg_id(pos), bytes(buf[pos:after])))
                 pos = after
                 continue
-            if not crc_ok:
-                if self._valid_frame_inside(pos + 1, pos + length):
+            frame = bytearray(buf[pos : pos + length])
+            try:
+                msg = self._mav.decode(frame)  # checks the CRC too
+            except self._dialect.MAVError:
+                if self._crc_ok(pos, length):
+                    stats.bad_payloads += 1
+                    pos += length
+                elif self._valid_frame_inside(pos + 1, pos + length):
                     stats.truncated += 1
+                    pos = self._skip(pos)
                 else:
                     stats.crc_errors += 1
-                pos = self._skip(pos)
+                    pos = self._skip(pos)
                 continue
-            frame = bytearray(buf[pos : pos + length])
             pos += length
-            try:
-                msg = self._mav.decode(frame)
-            except self._dialect.MAVError:
-                stats.bad_payloads += 1
-                continue
             stats.frames += 1
             name = msg.get_type()
             self.messages_seen[name] = self.messages_seen.get(name, 0) + 1
