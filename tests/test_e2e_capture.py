@@ -246,3 +246,19 @@ def test_independent_encoder_with_faults_every_good_frame_bit_exact(tmp_path: Pa
         assert np.array_equal(np.round(cap.t * 1e6).astype(np.uint64), expected["t_us"])
         for name, column in (("acc", cap.acc), ("gyro", cap.gyro), ("temp", cap.temp)):
             assert column.astype(np.float32).tobytes() == expected[name].tobytes(), name
+
+
+def test_demo_steps_capture_verify_and_report(tmp_path: Path) -> None:
+    import io
+
+    from station.commands.demo import DemoContext, run_demo
+
+    out = io.StringIO()
+    ctx = DemoContext(out_dir=tmp_path / "demo", seconds=1.0, rate_hz=400, out=out, err=io.StringIO())
+    run_demo(ctx)
+    assert ctx.results["verified"] is True
+    assert ctx.results["link"]["lost"] == 0 and ctx.results["link"]["errors"] == 0
+    assert len(read_capture(tmp_path / "demo" / "capture.h5")) == 400
+    assert not ctx.server.running  # the simulated unit was stopped at the end
+    text = out.getvalue()
+    assert "[4/4] report the link" in text and "all 400 samples equal, bit for bit" in text
