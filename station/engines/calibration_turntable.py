@@ -43,10 +43,17 @@ def check_rate(t: np.ndarray, rate_hz: float | None) -> None:
             "the median step): check the device's rate setting or the capture's time column")
 
 
-def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label: str) -> None:
-    """Refuse a step where an axis sits at the capture's extreme value for several samples."""
+def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label: str,
+                      noisy: np.ndarray) -> None:
+    """Refuse a step where an axis sits at the capture's extreme value for several samples.
+
+    Only axes that show noise in the static steps (``noisy``) are checked: there a run of
+    identical samples at the extreme is a clipped signal, not a steady one.
+    """
     seg = x[sl]
     for i, axis in enumerate("xyz"):
+        if not noisy[i]:
+            continue
         for extreme in (x[:, i].max(), x[:, i].min()):
             pinned = seg[:, i] == extreme
             if pinned.sum() < SATURATION_RUN:
@@ -56,6 +63,18 @@ def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label:
                 raise EngineInputError(
                     f"step '{label}' ({_span(t, sl)}): the {name} {axis} axis is saturated (held at "
                     f"{extreme:g} for {int(runs.max())} samples); lower the rotation rate or raise the range")
+
+
+def _small_sample_factor(dof: int) -> float:
+    """Scale a residual-based sigma to the spread of Student's t with ``dof`` degrees of freedom,
+    sqrt(dof / (dof - 2)); 2 where that is undefined (few spare poses)."""
+    return float(np.sqrt(dof / (dof - 2))) if dof > 4 else 2.0
+
+
+def _shows_noise(x: np.ndarray, statics: list[tuple[str, slice]]) -> np.ndarray:
+    """Per axis: do the static steps scatter (beyond floating-point rounding of a constant)?"""
+    spread = np.median([x[sl].std(axis=0) for _, sl in statics], axis=0)
+    return spread > 1e-9 * np.maximum(1.0, np.abs(x).max(axis=0))
 
 
 def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: np.ndarray, gravity: float,
@@ -109,18 +128,17 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
     spread = np.array([acc[sl].std(axis=0).max() for _, sl in statics])
     typical = float(np.median(spread))
     level = float(np.median([np.linalg.norm(acc[sl].mean(axis=0)) for _, sl in statics]))
-    noisy = bool(np.any([acc[sl].std(axis=0).max() > 0 for _, sl in statics]))
+    acc_noisy = _shows_noise(acc, statics)
+    gyro_noisy = _shows_noise(gyro, statics)
     for (label, sl), s in zip(statics, spread, strict=True):
         if s > MOTION_FACTOR * typical and s > MOTION_FLOOR * level:
             raise EngineInputError(
                 f"the unit moved during static step '{label}' ({_span(t, sl)}): its accelerometer scatter "
                 f"{s:.4g} is {s / max(typical, 1e-300):.0f} times that of the other static steps; repeat the "
                 "step holding the unit still")
-        if noisy:
-            _check_saturation(acc, "accelerometer", t, sl, label)
-    if noisy:
-        for label, sl in rotations:
-            _check_saturation(gyro, "gyroscope", t, sl, label)
+        _check_saturation(acc, "accelerometer", t, sl, label, acc_noisy)
+    for label, sl in rotations:
+        _check_saturation(gyro, "gyroscope", t, sl, label, gyro_noisy)
 
     labels = [lab for lab, _ in statics]
     up = np.array([pose_vector(lab) for lab in labels])
@@ -147,6 +165,13 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
 
     p_acc = np.concatenate([m_acc.ravel(), b_acc])
     acc_sd = stddev_from(acc_parts, p_acc, acc_cov)
+    # The bias drifts during the session (bias instability, rate random walk): correlated in time,
+    # so the pose-to-pose scatter of the residuals is not reduced by the number of poses.
+    pose_scatter = np.sqrt(np.mean(pose.residual**2, axis=0) * len(labels) / max(len(labels) - 4, 1))
+    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + pose_scatter**2)
+    inflate = _small_sample_factor(len(labels) - 4)
+    for key in ("matrix", "scale", "misalignment"):
+        acc_sd[key] = acc_sd[key] * inflate
     calibrated = (means - b_acc) @ np.linalg.inv(m_acc).T
     norm_err = np.linalg.norm(calibrated, axis=1) - gravity
     residual_si = (means - (gravity * up @ m_acc.T + b_acc)) @ np.linalg.inv(m_acc).T
@@ -198,16 +223,20 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
         if not bias_solved:
             warnings.append("gyroscope: the rotations turn one way only about each axis, so the bias does "
                             "not cancel; the static bias was subtracted instead (add the opposite turns)")
-        # Between-step scatter of the step means shows the in-run bias wander that white noise misses.
+        # Between-step scatter of the step means shows the in-run bias wander that white noise misses;
+        # it is correlated in time, so not divided by the number of steps.
         step_means = np.array([gyro[sl].mean(axis=0) for _, sl in statics])
-        wander = step_means.std(axis=0, ddof=1) / np.sqrt(len(statics)) if len(statics) > 1 else 0.0
-        b_sd = np.maximum(np.sqrt(static_var / len(static_gyro)), wander)
+        wander = step_means.std(axis=0, ddof=1) if len(statics) > 1 else 0.0
+        b_sd = np.sqrt(static_var / len(static_gyro) + wander**2)
 
         def gyro_parts(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return p[:9].reshape(3, 3), gyro_mean
 
         gyro_sd = stddev_from(gyro_parts, np.concatenate([m_g.ravel(), rot.bias_rotation]), rot.cov)
         gyro_sd["bias"] = b_sd
+        inflate = _small_sample_factor(len(rotations) - (4 if bias_solved else 3))
+        for key in ("matrix", "scale", "misalignment"):
+            gyro_sd[key] = gyro_sd[key] * inflate
         if rot.condition > 50:
             warnings.append(f"gyroscope: the rotations determine the parameters poorly (condition number "
                             f"{rot.condition:.0f}); turn about each axis both ways")
