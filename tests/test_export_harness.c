@@ -7,6 +7,8 @@
  *                                 (the header's linked-in parameters equal the blob's) and
  *                                 "unit_same_output <0|1>"
  *   harness dtemp BLOB IN OUT     IN: float32 rows (dt, temp); OUT: float32 dT per row
+ *   harness stream BLOB IN OUT    IN: float32 rows (dt, temp, acc xyz, gyro xyz): dT from the
+ *                                 firmware filter, then apply, as a firmware loop would; OUT as apply
  *   harness strings               prints the unit's string macros as hex bytes, one per line
  *
  * Written in the common subset of C99 and C++ so the same file checks both builds.
@@ -148,6 +150,22 @@ int main(int argc, char **argv)
         write_all(argv[4], out, n);
         return 0;
     }
+    if (argc == 5 && strcmp(argv[1], "stream") == 0) {
+        float *in, *out;
+        imu_calib_dtemp_t state;
+        load_or_die(argv[2], &p);
+        in = (float *)(void *)read_all(argv[3], &len);
+        n = len / (8u * sizeof(float));
+        out = (float *)malloc(6u * n * sizeof(float) + 1u);
+        imu_calib_dtemp_init(&state);
+        for (i = 0; i < n; ++i) {
+            const float *row = in + 8u * i;
+            float dtemp = imu_calib_dtemp_update(&state, &p, row[0], row[1]);
+            imu_calib_apply(&p, row[1], dtemp, row + 2, row + 5, out + 6u * i, out + 6u * i + 3u);
+        }
+        write_all(argv[4], out, 6u * n);
+        return 0;
+    }
     if (argc == 2 && strcmp(argv[1], "strings") == 0) {
         print_hex("serial", IMU_CALIB_UNIT_SERIAL);
         print_hex("model", IMU_CALIB_UNIT_MODEL);
@@ -157,6 +175,6 @@ int main(int argc, char **argv)
         print_hex("unit_station", imu_calib_unit.station_id);
         return 0;
     }
-    fprintf(stderr, "usage: harness load BLOB... | apply BLOB IN OUT | dtemp BLOB IN OUT | strings\n");
+    fprintf(stderr, "usage: harness load BLOB... | apply|dtemp|stream BLOB IN OUT | strings\n");
     return 2;
 }
