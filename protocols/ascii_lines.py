@@ -158,9 +158,27 @@ class AsciiDecoder(StreamDecoderBase):
         self.max_gyro = max_gyro
         self.temp_range = temp_range
         self.kinds_seen: dict[str, int] = {}
+        self.clock_lines = 0  # sample lines that carried their own time
         self._count = 0
         self._first_line = True  # the stream may start in the middle of a line
         self._discarding = False  # inside an over-long line, until its end
+
+    @classmethod
+    def from_option(cls, option: str) -> AsciiDecoder:
+        """A decoder from ``COLUMNS[@RATE_HZ]`` (either part may be empty): ``t:ms,ax:g,...``,
+        ``@50`` (default columns, lines without a clock at 50 Hz), ``ax,ay,az,gx,gy,gz@200``."""
+        columns, has_rate, rate = option.rpartition("@") if "@" in option else (option, "", "")
+        kwargs: dict[str, object] = {}
+        if columns:
+            kwargs["columns"] = columns
+        if has_rate:
+            try:
+                kwargs["rate_hz"] = float(rate)
+            except ValueError:
+                raise ValueError(f"rate {rate!r} after '@' in {option!r} is not a number of Hz") from None
+            if not kwargs["rate_hz"] > 0:
+                raise ValueError(f"rate {rate!r} after '@' in {option!r} must be positive")
+        return cls(**kwargs)  # type: ignore[arg-type]
 
     def feed(self, data: bytes) -> Decoded:
         buf = self._buf
@@ -342,7 +360,11 @@ class AsciiDecoder(StreamDecoderBase):
         n = self._count
         self._count += 1
         seq = n if seq is None else seq
-        t_us = round(n * 1e6 / self.rate_hz) if t is None else round(t * 1e6)
+        if t is None:
+            t_us = round(n * 1e6 / self.rate_hz)
+        else:
+            t_us = round(t * 1e6)
+            self.clock_lines += 1
         return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp)
 
 

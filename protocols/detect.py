@@ -105,7 +105,10 @@ def _describe(name: str, dec: StreamDecoderBase, out: Decoded, nbytes: int) -> s
     text = f"text lines: {kinds}; {n} samples"
     if "csv" in dec.kinds_seen:
         text += f" read as columns {dec.columns.describe()}"
-    return text + f"{at}, {_damage(stats)}"
+    if dec.clock_lines:
+        return text + f"{at}, {_damage(stats)}"
+    return text + (f", {_damage(stats)}; the lines carry no clock: samples are timed at the nominal "
+                   f"{dec.rate_hz:g} Hz (give the unit's rate if it differs)")
 
 
 def _looks_like_mavlink(data: bytes) -> bool:

@@ -20,11 +20,11 @@ DECODERS: dict[str, Callable[[], StreamDecoderBase]] = {
 }
 
 
-# Decoders that take one option, given as ``name:option``: the CSV column spec of ``ascii``
-# (``ascii:t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``), the IMU message of ``mavlink``
-# (``mavlink:SCALED_IMU2``).
+# Decoders that take one option, given as ``name:option``: the CSV column spec and/or the rate of
+# lines without a clock for ``ascii`` (``ascii:t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``,
+# ``ascii:@50``), the IMU message of ``mavlink`` (``mavlink:SCALED_IMU2``).
 DECODER_OPTIONS: dict[str, Callable[[str], StreamDecoderBase]] = {
-    "ascii": lambda spec: AsciiDecoder(columns=spec),
+    "ascii": AsciiDecoder.from_option,
     "mavlink": lambda source: MavlinkDecoder(source=source),
 }
 

@@ -225,3 +225,14 @@ def test_garbage_lines_never_cost_a_good_line(garbage: list[bytes], seed: int) -
     out, _ = feed_ragged(dec, stream, seed=seed)
     assert len(out) == len(s)
     np.testing.assert_allclose(out["acc"], s["acc"], atol=5e-4)
+
+
+def test_option_string_sets_columns_and_the_rate_of_lines_without_a_clock() -> None:
+    dec = AsciiDecoder.from_option("@50")
+    out = dec.feed(b"Raw:0,0,8192,0,0,0,0,0,0\nRaw:0,0,8192,0,0,0,0,0,0\n").samples
+    assert out["t_us"].tolist() == [0, 20_000] and dec.clock_lines == 0
+    dec = AsciiDecoder.from_option("ax,ay,az,gx,gy,gz@200")
+    assert dec.columns.names == ("ax", "ay", "az", "gx", "gy", "gz") and dec.rate_hz == 200
+    for bad in ("@fast", "@0", "t,ax@"):
+        with pytest.raises(ValueError):
+            AsciiDecoder.from_option(bad)

@@ -36,6 +36,19 @@ def test_auto_recognises_an_xsens_unit_says_so_and_records_it(tmp_path: Path, ca
     np.testing.assert_allclose(cap.gyro, sent["gyro"][index], rtol=1e-6)
 
 
+def test_text_lines_without_a_clock_are_timed_at_the_given_rate(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "motioncal.csv"
+    with PtyServer(SimDevice(seed=3, rate_hz=50, encoder="motioncal")) as server:
+        code = main(["capture", "--port", server.port_path, "--protocol", "auto", "--rate", "50",
+                     "--duration", "1", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "protocol: ascii: text lines:" in err and "motioncal" in err and "carry no clock" in err
+    cap = read_capture(out)
+    assert 45 <= len(cap) <= 55 and np.allclose(np.diff(cap.t), 0.02)
+    assert np.allclose(np.linalg.norm(cap.acc, axis=1), 9.8, atol=0.3)
+
+
 class LinePty:
     """A raw pty the test writes text lines into from a thread, at a steady pace."""
 

@@ -61,7 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "gy:dps,gz:dps (default: t,ax,ay,az,gx,gy,gz,temp in s, m/s^2, rad/s, degC)")
     parser.add_argument("--duration", type=_positive_float, metavar="S",
                         help="seconds of device clock to record (default: until Ctrl-C)")
-    parser.add_argument("--rate", type=int, metavar="HZ", help="set the unit's output rate first (SET_RATE)")
+    parser.add_argument("--rate", type=int, metavar="HZ",
+                        help="set the unit's output rate first (SET_RATE); with text lines that carry no "
+                             "clock (MotionCal, VectorNav), the rate they come at (default: 100)")
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUDRATE,
                         help=f"line speed of a real serial port (default: {DEFAULT_BAUDRATE})")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="FILE",
@@ -175,7 +177,8 @@ def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float
     return found
 
 
-def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | None, err: IO[str]) -> str:
+def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | None, err: IO[str],
+                     rate_hz: int | None = None) -> str:
     """The decoder name for ``--protocol`` and ``--columns``; ``auto`` sniffs the port and says what
     it found."""
     if columns is not None:
@@ -193,13 +196,13 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
             raise NoSamples(f"{port}: {found.explanation}", port)
         print(f"protocol: {found.protocol}: {found.explanation}", file=err)
         protocol = found.protocol
-    if columns is not None and protocol == "ascii":
-        protocol = f"ascii:{columns}"
+    if protocol == "ascii" and (columns is not None or rate_hz is not None):
+        protocol = f"ascii:{columns or ''}" + (f"@{rate_hz}" if rate_hz is not None else "")
     return protocol
 
 
 def run(args: argparse.Namespace) -> int:
-    protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr)
+    protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr, args.rate)
     result = capture_to_file(args.port, args.output, protocol=protocol, duration_s=args.duration,
                              rate_hz=args.rate, baudrate=args.baud)
     report(result, sys.stdout)
