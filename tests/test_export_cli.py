@@ -58,9 +58,12 @@ def test_document_formats_read_back_as_the_parameter_file(fmt: str, unit_file: P
     assert np.array_equal(back.thermal.accel.segments[2].coeffs, params.thermal.accel.segments[2].coeffs)
 
 
-def test_bin_into_a_directory_gets_the_default_name(unit_file: Path, tmp_path: Path) -> None:
-    assert main(["export", str(unit_file), "-f", "bin", "-o", str(tmp_path)]) == 0
-    assert parse_blob((tmp_path / "imu_calib.bin").read_bytes()).serial == "SN-0042"
+def test_bin_into_a_directory_gets_the_default_name(unit_file: Path, tmp_path: Path, capsys) -> None:
+    argv = ["export", str(unit_file), "-f", "bin", "-o", str(tmp_path), "--station-id", "assembly-line-12"]
+    assert main(argv) == 0
+    back = parse_blob((tmp_path / "imu_calib.bin").read_bytes())
+    assert back.serial == "SN-0042" and back.station_id == "assembly-line-1"
+    assert "station id is cut to 15 bytes" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(("fmt", "first"), [("px4", "CAL_ACC1_ID"), ("ardupilot", "INS_ACC2_ID")])

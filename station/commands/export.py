@@ -13,7 +13,7 @@ from typing import Any
 from station.errors import StationError
 from station.export import ardupilot, c_export, json_export, px4
 from station.export.autopilot import AutopilotExport
-from station.export.blob import build_blob
+from station.export.blob import SERIAL_SIZE, STATION_ID_SIZE, build_blob, fixed_utf8
 from station.export.loss_plot import plot_losses
 from station.export.params_file import ParamsFile
 from station.files import atomic_write_bytes, atomic_write_text
@@ -174,6 +174,13 @@ def run(args: argparse.Namespace) -> int:
     if args.format not in ("px4", "ardupilot") and autopilot_only:
         names = ", ".join(autopilot_only)
         report.setdefault("notes", []).append(f"{names}: for px4 and ardupilot only; ignored")
+    if args.format in ("c", "bin"):
+        for what, text, size in (("station id", station_id, STATION_ID_SIZE),
+                                 ("unit serial", str(params.device.get("serial", "")), SERIAL_SIZE)):
+            if len(text.encode("utf-8")) >= size:
+                kept = fixed_utf8(text, size, what).decode("utf-8")
+                note = f"the {what} is cut to {size - 1} bytes in the blob: {kept!r}"
+                report.setdefault("notes", []).append(note)
     if args.json:
         print(json.dumps(report, indent=2, allow_nan=False))
     else:

@@ -118,7 +118,8 @@ def _describe(params: ParamsFile, station_id: str, exported_utc: int, blob_size:
     for name in ("accel", "gyro"):
         cal = getattr(params, name)
         if cal is not None:
-            rms = "" if cal.residual_rms is None else f", residual rms {float(cal.residual_rms):.3g}"
+            number = isinstance(cal.residual_rms, int | float)
+            rms = f", residual rms {cal.residual_rms:.3g}" if number else ""
             lines.append(f"{name}: method {c_comment_text(cal.method)}{rms}.")
     return "\n".join(f" * {line}" for line in lines)
 
