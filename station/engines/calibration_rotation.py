@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.engines.calibration_static import _unit_columns
 from station.errors import EngineInputError
 
 
@@ -79,13 +80,13 @@ def fit_rotations(integrals: np.ndarray, angles: np.ndarray, axes: np.ndarray, d
                                "no rotation steps (labels rot+x, rot-x, ...): the gyroscope's scale and "
                                "misalignment need rotations about every axis, both ways")
     x = np.hstack([reference, durations[:, None]])
-    xn = x / np.linalg.norm(x, axis=0)
+    xn = _unit_columns(x)
     with_bias = len(integrals) >= 4 and np.linalg.matrix_rank(xn, tol=1e-6) == 4
     if with_bias:
         y = integrals
     else:
         x = reference
-        xn = x / np.linalg.norm(x, axis=0)
+        xn = _unit_columns(x)
         if np.linalg.matrix_rank(xn, tol=1e-6) < 3:
             raise EngineInputError(explain_rotations(signed_axes, labels))
         y = integrals - np.outer(durations, static_bias)

@@ -48,6 +48,12 @@ def _design(up: np.ndarray, g: float) -> np.ndarray:
     return np.hstack([g * np.asarray(up, float), np.ones((len(up), 1))])
 
 
+def _unit_columns(x: np.ndarray) -> np.ndarray:
+    """Columns scaled to unit norm (all-zero columns left as they are), for rank and conditioning."""
+    norm = np.linalg.norm(x, axis=0)
+    return x / np.where(norm > 0, norm, 1.0)
+
+
 def explain_rank_deficiency(up: np.ndarray, labels: list[str]) -> str:
     """Name what a set of poses fails to excite (for the error message)."""
     up = np.asarray(up, float)
@@ -63,7 +69,7 @@ def explain_rank_deficiency(up: np.ndarray, labels: list[str]) -> str:
                            f"cannot be told apart (add the opposite pose)")
     if not reasons:
         x = _design(up, 1.0)
-        vt = np.linalg.svd(x / np.linalg.norm(x, axis=0))[2]
+        vt = np.linalg.svd(_unit_columns(x))[2]
         v = vt[-1] / np.max(np.abs(vt[-1]))
         free = " + ".join(f"{c:+.2f}*{_UNKNOWNS[k]}" for k, c in enumerate(v) if abs(c) > 0.05)
         reasons.append(f"the poses are linearly dependent; the combination {free} is free")
@@ -81,7 +87,7 @@ def fit_poses(means: np.ndarray, up: np.ndarray, g: float, mean_var: np.ndarray,
     """
     means = np.asarray(means, float)
     x = _design(up, g)
-    if len(means) < 4 or np.linalg.matrix_rank(x / np.linalg.norm(x, axis=0), tol=1e-9) < 4:
+    if len(means) < 4 or np.linalg.matrix_rank(_unit_columns(x), tol=1e-9) < 4:
         if len(means) < 4:
             raise EngineInputError(f"only {len(means)} static poses ({', '.join(labels)}): the accelerometer "
                                    "needs at least 4 (six-position: +x -x +y -y +z -z)")
@@ -99,7 +105,7 @@ def fit_poses(means: np.ndarray, up: np.ndarray, g: float, mean_var: np.ndarray,
     for j in range(3):
         idx = index[j]
         cov[np.ix_(idx, idx)] = sigma2[j] * xtx_inv
-    xn = x / np.linalg.norm(x, axis=0)
+    xn = _unit_columns(x)
     return PoseFit(theta[:3].T, theta[3], cov, residual, float(np.linalg.cond(xn)), sigma2)
 
 
