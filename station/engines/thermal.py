@@ -453,7 +453,9 @@ def _hysteresis(temp: np.ndarray, dtemp: np.ndarray, resid: np.ndarray, variatio
 
     Blocks with dT beyond a quarter of the 95th-percentile |dT| count as heating or cooling;
     both are binned over their common temperature range. The gap matters when it exceeds
-    three standard errors and 5 % of the bias variation.
+    three standard errors of the bin means, 5 % of the bias variation and three times the
+    block-to-block noise (from first differences of the residual): bin means of
+    neighbouring blocks share slow noise that their standard errors do not show.
     """
     thr = 0.25 * np.percentile(np.abs(dtemp), 95)
     if thr <= 0:
@@ -466,6 +468,7 @@ def _hysteresis(temp: np.ndarray, dtemp: np.ndarray, resid: np.ndarray, variatio
     if hi - lo <= 0:
         return None, None, False
     edges = np.linspace(lo, hi, max(2, min(20, int((hi - lo) / 1.0))) + 1)
+    noise = float(np.std(np.diff(resid))) / np.sqrt(2.0)
     worst, worst_t, matters = 0.0, None, False
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         h = resid[heat & (temp >= a) & (temp <= b)]
@@ -476,7 +479,7 @@ def _hysteresis(temp: np.ndarray, dtemp: np.ndarray, resid: np.ndarray, variatio
         se = float(np.sqrt(h.var(ddof=1) / len(h) + c.var(ddof=1) / len(c)))
         if abs(gap) > abs(worst):
             worst, worst_t = gap, 0.5 * (a + b)
-        matters |= abs(gap) > 3 * se and abs(gap) > 0.05 * variation
+        matters |= abs(gap) > max(3 * se, 0.05 * variation, 3 * noise)
     if worst_t is None:
         return None, None, False
     return abs(worst), worst_t, matters

@@ -1,0 +1,1 @@
+"""PNG plots of engine results (matplotlib, Agg backend)."""
