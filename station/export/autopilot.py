@@ -25,6 +25,7 @@ GYRO_POSE_RATE = 1.0  # rad/s: the gyro "poses" are +-1 rad/s about each axis
 FIT_POINTS = 401
 GRID_POINTS = 401
 DTEMP_POINTS = 21
+NEGLIGIBLE = 1e-12  # m/s^2 or rad/s over the whole fitted range: far below float32 of any offset
 NOMINAL_TEMP = 25.0  # degC, where intrinsics are compared when the file has no thermal section
 
 TargetCorrection = Callable[[dict[str, float], np.ndarray, np.ndarray, np.ndarray],
@@ -120,6 +121,8 @@ def fit_cubic(triad: ThermalBias, reference_temp: float, centre: float, t_min: f
     x = (temp - centre) / half
     design = np.stack([x**0, x, x**2, x**3], axis=-1)
     scaled, *_ = np.linalg.lstsq(design, bias, rcond=None)
+    # A term whose whole contribution over the range is rounding noise is a zero, not 2e-21.
+    scaled[np.abs(scaled) < NEGLIGIBLE] = 0.0
     coeffs = (scaled / half ** np.arange(4)[:, None]).T
     fit = CubicFit(centre, t_min, t_max, coeffs, 0.0)
     fit.max_residual = float(np.max(np.abs(fit.evaluate(temp) - bias)))

@@ -60,6 +60,13 @@ def plot_losses(params: ParamsFile, result: AutopilotExport, path: str | Path) -
             if model is not None:
                 for seg in model.segments[1:]:
                     ax.axvline(seg.t_min, color="grey", ls=":", lw=1)
+            # A flat offset would otherwise be drawn on a 1e-8 scale that magnifies float32 rounding.
+            centre = float(np.mean(ours[:, j])) * factor
+            low, high = ax.get_ylim()
+            half = max(0.5 * (high - low), 0.01 * abs(centre), 0.01)
+            if high - low < 2 * half:
+                ax.set_ylim(centre - half, centre + half)
+            ax.ticklabel_format(axis="y", useOffset=False)
             ax.set_title(f"{name} {'xyz'[j]}: largest difference {worst[j] * factor:.3g} {unit}", fontsize=9)
             ax.set_xlabel("temperature (degC)")
             ax.set_ylabel(f"offset ({unit})")
