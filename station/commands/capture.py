@@ -10,6 +10,7 @@ from typing import IO
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from serial import SerialException
 
 from drivers import (
     DEFAULT_BAUDRATE,
@@ -163,17 +164,23 @@ def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float
     data = bytearray()
     found = detect(b"")
     deadline = time.monotonic() + timeout_s
+    failure = ""
     with open_serial(port, baudrate) as ser:
         while time.monotonic() < deadline and len(data) < 16 * ENOUGH_BYTES:
             tried = len(data)
-            while len(data) < tried + max(64, tried // 4) and time.monotonic() < deadline:
-                data += ser.read(max(1, ser.in_waiting))
+            try:
+                while len(data) < tried + max(64, tried // 4) and time.monotonic() < deadline:
+                    data += ser.read(max(1, ser.in_waiting))
+            except (SerialException, OSError) as exc:
+                failure = f"; then the port failed ({exc})"
+                deadline = 0.0
             found = detect(bytes(data))
             if found.protocol is not None:
-                break
-    if found.protocol is None and not data:
+                return found
+    if not data:
         found.explanation = (f"the unit sent nothing in {timeout_s:g} s: check that it is powered and "
                              f"streaming, and the baud rate")
+    found.explanation += failure
     return found
 
 
