@@ -4,7 +4,8 @@ Per frame, with the probabilities of :class:`FaultSpec` (one draw of each kind p
 streams consumed in frame order, so the faults do not depend on how frames come in blocks):
 
 - ``drop``: the frame is not sent;
-- ``truncate``: only a random proper prefix (1 .. len-1 bytes) is sent;
+- ``truncate``: only a random prefix of 1 .. len-3 bytes is sent (at least three bytes are
+  missing, so the bytes that follow complete it by chance with probability 2^-24 at most);
 - ``bitflip``: one random bit of the frame is flipped;
 - ``garbage``: 1 .. ``garbage_max`` random bytes are sent before the frame;
 - ``stall``: output pauses ``stall_s`` before the frame (the server holds it, then bursts);
@@ -15,7 +16,8 @@ drop, truncate and bitflip exclude each other (in that order of precedence); gar
 stalls combine with anything. The injector reports exactly which frames it left intact:
 ``intact_indices`` (frame numbers in the order frames were given, from 0) and, with
 ``record=True``, their bytes, so end-to-end tests can require every intact frame, in order,
-bit-exact, and nothing else.
+bit-exact, and nothing else. (A damaged frame still passes a 16-bit CRC with probability
+about 2^-16: a rare exception any receiver shares; the seeds make every run repeatable.)
 """
 
 from __future__ import annotations
@@ -182,7 +184,7 @@ class FaultInjector:
                     out = b""
                     self.counts.dropped += 1
                 elif k == 2:
-                    out = frame[: 1 + int(u[i, 3] * (len(frame) - 1))]
+                    out = frame[: 1 + int(u[i, 3] * max(len(frame) - 3, 1))]
                     self.counts.truncated += 1
                 else:
                     bit = int(u[i, 3] * len(frame) * 8)

@@ -224,9 +224,19 @@ class NativeDecoder(StreamDecoderBase):
         return nxt
 
     def flush(self) -> Decoded:
-        if self._buf:
-            if self._buf.startswith(SYNC):
-                self.stats.truncated += 1
-            self.stats.garbage_bytes += len(self._buf)
-            self._buf.clear()
-        return Decoded()
+        """End of stream: a frame still waiting for bytes is truncated, and good frames after it
+        (held back while its claimed length was pending) are still decoded and returned."""
+        batches: list[np.ndarray] = []
+        messages: list[Message] = []
+        while self._buf:
+            if not self._buf.startswith(SYNC):
+                self.stats.garbage_bytes += len(self._buf)
+                self._buf.clear()
+                break
+            self.stats.truncated += 1
+            del self._buf[: self._skip_candidate(0)]
+            rest = self.feed(b"")
+            batches.append(rest.samples)
+            messages += rest.messages
+        samples = np.concatenate(batches) if batches else EMPTY_SAMPLES
+        return Decoded(samples, messages)
