@@ -47,7 +47,7 @@ examples:
   imu-station capture --port /dev/ttyUSB0 --duration 60 -o still.csv
   imu-station capture --port sim:// --rate 400 --duration 10 -o sim.h5
   imu-station capture --port /dev/ttyUSB0 --protocol auto --baud 115200 --duration 60 -o mti.csv
-  imu-station capture --port /dev/ttyACM0 --protocol ascii \
+  imu-station capture --port /dev/ttyACM0 --protocol ascii \\
       --columns t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps --duration 30 -o arduino.csv"""
 
 
