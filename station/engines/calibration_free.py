@@ -298,6 +298,36 @@ def gyro_initial_guess(blocks: GyroBlocks) -> np.ndarray:
     return (grid[int(np.argmin(costs))] * np.eye(3)).ravel()
 
 
+def _direction_covariance(cflat: np.ndarray, blocks: GyroBlocks, jac: np.ndarray, acc: np.ndarray,
+                          intervals: np.ndarray, acc_params: np.ndarray, acc_cov: np.ndarray,
+                          convention: str) -> np.ndarray:
+    """Covariance the gyroscope's C inherits from the accelerometer fit through the gravity
+    directions u_k (implicit-function theorem at the optimum of eq. 15):
+
+        dC/dp_a = -(J^T J)^-1 J^T dr/dp_a,  dr/dp_a = R_k^T du_k/dp_a - du_{k+1}/dp_a,
+
+    with du/dp_a by central differences of u = normalise(T K (mean - b)); cov = D cov_a D^T.
+    """
+    means = np.array([acc[a:b + 1].mean(axis=0) for a, b in intervals])
+
+    def directions(p: np.ndarray) -> np.ndarray:
+        u = (means - p[6:9]) @ acc_correction(p, convention).T
+        return u / np.linalg.norm(u, axis=1, keepdims=True)
+
+    du = np.empty((len(means), 3, len(acc_params)))
+    for k in range(len(acc_params)):
+        h = 1e-6 * max(abs(acc_params[k]), 1e-9) + 1e-3 * np.sqrt(max(acc_cov[k, k], 0.0))
+        dp = np.zeros(len(acc_params))
+        dp[k] = h
+        du[:, :, k] = (directions(acc_params + dp) - directions(acc_params - dp)) / (2 * h)
+    model = _GyroModel(blocks)
+    model.residual(cflat)
+    rot = quat.to_rotation(model.states[:, -1])
+    dr = np.einsum("bji,bjk->bik", rot, du[:-1]) - du[1:]
+    d = -np.linalg.pinv(jac.T @ jac) @ jac.T @ dr.reshape(-1, len(acc_params))
+    return d @ acc_cov @ d.T
+
+
 def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None):
     """Levenberg-Marquardt on eq. (15) with its analytic Jacobian; returns scipy's solution."""
     c0 = gyro_initial_guess(blocks) if start is None else np.asarray(start, float).ravel()
@@ -466,8 +496,13 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     jac_g = gyro_jacobian(sol.x, blocks)
     _check_rank(jac_g, GYRO_PARAM_NAMES, "gyroscope")
     cov_g, _ = covariance(jac_g, sol.fun)
+    cov_g += _direction_covariance(sol.x, blocks, jac_g, acc, intervals, fit.params, cov_a, convention)
     gyro_c = sol.x.reshape(3, 3)
-    bias_sd = gyro[:n_still].std(axis=0, ddof=1) / np.sqrt(n_still)
+    # The rate is zero in every static interval, so the scatter of their gyro means shows how far
+    # the bias wanders during the session (white noise alone would understate it).
+    interval_means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals])
+    wander = interval_means.std(axis=0, ddof=1)
+    bias_sd = np.sqrt(gyro[:n_still].var(axis=0, ddof=1) / n_still + wander**2)
 
     def gyro_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.linalg.inv(p.reshape(3, 3)), gyro_bias
@@ -482,6 +517,9 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
                         "check for saturation or missed samples there")
 
     acc_sd = stddev_from(acc_forward, fit.params, cov_a)
+    # Bias drift during the session is correlated in time, so the pose-to-pose scatter of the
+    # residuals is added to the bias uncertainty without dividing it by the number of poses.
+    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + np.mean(np.asarray(pose_res) ** 2))
     gyro_sd = stddev_from(gyro_forward, sol.x, cov_g)
     gyro_sd["bias"] = bias_sd
     method = f"free (Tedaldi 2014), {convention}-triangular accel misalignment"

@@ -1,0 +1,129 @@
+"""Turntable-free (Tedaldi / imu_tk) method: simulated hand-held sessions against the truth, the
+exact convention conversion, imu_tk's published result on its own Xsens session, and refusals.
+
+The simulated session: 30 s still, then 36 random attitudes held 8 s each, joined by 2 s moves,
+100 Hz, realistic MEMS noise (``UnitTruth.random``)."""
+
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+
+from mocks.rig import handheld_session, simulate
+from mocks.truth import UnitTruth
+from station.engines.calibration_common import convert_convention
+from station.engines.calibration_free import FreeSettings, calibrate_free
+from station.errors import EngineInputError
+
+
+@pytest.fixture(scope="module")
+def session():
+    truth = UnitTruth.random(4)
+    rec = simulate(truth, handheld_session(n_poses=36, seed=4, hold_s=8.0, initial_still_s=30.0), rate_hz=100.0,
+                   seed=4)
+    return truth, rec
+
+
+@pytest.fixture(scope="module")
+def lower(session):
+    truth, rec = session
+    return calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity, None, "lower")
+
+
+def test_handheld_session_recovers_truth_in_the_lecture_body_frame(session, lower) -> None:
+    truth, rec = session
+    # the truth is in the sensor frame; the lower-triangular body frame is a rotation of it
+    acc_c, gyro_c, _ = convert_convention(np.linalg.inv(truth.accel.matrix), np.linalg.inv(truth.gyro.matrix),
+                                          "lower")
+    assert 20 <= lower.details["initial_still_s"] <= 32
+    for cal, c_true, b_true, bias_tol in ((lower.accel, acc_c, truth.accel.bias, 1e-3),
+                                          (lower.gyro, gyro_c, truth.gyro.bias, 1e-4)):
+        dm = cal.matrix - np.linalg.inv(c_true)
+        db = cal.bias - b_true
+        assert np.abs(dm).max() < 2e-4
+        assert np.abs(db).max() < bias_tol
+        free = cal.stddev["matrix"] > 0          # the lower triangle's zeros are fixed, not estimated
+        assert np.all(np.abs(dm[free]) < 3 * cal.stddev["matrix"][free])
+        assert np.all(np.abs(dm[~free]) < 1e-12)
+        assert np.all(np.abs(db) < 3 * cal.stddev["bias"])
+    assert np.allclose(np.triu(lower.accel.matrix, 1), 0, atol=1e-12)
+    assert lower.warnings == []
+
+
+def test_upper_convention_is_the_exact_rotation_of_the_lower_one(session, lower) -> None:
+    truth, rec = session
+    upper = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity, lower.details["initial_still_s"], "upper")
+    acc_c, gyro_c, _ = convert_convention(lower.details["accel_correction"], lower.details["gyro_correction"],
+                                          "upper")
+    np.testing.assert_allclose(upper.details["accel_correction"], acc_c, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(upper.details["gyro_correction"], gyro_c, rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(upper.accel.bias, lower.accel.bias, rtol=1e-7)
+    assert upper.details["acc_cost"] == pytest.approx(lower.details["acc_cost"], rel=1e-8)
+
+
+def _read_imu_tk(path) -> np.ndarray:
+    """imu_tk's ASCII data: ``t x y z`` per line, spaces, gzipped here."""
+    with gzip.open(path, "rt") as fh:
+        return np.loadtxt(fh)
+
+
+@pytest.fixture(scope="module")
+def xsens(shared_data):
+    folder = shared_data / "xsens-imu_tk"
+    acc = _read_imu_tk(folder / "xsens_acc.txt.gz")
+    gyro = _read_imu_tk(folder / "xsens_gyro.txt.gz")
+    assert acc.shape == (51175, 4) and np.array_equal(acc[:, 0], gyro[:, 0])
+    return acc, gyro
+
+
+def test_reproduces_imu_tk_on_its_xsens_session(xsens) -> None:
+    acc, gyro = xsens
+    report = calibrate_free(acc[:, 0], acc[:, 1:], gyro[:, 1:], 9.81744, 50.0, "upper", FreeSettings.imu_tk())
+    published_counts = [42, 40, 39, 38, 38, 38, 38, 38, 38]
+    published_costs = [0.134724, 0.131345, 0.126126, 0.120558, 0.120131, 0.120586, 0.121338, 0.121422, 0.138240]
+    trials = report.details["trials"]
+    assert [tr["intervals"] for tr in trials] == published_counts
+    np.testing.assert_allclose([tr["cost"] for tr in trials], published_costs, rtol=1e-4)
+    assert report.details["chosen_multiplier"] == 6
+
+    c = report.details["accel_correction"]
+    k = np.diag(c)
+    t = c / k[None, :]
+    np.testing.assert_allclose(t, [[1, -0.0033593, -0.00890639], [0, 1, -0.0213341], [0, 0, 1]], rtol=1e-4,
+                               atol=1e-12)
+    np.testing.assert_allclose(k, [0.00241278, 0.00242712, 0.00241168], rtol=1e-4)
+    np.testing.assert_allclose(report.accel.bias, [33124.2, 33275.2, 32364.4], rtol=1e-5)
+
+    g = report.details["gyro_correction"]
+    assert report.gyro.extra["blocks"] == 37
+    assert report.details["gyro_cost"] == pytest.approx(0.00150696, rel=1e-4)
+    np.testing.assert_allclose(1 / np.diag(g), [4777.96, 4764.21, 4773.66], rtol=1e-4)
+    published_t = np.array([[1, 0.00593634, 0.00111101], [0.00808812, 1, -0.0535569],
+                            [0.0253067, -0.0025513, 1]])
+    # off-diagonal terms agree to 2e-6 (the gyro problem is flat there: imu_tk stops on Ceres'
+    # default tolerances); relative to the matrix that is better than 1e-4
+    np.testing.assert_allclose(g / np.diag(g)[None, :], published_t, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(report.gyro.bias, [32777.1, 32459.8, 32511.8], rtol=1e-5)
+
+
+def test_default_settings_give_xsens_factory_gains(xsens) -> None:
+    acc, gyro = xsens
+    report = calibrate_free(acc[:, 0], acc[:, 1:], gyro[:, 1:], 9.81744)
+    # the initial still period (about 50 s) is found without being told
+    assert 45 <= report.details["initial_still_s"] <= 55
+    np.testing.assert_allclose(report.accel.scale, [415, 413, 415], rtol=3e-3)   # counts per m/s^2
+    np.testing.assert_allclose(report.accel.bias, [33123, 33276, 32360], atol=6)
+    np.testing.assert_allclose(np.abs(report.gyro.scale), [4778, 4758, 4766], rtol=3e-3)
+
+
+def test_refuses_too_few_static_intervals_and_a_moving_start() -> None:
+    truth = UnitTruth.random(9)
+    rec = simulate(truth, handheld_session(n_poses=6, seed=9, hold_s=3.0, initial_still_s=15.0), rate_hz=100.0,
+                   seed=9)
+    with pytest.raises(EngineInputError, match="too few static intervals"):
+        calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity)
+    start = int(16.0 * 100)  # cut the still period: the data start with a move
+    with pytest.raises(EngineInputError, match="no initial still period"):
+        calibrate_free(rec.t[start:], rec.acc[start:], rec.gyro[start:], truth.gravity)
