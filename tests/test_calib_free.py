@@ -21,8 +21,8 @@ from station.errors import EngineInputError
 @pytest.fixture(scope="module")
 def session():
     truth = UnitTruth.random(4)
-    rec = simulate(truth, handheld_session(n_poses=36, seed=4, hold_s=8.0, initial_still_s=30.0), rate_hz=100.0,
-                   seed=4)
+    segments = handheld_session(n_poses=36, seed=4, hold_s=8.0, initial_still_s=30.0)
+    rec = simulate(truth, segments, rate_hz=100.0, seed=4)
     return truth, rec
 
 
@@ -82,7 +82,8 @@ def test_reproduces_imu_tk_on_its_xsens_session(xsens) -> None:
     acc, gyro = xsens
     report = calibrate_free(acc[:, 0], acc[:, 1:], gyro[:, 1:], 9.81744, 50.0, "upper", FreeSettings.imu_tk())
     published_counts = [42, 40, 39, 38, 38, 38, 38, 38, 38]
-    published_costs = [0.134724, 0.131345, 0.126126, 0.120558, 0.120131, 0.120586, 0.121338, 0.121422, 0.138240]
+    published_costs = [0.134724, 0.131345, 0.126126, 0.120558, 0.120131, 0.120586, 0.121338, 0.121422,
+                       0.138240]
     trials = report.details["trials"]
     assert [tr["intervals"] for tr in trials] == published_counts
     np.testing.assert_allclose([tr["cost"] for tr in trials], published_costs, rtol=1e-4)
@@ -120,8 +121,8 @@ def test_default_settings_give_xsens_factory_gains(xsens) -> None:
 
 def test_refuses_too_few_static_intervals_and_a_moving_start() -> None:
     truth = UnitTruth.random(9)
-    rec = simulate(truth, handheld_session(n_poses=6, seed=9, hold_s=3.0, initial_still_s=15.0), rate_hz=100.0,
-                   seed=9)
+    segments = handheld_session(n_poses=6, seed=9, hold_s=3.0, initial_still_s=15.0)
+    rec = simulate(truth, segments, rate_hz=100.0, seed=9)
     with pytest.raises(EngineInputError, match="too few static intervals"):
         calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity)
     start = int(16.0 * 100)  # cut the still period: the data start with a move
