@@ -100,11 +100,6 @@ class CubicFit:
     t_min: float
     t_max: float
     coeffs: np.ndarray  # (3, 4)
-    max_residual: float
-
-    def evaluate(self, temp: np.ndarray) -> np.ndarray:
-        x = np.clip(np.asarray(temp, float), self.t_min, self.t_max) - self.centre
-        return np.stack([x**0, x, x**2, x**3], axis=-1) @ self.coeffs.T
 
 
 def fit_cubic(triad: ThermalBias, reference_temp: float, centre: float, t_min: float,
@@ -124,9 +119,7 @@ def fit_cubic(triad: ThermalBias, reference_temp: float, centre: float, t_min: f
     # A term whose whole contribution over the range is rounding noise is a zero, not 2e-21.
     scaled[np.abs(scaled) < NEGLIGIBLE] = 0.0
     coeffs = (scaled / half ** np.arange(4)[:, None]).T
-    fit = CubicFit(centre, t_min, t_max, coeffs, 0.0)
-    fit.max_residual = float(np.max(np.abs(fit.evaluate(temp) - bias)))
-    return fit
+    return CubicFit(centre, t_min, t_max, coeffs)
 
 
 def thermal_range(params: ParamsFile) -> tuple[float, float] | None:
