@@ -11,7 +11,9 @@ and can be driven live with :meth:`SimDevice.set_pose`, :meth:`SimDevice.rotate`
 :meth:`SimDevice.command`: the hook a simulated operator or turntable uses.
 
 Sample encoders are pluggable: ``ENCODERS[name](samples) -> bytes`` for a batch of
-``SAMPLE_DTYPE`` records; other wire protocols register theirs here.
+``SAMPLE_DTYPE`` records; other wire protocols register theirs here. An encoder whose frames
+all have one size also registers it in ``FRAME_SIZES``, so faults can cut a batch into frames
+without encoding sample by sample.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from protocols import native
 from protocols.base import SAMPLE_DTYPE
 
 ENCODERS: dict[str, Callable[[np.ndarray], bytes]] = {"native": native.encode_samples}
+FRAME_SIZES: dict[str, int] = {"native": native.SAMPLE_FRAME_SIZE}
 
 MIN_RATE_HZ = 1
 MAX_RATE_HZ = 4000
@@ -175,6 +178,14 @@ class SimDevice:
             samples["seq"] = (self.seq + np.arange(n)) % (1 << 32)
             self.seq = (self.seq + n) % (1 << 32)
             return samples
+
+    def encode_frames(self, samples: np.ndarray) -> list[bytes]:
+        """One encoded frame per sample (for fault injection, which works frame by frame)."""
+        size = FRAME_SIZES.get(self.encoder_name)
+        if size is None:
+            return [self.encode_samples(samples[i : i + 1]) for i in range(len(samples))]
+        data = self.encode_samples(samples)
+        return [data[i : i + size] for i in range(0, len(data), size)]
 
     # --- live motion -------------------------------------------------------------------------
 

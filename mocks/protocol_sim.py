@@ -259,11 +259,10 @@ class Serial(SerialBase):
             return
         if self._record:
             self._sent.append(samples)
-        encode = self.device.encode_samples
         if self.injector is None:
-            self._rx += encode(samples)
+            self._rx += self.device.encode_samples(samples)
             return
-        out = self.injector.apply([encode(samples[i : i + 1]) for i in range(len(samples))])
+        out = self.injector.apply(self.device.encode_frames(samples))
         if out.stall_s:
             self._hold_until = max(self._hold_until, time.monotonic()) + out.stall_s
         self._rx += out.data

@@ -65,7 +65,7 @@ class PtyServer:
     """
 
     def __init__(self, device: SimDevice | None = None, *, seed: int = 0, rate_hz: float = 200.0,
-                 scenario: str | Sequence = "still", faults: FaultSpec | None = None, block_s: float = 0.01,
+                 scenario: str | Sequence = "still", faults: FaultSpec | None = None, block_s: float = 0.02,
                  link: str | os.PathLike[str] | None = None, record: bool = False):
         if device is None:
             device = SimDevice(seed=seed, rate_hz=rate_hz, scenario=scenario)
@@ -250,11 +250,10 @@ class PtyServer:
         self.stats.samples_sent += len(samples)
         if self.record:
             self.sent_samples.append(samples)
-        encode = self.device.encode_samples
         if self.injector is None:
-            self._pending += encode(samples)
+            self._pending += self.device.encode_samples(samples)
         else:
-            self._queue([encode(samples[i : i + 1]) for i in range(len(samples))])
+            self._queue(self.device.encode_frames(samples))
 
     def _queue(self, frames: list[bytes]) -> None:
         out = self.injector.apply(frames)

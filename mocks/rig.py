@@ -306,13 +306,17 @@ class Timeline:
         for i in np.unique(index):
             piece = self.pieces[i]
             sel = index == i
+            labels[sel] = piece.label
+            if isinstance(piece.profile, _Hold):
+                for out, w in zip(seen, world_vectors, strict=True):
+                    out[sel] = piece.r0.T @ w
+                continue
             tau = t[sel] - piece.t0
             phi = piece.profile.angle(tau)
             rate[sel] = np.outer(piece.profile.rate(tau), piece.axis)
             for out, w in zip(seen, world_vectors, strict=True):
                 # R^T w = exp(-phi [e]x) (r0^T w)
                 out[sel] = rotate_vectors(piece.axis, -phi, piece.r0.T @ w)
-            labels[sel] = piece.label
         return rate, seen, labels
 
     def attitudes(self, t: np.ndarray) -> np.ndarray:
