@@ -1,0 +1,103 @@
+"""``imu-station tui``: the operator's station in the terminal."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from protocols.registry import DECODERS
+from station.commands.export import FORMATS
+from station.errors import StationError
+from station.tui.config import TuiConfig
+
+NAME = "tui"
+HELP = "guided calibration in the terminal: connect, live view, sequence wizard, results, Allan, thermal"
+DESCRIPTION = """\
+The operator's station, keyboard only (press ? for every key). Connect to a unit, watch it live,
+then let the sequence wizard guide you through the calibration: for each step a drawing of the
+pose (which face up) or of the turn (axis, direction, angle), a live check that the unit is in
+that pose (angle error) and still (stillness bar), then automatic capture with a progress bar.
+Redo or skip any step; abort keeps what was captured. The results screen shows the parameters
+with their 1-sigma uncertainties, residuals and pass/fail against limits, and saves them to
+--out (and any --export format). Long recordings: an Allan recording with a live Allan
+deviation plot, and a temperature-sweep monitor for the thermal fit.
+
+With --simulate a simulated operator places a simulated unit (served on a pseudo-terminal) as
+each step asks: Enter alone accepts every prompt and runs the whole flow.
+
+Files: --out PARAMS.yaml gets the accel and gyro sections (other sections are kept); the
+labelled capture of the sequence goes to --capture (default PARAMS-capture.csv beside --out);
+Allan and temperature recordings go to PARAMS-allan.h5 and PARAMS-thermal.h5.
+
+exit codes: 0 done, 1 the run was aborted or a result is outside its limits, 3 device or link
+error, 4 usage."""
+EPILOG = """\
+examples:
+  imu-station tui --port /dev/ttyUSB0 --out unit42.yaml --export c
+  imu-station tui --simulate --sequence six-position --hold 2 --out sim.yaml
+  imu-station tui --port /dev/ttyACM0 --sequence my-fixture.yaml --no-rotations"""
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text} must be positive")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--port", help="serial device path or pyserial URL (default: choose on the connect "
+                       "screen)")
+    where.add_argument("--simulate", action="store_true",
+                       help="a simulated unit on a pseudo-terminal, placed by a simulated operator")
+    parser.add_argument("--protocol", default="native", choices=sorted(DECODERS),
+                        help="wire protocol of the unit (default: native)")
+    parser.add_argument("--sequence", default="six-position", metavar="NAME|FILE",
+                        help="six-position (default), twelve-position, rotations, or a YAML sequence file")
+    parser.add_argument("--no-rotations", action="store_true",
+                        help="leave out the six rotations after the poses (the gyro then keeps its "
+                        "bias only)")
+    parser.add_argument("--hold", type=_positive, default=5.0, metavar="S",
+                        help="seconds of capture per pose (default 5)")
+    parser.add_argument("--rotation-rate", type=_positive, default=90.0, metavar="DPS",
+                        help="turn rate asked of the operator, deg/s (default 90)")
+    parser.add_argument("--out", type=Path, metavar="PARAMS.yaml", help="parameter file to write")
+    parser.add_argument("--capture", type=Path, metavar="FILE",
+                        help="labelled capture of the sequence (.csv or .h5; default beside --out)")
+    parser.add_argument("--export", action="append", default=[], choices=FORMATS, metavar="FORMAT",
+                        help=f"also export the saved parameters ({', '.join(FORMATS)}); repeatable")
+    parser.add_argument("--export-dir", type=Path, metavar="DIR",
+                        help="where exports go (default: beside --out)")
+    parser.add_argument("--allan-minutes", type=_positive, default=60.0, metavar="MIN",
+                        help="length of the Allan recording before it stops by itself (default 60)")
+    parser.add_argument("--seed", type=int, default=0, help="--simulate: which simulated unit (default 0)")
+    parser.add_argument("--rate", type=_positive, default=200.0, metavar="HZ",
+                        help="--simulate: the simulated unit's sample rate (default 200)")
+
+
+def config_from_args(args: argparse.Namespace) -> TuiConfig:
+    from station.acquisition.sequences import resolve
+
+    if args.export and args.out is None:
+        raise StationError("--export writes from the saved parameter file: give --out PARAMS.yaml too")
+    # Refuse a bad sequence before the screen opens, with its file and line.
+    resolve(args.sequence, rotations=not args.no_rotations, hold_s=args.hold,
+            rotation_rate_dps=args.rotation_rate)
+    return TuiConfig(port=args.port, simulate=args.simulate, protocol=args.protocol, sequence=args.sequence,
+                     rotations=not args.no_rotations, out=args.out, capture=args.capture, export=args.export,
+                     export_dir=args.export_dir, hold_s=args.hold, rotation_rate_dps=args.rotation_rate,
+                     seed=args.seed, rate_hz=args.rate, allan_minutes=args.allan_minutes)
+
+
+def run(args: argparse.Namespace) -> int:
+    from station.tui.app import StationApp
+
+    app = StationApp(config_from_args(args))
+    code = app.run()
+    for path in app.saved:
+        print(f"saved {path}")
+    return int(code or 0)

@@ -1,0 +1,19 @@
+"""From the wizard's labelled capture to the calibration report the results screen shows."""
+
+from __future__ import annotations
+
+from station.acquisition.capture import Capture
+from station.engines.calibration_common import CalibrationReport
+from station.engines.calibration_turntable import calibrate_turntable
+from station.errors import EngineInputError
+
+STANDARD_GRAVITY = 9.80665
+
+
+def calibrate_run(capture: Capture, gravity: float = STANDARD_GRAVITY) -> CalibrationReport:
+    """The known-pose method (poses for the accelerometer, rotations for the gyroscope)."""
+    if capture.step is None or not capture.segments():
+        raise EngineInputError("no step was captured: run the sequence (w) before computing a calibration")
+    rate = capture.device.get("rate_hz")
+    return calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
+                               rate_hz=float(rate) if rate else None)

@@ -1,0 +1,34 @@
+"""What the ``tui`` command was asked for."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class TuiConfig:
+    """Options of ``imu-station tui``; ``port`` None and ``simulate`` False: choose on the connect screen."""
+
+    port: str | None = None
+    simulate: bool = False
+    protocol: str = "native"
+    sequence: str = "six-position"
+    rotations: bool = True
+    out: Path | None = None
+    capture: Path | None = None
+    export: list[str] = field(default_factory=list)
+    export_dir: Path | None = None
+    hold_s: float = 5.0
+    rotation_rate_dps: float = 90.0
+    seed: int = 0
+    rate_hz: float = 200.0
+    allan_minutes: float = 60.0
+
+    def capture_path(self) -> Path | None:
+        """Where the labelled capture goes: ``--capture``, else beside ``--out``."""
+        if self.capture is not None:
+            return self.capture
+        if self.out is not None:
+            return self.out.with_name(self.out.stem + "-capture.csv")
+        return None

@@ -1,0 +1,1 @@
+"""The screens of the station's TUI, one module each."""

@@ -1,0 +1,113 @@
+"""Connect: the serial ports with their descriptions, the protocol, the unit's info and link health."""
+
+from __future__ import annotations
+
+from rich.table import Table
+from textual import work
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Vertical
+from textual.screen import Screen
+from textual.widgets import Footer, Header, OptionList, Static
+from textual.widgets.option_list import Option
+
+from drivers.errors import DriverError
+from protocols.registry import DECODERS
+from station.tui.messages import LinkFailed, Snapshot
+from station.tui.session import SIMULATED, Session, available_ports, open_session
+
+
+class ConnectScreen(Screen[None]):
+    BINDINGS = [
+        Binding("enter", "continue", "continue", show=True),
+        Binding("c", "choose", "other port"),
+        Binding("p", "protocol", "protocol"),
+    ]
+    DEFAULT_CSS = """
+    ConnectScreen #ports { height: auto; max-height: 12; border: round $accent; }
+    ConnectScreen #info { border: round $secondary; height: auto; padding: 0 1; }
+    ConnectScreen #hint { color: $text-muted; padding: 0 1; }
+    """
+
+    def compose(self) -> ComposeResult:
+        yield Header()
+        with Vertical():
+            yield Static("Choose the unit's port and press Enter.", id="hint")
+            yield OptionList(id="ports")
+            yield Static("not connected", id="info")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.title = "imu-station · connect"
+        ports = self.query_one("#ports", OptionList)
+        ports.add_option(Option(f"{SIMULATED:<24} the station's simulator (no hardware)", id=SIMULATED))
+        for p in available_ports():
+            ports.add_option(Option(f"{p.device:<24} {p.description}  {p.hwid}", id=p.device))
+        config = self.app.config
+        if config.simulate or config.port:
+            self.connect(SIMULATED if config.simulate else config.port)
+        self.set_interval(0.5, self.show_link)
+
+    def on_option_list_option_selected(self, event: OptionList.OptionSelected) -> None:
+        self.connect(event.option.id)
+
+    def connect(self, port: str | None) -> None:
+        if self.app.session is not None:
+            self.app.close_session()
+        self.query_one("#info", Static).update(f"connecting to {port} ...")
+        self.query_one("#ports", OptionList).disabled = True
+        self._open(port)
+
+    @work(thread=True, exclusive=True, group="connect")
+    def _open(self, port: str | None) -> None:
+        try:
+            session = open_session(self.app.config, port)
+        except (DriverError, OSError) as exc:
+            self.post_message(LinkFailed(exc))
+            return
+        self.post_message(Snapshot({"session": session}))
+
+    def on_snapshot(self, message: Snapshot) -> None:
+        session: Session = message.data["session"]
+        self.app.session = session
+        self.query_one("#hint", Static).update("Connected. Enter: live view · c: another port · ?: help")
+        self.show_link()
+
+    def on_link_failed(self, message: LinkFailed) -> None:
+        self.query_one("#info", Static).update(f"[red]{message.error}[/red]\nChoose a port and press Enter.")
+        ports = self.query_one("#ports", OptionList)
+        ports.disabled = False
+        ports.focus()
+
+    def show_link(self) -> None:
+        session = self.app.session
+        if session is None:
+            return
+        stats = session.device.stats
+        table = Table.grid(padding=(0, 2))
+        table.add_column(style="bold")
+        table.add_column()
+        table.add_row("port", session.name)
+        table.add_row("protocol", session.device.protocol)
+        for key in ("serial", "model", "firmware", "rate_hz"):
+            table.add_row(key, str(session.info.get(key, "?")))
+        health = "[green]good[/green]" if stats.errors == 0 and stats.lost == 0 else "[yellow]errors[/yellow]"
+        table.add_row("link", f"{health}  {stats.rate_hz:.0f} Hz, {stats.samples} samples, "
+                      f"{stats.errors} errors, {stats.lost} lost, {stats.overflow_drops} dropped")
+        self.query_one("#info", Static).update(table)
+
+    def action_continue(self) -> None:
+        if self.app.session is not None:
+            self.app.show("live")
+
+    def action_choose(self) -> None:
+        ports = self.query_one("#ports", OptionList)
+        ports.disabled = False
+        ports.focus()
+
+    def action_protocol(self) -> None:
+        names = sorted(DECODERS)
+        config = self.app.config
+        config.protocol = names[(names.index(config.protocol) + 1) % len(names)] if config.protocol in names \
+            else names[0]
+        self.notify(f"protocol: {config.protocol} (applies to the next connection)")

@@ -1,0 +1,220 @@
+"""Results: the parameters with their uncertainties, residuals, pass/fail, save to --out and exports."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+from pathlib import Path
+
+import numpy as np
+from rich.console import Group
+from rich.table import Table
+from rich.text import Text
+from textual import work
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import VerticalScroll
+from textual.screen import Screen
+from textual.widgets import Footer, Header, Static
+
+from station.acquisition.runner import RunResult
+from station.engines.calibration_common import CalibrationReport
+from station.engines.sensor_model import SensorCalibration
+from station.errors import StationError
+from station.export.params_file import ParamsFile
+from station.tui.calibrate import calibrate_run
+from station.tui.limits import ACCEL_LIMITS, GYRO_LIMITS, Verdict, evaluate
+from station.tui.messages import LinkFailed, Snapshot
+
+
+def _pm(values: np.ndarray, sigma: object, fmt: str) -> list[str]:
+    values = np.asarray(values, float).ravel()
+    sig = np.asarray(sigma, float).ravel() if sigma is not None else None
+    if sig is None or sig.shape != values.shape:
+        return [format(v, fmt) for v in values]
+    return [f"{format(v, fmt)} ± {format(s, '.1e')}" for v, s in zip(values, sig, strict=True)]
+
+
+def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
+    table = Table(title=title, title_justify="left", title_style="bold", expand=False, padding=(0, 1))
+    table.add_column("parameter")
+    for axis in "xyz":
+        table.add_column(axis, justify="right")
+    table.add_column("unit")
+    sd = cal.stddev or {}
+    table.add_row("bias", *_pm(cal.bias, sd.get("bias"), "+.5f"), unit)
+    table.add_row("scale", *_pm(cal.scale, sd.get("scale"), ".5f"), "")
+    s = cal.misalignment
+    s_sd = np.asarray(sd["misalignment"], float) if sd.get("misalignment") is not None else None
+    for i, axis in enumerate("xyz"):
+        cells = []
+        for j in range(3):
+            if i == j:
+                cells.append("·")
+            else:
+                sig = None if s_sd is None or s_sd.shape != (3, 3) else s_sd[i, j]
+                cells.append(_pm(np.array([s[i, j]]), None if sig is None else np.array([sig]), "+.5f")[0])
+        table.add_row(f"misalign {axis}·", *cells, "rad")
+    if cal.residual_rms is not None:
+        table.add_row("residual rms", f"{cal.residual_rms:.3e}", "", "", unit)
+    return table
+
+
+def verdict_table(verdicts: list[Verdict]) -> Table:
+    table = Table(title="limits", title_justify="left", title_style="bold", padding=(0, 1))
+    for col in ("sensor", "check", "value", "limit", ""):
+        table.add_column(col)
+    for v in verdicts:
+        mark = Text("PASS", style="bold green") if v.passed else Text("FAIL", style="bold red")
+        table.add_row(v.sensor, v.name, f"{v.value:.4g} {v.unit}", f"{v.limit:.4g} {v.unit}", mark)
+    return table
+
+
+class ResultsScreen(Screen[None]):
+    BINDINGS = [
+        Binding("enter", "save", "save and quit", show=True),
+        Binding("e", "export", "exports"),
+    ]
+    DEFAULT_CSS = """
+    ResultsScreen #body { padding: 0 1; }
+    ResultsScreen #status { height: auto; border: heavy $warning; padding: 0 1; }
+    """
+
+    def __init__(self, run: RunResult) -> None:
+        super().__init__()
+        self.run = run
+        self.report: CalibrationReport | None = None
+        self.verdicts: list[Verdict] = []
+        self.saved = False
+
+    def compose(self) -> ComposeResult:
+        yield Header()
+        with VerticalScroll(id="body"):
+            yield Static(f"computing the calibration from {len(self.run.capture)} samples ...", id="tables")
+        yield Static("", id="status")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.title = "imu-station · results"
+        self._compute()
+
+    @work(thread=True, exclusive=True, group="compute")
+    def _compute(self) -> None:
+        try:
+            report = calibrate_run(self.run.capture)
+        except StationError as exc:
+            self.post_message(LinkFailed(exc))
+            return
+        self.post_message(Snapshot({"report": report}))
+
+    def on_link_failed(self, message: LinkFailed) -> None:
+        self.query_one("#tables", Static).update(Text(f"The calibration failed: {message.error}",
+                                                      style="red"))
+        self.query_one("#status", Static).update("w: run the sequence again · q: quit")
+
+    def on_snapshot(self, message: Snapshot) -> None:
+        report: CalibrationReport = message.data["report"]
+        self.report = report
+        parts = [Text(f"method: {report.method}   gravity: {report.gravity:.5f} m/s^2   "
+                      f"run: {self.run.outcome}, {len(self.run.accepted)} of {len(self.run.sequence)} steps")]
+        self.verdicts = []
+        if report.accel is not None:
+            parts.append(sensor_table("accelerometer", report.accel, "m/s^2"))
+            self.verdicts += evaluate("accel", report.accel, ACCEL_LIMITS, "m/s^2")
+        if report.gyro is not None:
+            parts.append(sensor_table("gyroscope", report.gyro, "rad/s"))
+            self.verdicts += evaluate("gyro", report.gyro, GYRO_LIMITS, "rad/s")
+        parts.append(verdict_table(self.verdicts))
+        residuals = self.residual_table(report)
+        if residuals is not None:
+            parts.append(residuals)
+        for warning in report.warnings:
+            parts.append(Text(f"warning: {warning}", style="yellow"))
+        self.query_one("#tables", Static).update(Group(*parts))
+        self.app.results_failed = not all(v.passed for v in self.verdicts)
+        self.show_status()
+
+    @staticmethod
+    def residual_table(report: CalibrationReport) -> Table | None:
+        """Per-pose residuals as the engine reports them (keys holding 'resid' or 'error')."""
+        rows = [p for p in report.poses if isinstance(p, dict)]
+        keys = sorted({k for p in rows for k in p if "resid" in k or "error" in k})
+        if not rows or not keys:
+            return None
+        table = Table(title="residuals per step", title_justify="left", title_style="bold", padding=(0, 1))
+        table.add_column("step")
+        for key in keys:
+            table.add_column(key, justify="right")
+        for p in rows:
+            cells = []
+            for key in keys:
+                value = p.get(key)
+                arr = np.asarray(value, float) if value is not None else None
+                cells.append("" if arr is None else " ".join(f"{x:+.2e}" for x in np.atleast_1d(arr)))
+            table.add_row(str(p.get("label", p.get("step", ""))), *cells)
+        return table
+
+    def show_status(self, note: str = "") -> None:
+        out = self.app.config.out
+        passed = all(v.passed for v in self.verdicts)
+        text = Text("PASS" if passed else "FAIL", style="bold green" if passed else "bold red")
+        text.append(f"  {note}\n" if note else "\n")
+        if self.saved:
+            text.append("Enter: quit")
+        elif out is not None:
+            text.append(f"Enter: save to {out}" + (f" and export {', '.join(self.app.config.export)}"
+                                                    if self.app.config.export else "") + ", then quit")
+        else:
+            text.append("Enter: quit (no --out given: nothing is saved)")
+        self.query_one("#status", Static).update(text)
+
+    def action_save(self) -> None:
+        if self.report is None:
+            return
+        config = self.app.config
+        if self.saved or config.out is None:
+            self.app.action_quit_app()
+            return
+        try:
+            params = ParamsFile.load_or_new(config.out)
+            params.update_device(self.app.session.info if self.app.session else self.run.capture.device)
+            if self.report.accel is not None:
+                params.accel = self.report.accel
+            if self.report.gyro is not None:
+                params.gyro = self.report.gyro
+            params.save(config.out)
+            written = [str(config.out)] + self.write_exports(config.out)
+        except StationError as exc:
+            self.show_status(f"[could not save: {exc}]")
+            return
+        self.saved = True
+        self.app.saved = written
+        self.show_status("saved " + ", ".join(written))
+
+    def action_export(self) -> None:
+        config = self.app.config
+        if config.out is None or not Path(config.out).exists():
+            self.show_status("save first (Enter): exports are written from the parameter file")
+            return
+        try:
+            self.show_status("exported " + ", ".join(self.write_exports(config.out)))
+        except StationError as exc:
+            self.show_status(f"[export failed: {exc}]")
+
+    def write_exports(self, params_path: Path) -> list[str]:
+        """Each ``--export`` format through ``imu-station export`` (its report captured, not printed)."""
+        from station.commands import export
+
+        config = self.app.config
+        out_dir = config.export_dir or Path(params_path).parent
+        files: list[str] = []
+        for fmt in config.export:
+            parser = argparse.ArgumentParser()
+            export.add_arguments(parser)
+            target = out_dir / "c" if fmt == "c" else out_dir
+            args = parser.parse_args([str(params_path), "-f", fmt, "-o", str(target)])
+            with contextlib.redirect_stdout(io.StringIO()):
+                export.run(args)
+            files.append(f"{fmt} -> {target}")
+        return files

@@ -1,0 +1,170 @@
+"""Temperature-sweep monitor: temperature and its rate, the bias against temperature, then the fit."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rich.console import Group
+from rich.text import Text
+from textual import work
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal
+from textual.screen import Screen
+from textual.widgets import Footer, Header, Static
+
+from station.acquisition.runner import samples_to_capture
+from station.commands.thermal import format_report
+from station.engines.thermal import fit_thermal
+from station.errors import StationError
+from station.export.params_file import ParamsFile
+from station.tui.messages import LinkFailed, Snapshot
+from station.tui.plot import Series, braille_plot
+from station.tui.pump import pump
+from station.tui.recording import open_recording
+
+COLORS = ("red", "green", "dodger_blue1")
+BLOCK_S = 1.0
+DTEMP_WINDOW_S = 30.0
+
+
+def block_means(samples: np.ndarray, block_s: float = BLOCK_S) -> dict[str, np.ndarray]:
+    """Means over blocks of ``block_s`` of device time: t (s), temp, gyro (B, 3), acc (B, 3)."""
+    t = (samples["t_us"] - samples["t_us"][0]).astype(np.float64) * 1e-6
+    ids = (t // block_s).astype(np.int64)
+    counts = np.bincount(ids)
+    keep = counts > 0
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        return np.bincount(ids, weights=values)[keep] / counts[keep]
+
+    gyro = samples["gyro"].astype(np.float64)
+    acc = samples["acc"].astype(np.float64)
+    return {"t": mean(t), "temp": mean(samples["temp"].astype(np.float64)),
+            "gyro": np.column_stack([mean(gyro[:, j]) for j in range(3)]),
+            "acc": np.column_stack([mean(acc[:, j]) for j in range(3)])}
+
+
+def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = DTEMP_WINDOW_S) -> float:
+    """dT/dt (degC/s): slope of a line through the last ``window_s`` of block temperatures."""
+    recent = t >= t[-1] - window_s
+    if np.count_nonzero(recent) < 3:
+        return float("nan")
+    return float(np.polyfit(t[recent], temp[recent], 1)[0])
+
+
+def sweep_plots(blocks: dict[str, np.ndarray], width: int = 50, height: int = 8) -> Group:
+    t, temp = blocks["t"], blocks["temp"]
+    gyro = blocks["gyro"] - blocks["gyro"].mean(axis=0)
+    return Group(
+        braille_plot([Series("temperature", t / 60, temp, "yellow")], width, height, xlabel="time (min)",
+                     ylabel="temperature (degC)"),
+        braille_plot([Series(f"g{a}", temp, gyro[:, j], COLORS[j]) for j, a in enumerate("xyz")], width,
+                     height, xlabel="temperature (degC)", ylabel="gyro bias change (rad/s)"),
+    )
+
+
+class ThermalScreen(Screen[None]):
+    BINDINGS = [Binding("enter", "stop", "stop and fit", show=True), Binding("escape", "back", "back")]
+    DEFAULT_CSS = """
+    ThermalScreen #plots { width: 1fr; border: round $accent; }
+    ThermalScreen #side { width: 48; border: round $secondary; padding: 0 1; }
+    """
+
+    def compose(self) -> ComposeResult:
+        yield Header()
+        with Horizontal():
+            yield Static("", id="plots")
+            yield Static("Keep the unit still in the chamber. The sweep is recorded until Enter.", id="side")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.title = "imu-station · temperature sweep"
+        self.recording = open_recording(self.app, "thermal")
+        self.stopped = False
+        self._read()
+
+    def on_unmount(self) -> None:
+        self.recording.close()
+
+    @work(thread=True, exclusive=True, group="reader")
+    def _read(self) -> None:
+        device = self.app.session.device
+        next_draw = [0.0]
+
+        def on_tick() -> None:
+            now = time.monotonic()
+            if now < next_draw[0]:
+                return
+            next_draw[0] = now + 0.5
+            samples = self.recording.snapshot()
+            if len(samples) < 2:
+                return
+            self.post_message(Snapshot({"blocks": block_means(samples), "stats": device.stats}))
+
+        pump(device, self.recording.add, on_tick, lambda exc: self.post_message(LinkFailed(exc)))
+
+    def on_snapshot(self, message: Snapshot) -> None:
+        d = message.data
+        if "fit" in d:
+            self.show_fit(d["fit"], d["saved"])
+            return
+        if self.stopped:
+            return
+        blocks, stats = d["blocks"], d["stats"]
+        temp = blocks["temp"]
+        rate = temperature_rate(blocks["t"], temp)
+        side = Text()
+        side.append("Temperature sweep\n", style="bold")
+        side.append(f"recorded     {blocks['t'][-1] / 60:6.1f} min, {self.recording.count} samples\n")
+        side.append(f"temperature  {temp[-1]:6.2f} degC\n")
+        side.append(f"rate         {rate * 60:+6.2f} degC/min\n")
+        side.append(f"range        {np.nanmin(temp):.1f} .. {np.nanmax(temp):.1f} degC\n")
+        side.append(f"link         {stats.rate_hz:.0f} Hz, {stats.lost} lost, {stats.errors} errors\n\n")
+        side.append("Sweep the chamber over the whole operating range, slowly\n"
+                    "(about 1 degC/min), up and down.\n\nEnter: stop and fit · Escape: back")
+        self.query_one("#side", Static).update(side)
+        self.query_one("#plots", Static).update(sweep_plots(blocks))
+
+    def on_link_failed(self, message: LinkFailed) -> None:
+        self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))
+
+    def action_stop(self) -> None:
+        if self.stopped:
+            return
+        self.stopped = True
+        self.workers.cancel_group(self, "reader")
+        self.recording.close()
+        self.query_one("#side", Static).update("fitting the thermal model ...")
+        self._fit()
+
+    @work(thread=True, exclusive=True, group="fit")
+    def _fit(self) -> None:
+        samples = self.recording.snapshot()
+        out = self.app.config.out
+        params = ParamsFile.load_or_new(out) if out is not None else ParamsFile()
+        try:
+            capture = samples_to_capture(samples)
+            fit = fit_thermal(capture.t, capture.temp, capture.acc, capture.gyro,
+                              accel_cal=params.accel, gyro_cal=params.gyro)
+        except (StationError, ValueError) as exc:
+            self.post_message(LinkFailed(StationError(f"the thermal fit failed: {exc}")))
+            return
+        saved = None
+        if out is not None:
+            params.thermal = fit.model
+            params.update_device(self.app.session.info)
+            params.save(out)
+            saved = str(out)
+        calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
+        self.post_message(Snapshot({"fit": format_report(fit, calibrated), "saved": saved}))
+
+    def show_fit(self, report: str, saved: str | None) -> None:
+        text = Text(report + "\n\n")
+        text.append(f"thermal section saved to {saved}" if saved else "no --out: nothing saved", style="bold")
+        text.append("\nEscape: back · q: quit")
+        self.query_one("#side", Static).update(text)
+
+    def action_back(self) -> None:
+        self.app.show("live")

@@ -1,0 +1,223 @@
+"""The sequence wizard: each step's instruction and drawing, live checks, automatic capture, prompts."""
+
+from __future__ import annotations
+
+from rich.table import Table
+from rich.text import Text
+from textual import work
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.screen import Screen
+from textual.widgets import Footer, Header, ProgressBar, Static
+
+from station.acquisition.operator import Action, Prompt, SimulatedOperator
+from station.acquisition.recorder import Recorder
+from station.acquisition.runner import (
+    LiveStatus,
+    RecorderSink,
+    RunOptions,
+    RunResult,
+    SequenceRunner,
+    State,
+    StepRecord,
+)
+from station.acquisition.sequences import Sequence, resolve
+from station.tui.art import bar, step_art, step_instruction
+from station.tui.bridge import RunnerEvent, TuiOperator
+from station.tui.config import TuiConfig
+
+MARKS = {"accepted": "[green]✓[/green]", "skipped": "[yellow]↷[/yellow]", "failed": "[red]✗[/red]",
+         "aborted": "[red]✗[/red]"}
+KEYS = {Action.ACCEPT: "k", Action.REDO: "r", Action.SKIP: "s", Action.ABORT: "x"}
+IDLE_HINT = "r: redo this step · s: skip it · x: abort the run (what was captured is kept)"
+NAMES = {Action.ACCEPT: "go on", Action.REDO: "redo", Action.SKIP: "skip", Action.ABORT: "abort"}
+
+
+def build_sequence(config: TuiConfig) -> Sequence:
+    return resolve(config.sequence, rotations=config.rotations, hold_s=config.hold_s,
+                   rotation_rate_dps=config.rotation_rate_dps)
+
+
+class WizardScreen(Screen[None]):
+    BINDINGS = [
+        Binding("enter", "answer('default')", "next", show=True),
+        Binding("r", "answer('redo')", "redo step"),
+        Binding("s", "answer('skip')", "skip step"),
+        Binding("k", "answer('accept')", "keep step"),
+        Binding("x", "answer('abort')", "abort"),
+    ]
+    DEFAULT_CSS = """
+    WizardScreen #top { height: 1fr; }
+    WizardScreen #step { width: 1fr; border: round $accent; padding: 0 1; }
+    WizardScreen #side { width: 52; }
+    WizardScreen #checks { border: round $secondary; padding: 0 1; height: auto; }
+    WizardScreen #capture { padding: 0 1; height: 1; }
+    WizardScreen #steps { height: auto; padding: 0 1; border: round $primary; }
+    WizardScreen #prompt { height: auto; min-height: 3; border: heavy $warning; padding: 0 1; }
+    """
+
+    def __init__(self, sequence: Sequence) -> None:
+        super().__init__()
+        self.sequence = sequence
+        self.records: dict[str, StepRecord] = {}
+        self.current = -1
+        self.result: RunResult | None = None
+        self.prompt: Prompt | None = None
+
+    def compose(self) -> ComposeResult:
+        yield Header()
+        with Horizontal(id="top"):
+            yield Static("", id="step")
+            with Vertical(id="side"):
+                yield Static("", id="checks")
+                yield ProgressBar(total=1.0, show_eta=False, id="capture")
+        yield Static("", id="steps")
+        yield Static("", id="prompt")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.title = f"imu-station · sequence {self.sequence.name}"
+        self.operator = TuiOperator(self)
+        overview = Text(f"Sequence {self.sequence.name}\n\n", style="bold")
+        overview.append("For each step: put the unit as drawn and let go. Capture starts by itself\n"
+                        "once the unit is in the pose and still, and the next step follows. A turn is\n"
+                        "asked for after a short still capture; turn at about the rate shown, then\n"
+                        "hold still.\n\n"
+                        "r redo · s skip · x abort (what was captured is kept) · ? help")
+        self.query_one("#step", Static).update(overview)
+        self.show_steps()
+        self._run()
+
+    def on_unmount(self) -> None:
+        self.operator.close()
+
+    @work(thread=True, exclusive=True, group="reader")
+    def _run(self) -> None:
+        app = self.app
+        session = app.session
+        operator = self.operator if session.rig is None else SimulatedOperator(session.rig, self.operator)
+        path = app.config.capture_path()
+        recorder = None
+        if path is not None:
+            recorder = Recorder(path, device=session.info, with_step=True, port=session.name,
+                                protocol=session.device.protocol)
+        try:
+            runner = SequenceRunner(session.device, self.sequence, operator, RunOptions(),
+                                    sink=RecorderSink(recorder, session.device) if recorder else None)
+            result = runner.run()
+        finally:
+            if recorder is not None:
+                recorder.close(session.device.stats.as_dict())
+        app.last_run = result
+
+    # ---- runner events -------------------------------------------------------------------------
+
+    def on_runner_event(self, event: RunnerEvent) -> None:
+        handler = getattr(self, f"_on_{event.kind}")
+        handler(event)
+
+    def _on_begin(self, event: RunnerEvent) -> None:
+        self.show_steps()
+
+    def _on_place(self, event: RunnerEvent) -> None:
+        self.current = event.index
+        step = event.payload
+        title = Text(f"Step {event.index + 1} of {event.total}: {step.label}\n\n", style="bold")
+        title.append(step_instruction(step) + "\n\n", style="")
+        title.append(step_art(step))
+        self.query_one("#step", Static).update(title)
+        self.show_steps()
+
+    def _on_rotate(self, event: RunnerEvent) -> None:
+        self.notify(f"Turn now: {event.payload.label}", timeout=2)
+
+    def _on_status(self, event: RunnerEvent) -> None:
+        s: LiveStatus = event.payload
+        table = Table.grid(padding=(0, 1))
+        table.add_column(style="bold", width=8)
+        table.add_column()
+        table.add_row("state", f"{s.state.value}" + (f" (attempt {s.attempt})" if s.attempt > 1 else ""))
+        if s.pose is not None:
+            ok = "[green]✓[/green]" if s.pose.ok else "[red]✗[/red]"
+            table.add_row("pose", f"{ok} {s.pose.angle_deg:5.1f} deg off, now {s.pose.nearest or '?'} up")
+        if s.stillness is not None:
+            ok = "[green]✓[/green]" if s.stillness.still else "[yellow]…[/yellow]"
+            table.add_row("still", f"{ok} {bar(s.stillness.score, 28)}")
+        if s.angle_deg is not None and s.target_deg:
+            frac = max(0.0, s.angle_deg / s.target_deg)
+            table.add_row("angle", f"{s.angle_deg:+7.1f} of {s.target_deg:+.0f} deg")
+            table.add_row("", bar(frac, 28))
+        table.add_row("link", f"{s.rate_hz:.0f} Hz, {s.lost} lost, {s.link_errors} errors")
+        table.add_row("", Text(s.message, style="italic"))
+        self.query_one("#checks", Static).update(table)
+        capturing = s.state in (State.CAPTURING, State.SETTLING)
+        self.query_one("#capture", ProgressBar).update(progress=s.progress if capturing else 0.0)
+
+    def _on_prompt(self, event: RunnerEvent) -> None:
+        self.prompt = event.payload
+        self.show_prompt(self.prompt)
+
+    def _on_answered(self, event: RunnerEvent) -> None:
+        self.prompt = None
+        self.query_one("#prompt", Static).update(Text(IDLE_HINT, style="dim"))
+
+    def _on_finished(self, event: RunnerEvent) -> None:
+        record: StepRecord = event.payload
+        self.records[record.label] = record
+        self.show_steps()
+
+    def _on_end(self, event: RunnerEvent) -> None:
+        self.result = event.payload
+        accepted = len(self.result.accepted)
+        text = Text(f"Run {self.result.outcome}: {accepted} of {len(self.sequence)} steps captured, "
+                    f"{len(self.result.capture)} samples.", style="bold")
+        if self.result.reason:
+            text.append(f"\n{self.result.reason}")
+        path = self.app.config.capture_path()
+        if path is not None:
+            text.append(f"\nCapture saved to {path}")
+        text.append("\nEnter: compute the calibration and show the results · q: quit")
+        self.query_one("#prompt", Static).update(text)
+        self.query_one("#capture", ProgressBar).update(progress=0.0)
+
+    # ---- drawing -------------------------------------------------------------------------------
+
+    def show_steps(self) -> None:
+        text = Text()
+        for i, step in enumerate(self.sequence.steps):
+            record = self.records.get(step.label)
+            if record is not None:
+                text.append_text(Text.from_markup(MARKS.get(record.status, "?")))
+            elif i == self.current and self.result is None:
+                text.append("▶", style="bold cyan")
+            else:
+                text.append("·", style="dim")
+            text.append(f"{step.label} ", style="bold" if i == self.current else "")
+        self.query_one("#steps", Static).update(text)
+
+    def show_prompt(self, prompt: Prompt) -> None:
+        text = Text(prompt.text + "\n", style="bold")
+        for line in prompt.details:
+            text.append(f"  {line}\n", style="yellow")
+        keys = [f"{'Enter' if a is prompt.default else KEYS[a]}: {NAMES[a]}" for a in prompt.choices]
+        text.append(" · ".join(keys))
+        self.query_one("#prompt", Static).update(text)
+
+    # ---- keys ----------------------------------------------------------------------------------
+
+    def action_answer(self, which: str) -> None:
+        if self.result is not None:
+            if which == "default":
+                self.app.show_results(self.result)
+            return
+        prompt = self.prompt
+        if which == "default":
+            if prompt is None:
+                return
+            action = prompt.default
+        else:
+            action = Action(which)
+        if not self.operator.answer(action) and prompt is None:
+            self.notify(f"{NAMES[action]} requested")
+

@@ -1,0 +1,72 @@
+"""The connection the TUI works on: a device, and the simulated rig when ``--simulate``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from serial.tools import list_ports
+
+from drivers import open_device
+from drivers.interface import Device
+from station.acquisition.operator import Rig
+from station.tui.config import TuiConfig
+
+SIMULATED = "simulated unit"
+
+
+@dataclass
+class PortEntry:
+    device: str
+    description: str
+    hwid: str = ""
+
+
+def available_ports() -> list[PortEntry]:
+    """Serial ports of this machine with their descriptions (pyserial's list_ports)."""
+    return [PortEntry(p.device, p.description or "", p.hwid or "") for p in sorted(list_ports.comports())]
+
+
+@dataclass
+class Session:
+    """An open device; ``rig`` moves the simulated unit (None on a real port)."""
+
+    device: Device
+    name: str
+    rig: Rig | None = None
+    closers: list[Any] = field(default_factory=list)
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def close(self) -> None:
+        self.device.close()
+        for closer in self.closers:
+            closer()
+
+
+def open_session(config: TuiConfig, port: str | None) -> Session:
+    """Open ``port``, or the simulated unit when ``port`` is None or :data:`SIMULATED`, and ask who it is."""
+    if port is None or port == SIMULATED:
+        session = open_simulated(config)
+    else:
+        session = Session(open_device(port, protocol=config.protocol), port)
+    try:
+        session.info = session.device.get_info() if config.protocol == "native" else dict(session.device.info)
+    except Exception:
+        session.close()
+        raise
+    return session
+
+
+def open_simulated(config: TuiConfig) -> Session:
+    """The simulated unit served on a pseudo-terminal, opened like any port; its rig is the unit itself."""
+    from mocks.device import SimDevice
+    from mocks.pty_server import PtyServer
+
+    server = PtyServer(SimDevice(seed=config.seed, rate_hz=config.rate_hz, scenario="still")).start()
+    try:
+        device = open_device(server.port_path, protocol="native")
+    except Exception:
+        server.stop()
+        raise
+    return Session(device, f"{SIMULATED} (seed {config.seed}) on {server.port_path}", rig=server.device,
+                   closers=[server.stop])
