@@ -52,6 +52,8 @@ from station.errors import EngineInputError
 STANDARD_GRAVITY = 9.80665
 VARIABLE_TERMS = TERMS[:-1]  # every term but the constant, which the pose intercepts carry
 TAU_CANDIDATES_S = (2.0, 5.0, 15.0, 40.0)
+TAU_WITHOUT_RATE_S = 15.0  # stored when the dT terms are left out; firmware still runs the filter
+RATE_FOLLOWS_TEMP_R2 = 0.95
 MIN_SPAN_DEGC = 10.0
 MIN_SEGMENT_SPAN_DEGC = 5.0
 MIN_BLOCKS = 20
@@ -584,6 +586,16 @@ def _fit_triad(name: str, blocks: _Blocks, fold: np.ndarray, folds: int, n_poses
 
 # ----------------------------------------------------------------------------- entry point
 
+def _rate_follows_temp(blocks: _Blocks) -> float:
+    """R^2 of dT regressed on a cubic in T: near 1 when dT is a function of T (one warm-up curve)."""
+    t = blocks.terms[:, :3]
+    x = np.column_stack([t, np.ones(len(t))])
+    d = blocks.dtemp
+    resid = d - x @ np.linalg.lstsq(x, d, rcond=None)[0]
+    total = np.sum((d - d.mean()) ** 2)
+    return float(1.0 - np.sum(resid**2) / total) if total > 0 else 1.0
+
+
 def _equal_breaks(lo: float, hi: float, n: int) -> list[float]:
     return [float(v) for v in np.linspace(lo, hi, n + 1)[1:-1]]
 
@@ -690,6 +702,21 @@ def fit_thermal(
         b.pose = remap[b.pose]
         return b
 
+    probe_tau = float(tau_s or TAU_CANDIDATES_S[1])
+    probe = remapped(blocks_for(probe_tau))
+    follows = _rate_follows_temp(probe)
+    rate_usable = follows < RATE_FOLLOWS_TEMP_R2
+    if not rate_usable:
+        why = f"dT follows T in this recording (R^2 {follows:.3f} of dT on a cubic in T)"
+        if terms is None:
+            masks = [m for m in masks if not any(m[VARIABLE_TERMS.index(k)] for k in ("dt2", "dt", "tdt"))]
+            warnings.append(f"{why}, as in a single warm-up: the dT terms cannot be told from the T terms "
+                            "and are left out; to model dT, sweep up and down or at two speeds")
+        else:
+            warnings.append(f"{why}: the dT terms asked for are poorly determined and will not carry to "
+                            "other ramp speeds")
+        if tau_s is None and terms is None:
+            tau_s = TAU_WITHOUT_RATE_S
     steps = (len(TAU_CANDIDATES_S) if tau_s is None else 0) + len(TRIADS)
     done = 0
 
@@ -723,7 +750,7 @@ def fit_thermal(
         _, tau, blocks = best
     else:
         tau = float(tau_s)
-        blocks = remapped(blocks_for(tau))
+        blocks = probe if tau == probe_tau else remapped(blocks_for(tau))
     fold = _fold_ids(blocks.pose, folds)
 
     lo, hi = float(blocks.temp.min()), float(blocks.temp.max())
