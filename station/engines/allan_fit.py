@@ -10,7 +10,8 @@ The model is linear in c = (Q^2, N^2, B^2, K^2, R^2), so it is fitted by non-neg
 weights from the equivalent degrees of freedom: var(sigma_hat^2) = 2 sigma^4 / edf, re-weighted with the
 model's own values (iteratively re-weighted least squares). N and K are always fitted; Q, B and R are added
 only where the record shows them: significant (> 3 standard deviations), improving the weighted
-chi-square by more than 9, and dominating the model at three or more measured points.
+chi-square by more than 9, and dominating the model at three or more well-measured points (backward
+elimination from the full model).
 
 Beside the fit, the classic slope-line reading (IEEE 952 Annex C; e.g. El-Sheimy, Hou and Niu, "Analysis
 and modeling of inertial sensors using Allan variance", IEEE TIM 57(1), 2008): where the curve's
@@ -39,7 +40,9 @@ SLOPE_TOLERANCE = 0.1
 SIGNIFICANCE = 3.0
 CHI2_GAIN = 9.0
 MIN_DOMINANT_POINTS = 3
+OPTIONAL = ("Q", "B", "R")
 K_CROSSING_FRACTION = 20.0  # K needs the N and K lines to cross before T / 20
+MIN_EDF_SHOWN = 10.0  # points that count as showing a term or a floor
 
 
 def basis(tau: np.ndarray) -> np.ndarray:
@@ -110,10 +113,10 @@ def _irls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: int = 6
     active = c > 0
     cov = np.full((a.shape[1], a.shape[1]), np.nan)
     if active.any():
-        aa = a[:, active]
+        aa = an[:, active]  # normalised columns keep the Fisher matrix well conditioned
         fisher = aa.T @ (aa * w2[:, None])
         with np.errstate(all="ignore"):
-            cov_active = np.linalg.pinv(fisher)
+            cov_active = np.linalg.pinv(fisher) / np.outer(scale[active], scale[active])
         cov[np.ix_(active, active)] = cov_active
     return c, cov, chi2
 
@@ -125,32 +128,34 @@ def _fit(tau: np.ndarray, avar: np.ndarray, edf: np.ndarray, terms: tuple[str, .
     dof = max(len(tau) - int(np.count_nonzero(c)), 1)
     inflate = max(chi2 / dof, 1.0)  # correlated, overlapping points: trust the scatter if it is larger
     values = {t: float(c[i]) for i, t in enumerate(terms)}
-    var = {t: float(cov[i, i]) * inflate for i, t in enumerate(terms)}
+    var = {t: max(float(cov[i, i]), 0.0) * inflate for i, t in enumerate(terms)}
     return values, var, chi2
 
 
-def _shows(tau: np.ndarray, adev: np.ndarray, c: dict[str, float], term: str) -> bool:
+def _shows(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, c: dict[str, float], term: str) -> bool:
     """Whether the curve shows an optional term: it dominates the model at MIN_DOMINANT_POINTS or more
-    points spanning a factor of 3 in tau or more, and the curve itself reaches the term's slope there."""
+    well-measured points (EDF >= 10) spanning a factor of 3 in tau or more, and the curve itself reaches
+    the term's slope there. The few-EDF tail of a random walk often looks like a ramp or a floor."""
     parts = {t: basis(tau)[:, TERMS.index(t)] * c[t] for t in c}
     total = sum(parts.values())
-    where = np.flatnonzero(parts[term] > 0.5 * total)
+    where = np.flatnonzero((parts[term] > 0.5 * total) & (edf >= MIN_EDF_SHOWN))
     if len(where) < MIN_DOMINANT_POINTS or tau[where[-1]] < 3.0 * tau[where[0]]:
         return False
     slope = np.gradient(np.log10(adev), np.log10(tau))
     return bool(np.any(np.abs(slope[where] - SLOPE_OF_TERM[term]) <= SLOPE_TOLERANCE))
 
 
-def _slope_reading(tau: np.ndarray, adev: np.ndarray, term: str, est: TermEstimate) -> None:
+def _slope_reading(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, term: str, est: TermEstimate) -> None:
     """The slope-line reading of IEEE 952 Annex C, written into ``est``."""
     target = SLOPE_OF_TERM[term]
     logt = np.log10(tau)
     loga = np.log10(adev)
     slope = np.gradient(loga, logt)
     if term == "B":
-        flat = np.flatnonzero(np.abs(slope) <= SLOPE_TOLERANCE)
+        # the minimum of a few-EDF point is biased low: only read the floor where it is measured well
+        flat = np.flatnonzero((np.abs(slope) <= SLOPE_TOLERANCE) & (edf >= MIN_EDF_SHOWN))
         if len(flat) == 0:
-            est.slope_reason = "the curve has no flat part (slope 0) within the record"
+            est.slope_reason = "the curve has no flat part (slope 0) with 10 or more degrees of freedom"
             return
         i = int(flat[np.argmin(adev[flat])])
         est.slope_tau = float(tau[i])
@@ -193,24 +198,26 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
     ok = np.isfinite(adev) & (adev > 0) & np.isfinite(edf) & (edf > 0)
     tau, adev, edf = tau[ok], adev[ok], edf[ok]
     avar = adev**2
-    active: tuple[str, ...] = ("N", "K")
+    # Backward elimination: start from the whole model, drop the weakest optional term that the record
+    # does not show until every optional term left is significant, shown, and worth its chi-square.
+    active: tuple[str, ...] = TERMS
     values, var, chi2 = _fit(tau, avar, edf, active)
     while True:
-        best = None
-        for extra in ("Q", "B", "R"):
-            if extra in active:
+        weakest = None
+        for extra in OPTIONAL:
+            if extra not in active:
                 continue
-            trial = tuple(t for t in TERMS if t in active or t == extra)
-            v, s2, c2 = _fit(tau, avar, edf, trial)
-            if v[extra] <= 0 or not np.isfinite(s2[extra]) or v[extra] < SIGNIFICANCE * math.sqrt(s2[extra]):
-                continue
-            if chi2 - c2 < CHI2_GAIN or not _shows(tau, adev, v, extra):
-                continue
-            if best is None or c2 < best[3]:
-                best = (trial, v, s2, c2)
-        if best is None:
+            c, sd = values[extra], math.sqrt(var[extra]) if np.isfinite(var[extra]) else math.inf
+            without = tuple(t for t in active if t != extra)
+            keep = (c > 0 and c >= SIGNIFICANCE * sd and _shows(tau, adev, edf, values, extra)
+                    and _fit(tau, avar, edf, without)[2] - chi2 >= CHI2_GAIN)
+            score = c / sd if c > 0 else 0.0
+            if not keep and (weakest is None or score < weakest[1]):
+                weakest = (without, score)
+        if weakest is None:
             break
-        active, values, var, chi2 = best
+        active = weakest[0]
+        values, var, chi2 = _fit(tau, avar, edf, active)
     result = AxisNoise(axis=axis, fitted=active, reduced_chi2=chi2 / max(len(tau) - len(active), 1))
     result.coeffs = {t: math.sqrt(values[t]) for t in active if values[t] > 0}
     for term in TERMS:
@@ -230,7 +237,7 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
             else:
                 est.value = math.sqrt(c)
                 est.stddev = sd_c / (2.0 * est.value)  # delta method: d sqrt(c) = dc / (2 sqrt(c))
-        _slope_reading(tau, adev, term, est)
+        _slope_reading(tau, adev, edf, term, est)
         result.terms[term] = est
     n_val = values.get("N", 0.0)
     k_val = values.get("K", 0.0)
