@@ -236,3 +236,18 @@ def test_option_string_sets_columns_and_the_rate_of_lines_without_a_clock() -> N
     for bad in ("@fast", "@0", "t,ax@"):
         with pytest.raises(ValueError):
             AsciiDecoder.from_option(bad)
+
+
+def test_block_and_line_by_line_paths_give_the_same_samples() -> None:
+    s = make_samples(200, seed=9)
+    spec = "seq,t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps,temp"
+    lines = encode_csv(s, spec).splitlines(keepends=True)
+    clean = AsciiDecoder(columns=spec)
+    clean.feed(b"header\n")
+    fast = clean.feed(b"".join(lines)).samples  # every line a plausible sample: one block
+    mixed = AsciiDecoder(columns=spec)
+    mixed.feed(b"header\n")
+    slow = mixed.feed(b"".join(lines[:100]) + b"# a note in the middle\n" + b"".join(lines[100:])).samples
+    assert fast.tobytes() == slow.tobytes() and len(fast) == 200
+    assert clean.kinds_seen["csv"] == mixed.kinds_seen["csv"] == 200 and mixed.kinds_seen["text"] == 2
+    assert clean.clock_lines == mixed.clock_lines == 200
