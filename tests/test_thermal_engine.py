@@ -266,3 +266,26 @@ def test_refuses_what_cannot_determine_a_model() -> None:
     moving = np.array(["rot+z"] * len(r.t), dtype=object)
     with pytest.raises(EngineInputError, match="no still period"):
         fit_thermal(r.t, r.temp, r.acc, r.gyro, moving)
+
+
+def test_single_warm_up_leaves_out_the_rate_terms() -> None:
+    """Self-heating alone: dT is a function of T, so dT terms would only alias T terms."""
+    truth = cubic_rate_unit(6)
+    warm_up = ChamberSweep(low_degc=20.0, high_degc=20.0, start_degc=20.0, soak_s=1800.0,
+                           self_heating_degc=20.0, self_heating_tau_s=400.0)
+    run = chamber_sweep(truth, warm_up, rate_hz=5.0, seed=3)
+    fit = fit_run(run, **calibration(truth))
+    assert any("dT follows T" in w for w in fit.warnings)
+    for tri in fit.triads.values():
+        assert all(not {"dt", "dt2", "tdt"} & set(a.terms) for a in tri.axes)
+        assert np.all(tri.bias_model.segments[0].coeffs[:, 3:6] == 0.0)
+
+
+def test_constant_temperature_gives_a_constant_and_a_warning() -> None:
+    truth = cubic_rate_unit(2)
+    run = chamber_sweep(truth, ChamberSweep(low_degc=25.0, high_degc=25.0, start_degc=25.0, soak_s=600.0),
+                        rate_hz=2.0, seed=1, temp_noise_degc=0.0)
+    fit = fit_run(run)
+    assert any("span 0.0 degC" in w for w in fit.warnings)
+    at = fit.model.gyro.evaluate(np.array([0.0, 25.0, 60.0]), np.zeros(3), fit.model.reference_temp)
+    np.testing.assert_allclose(at[0], at[2])  # one temperature: a constant, clamped everywhere
