@@ -21,6 +21,7 @@ from protocols.xsens import (
     SAMPLE_TIME_FINE,
     XsensDecoder,
     _decode_values,
+    _encode_values,
     encode_frame,
     encode_item,
     encode_samples,
@@ -288,3 +289,38 @@ def test_arbitrary_bytes_never_raise(data: bytes, seed: int) -> None:
     dec = XsensDecoder()
     out = feed_ragged(dec, b"\xfa\xff" + data, seed=seed, max_chunk=50)
     assert dec.stats.samples == len(out) <= dec.stats.frames
+
+
+_PRECISION_TYPES = {0x0810, 0x2010, 0x2020, 0x2030, 0x4010, 0x4020, 0x4030, 0x4040, 0x5020, 0x5030, 0x5040,
+                    0x8020, 0x8030, 0x8040, 0xC020, 0xD010}
+
+
+@pytest.mark.parametrize("precision", [3, 2])
+def test_real_packets_in_float64_and_fp1632_with_extended_lengths(shared_data: Path, precision: int) -> None:
+    """Folder 1's packets with every float32 item rewritten in float64 (or 16.32 fixed point), as an
+    MTi configured so would send them, and a 120-byte GNSSSatInfo item added to every other one,
+    which takes those past 254 bytes into the extended-length form."""
+    base = shared_data / "xsens-mtdata2" / "1"
+    inertial = [b for b in read_golden(base / "output.golden") if "Acceleration" in b]
+    stream, extended = bytearray(), 0
+    for k, (mid, payload) in enumerate(_frames((base / "output.bin").read_bytes())):
+        items = []
+        for data_id, data in _items(payload):
+            if data_id & 0xF8F0 in _PRECISION_TYPES and data_id & 3 == 0:
+                values = struct.unpack(f">{len(data) // 4}f", data)
+                data = _encode_values(values, precision)
+                data_id = (data_id & ~3) | precision
+            items.append(encode_item(data_id, data))
+        if k % 2:
+            items.append(encode_item(0x7020, bytes(range(120))))
+        frame = encode_frame(mid, b"".join(items))
+        extended += frame[3] == 0xFF
+        stream += frame
+    assert extended > 0
+    dec = XsensDecoder()
+    samples = feed_ragged(dec, bytes(stream), seed=precision)
+    assert len(samples) == len(inertial) and dec.stats.errors == 0
+    acc = np.array([xyz(b["Acceleration"]) for b in inertial], dtype=np.float32)
+    gyro = np.array([xyz(b["RateOfTurn"]) for b in inertial], dtype=np.float32)
+    np.testing.assert_allclose(samples["acc"], acc, rtol=2e-7, atol=1e-9)
+    np.testing.assert_allclose(samples["gyro"], gyro, rtol=2e-7, atol=1e-9)
