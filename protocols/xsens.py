@@ -95,19 +95,24 @@ _US_PER_TICK = 1_000_000 // TICKS_PER_SECOND
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
+_HAS_PRECISION = {TEMPERATURE, 0x2010, 0x2020, 0x2030, DELTA_V, ACCELERATION, FREE_ACCELERATION,
+                  ACCELERATION_HR, 0x5020, 0x5030, 0x5040, RATE_OF_TURN, DELTA_Q, RATE_OF_TURN_HR, 0xC020, 0xD010}
+_HAS_COORDINATES = {0x2010, 0x2020, 0x2030, 0xD010}  # orientation and velocity
+_COORDINATE_NAMES = {ENU: "ENU", NED: "NED", NWU: "NWU"}
+
+
 def item_name(data_id: int) -> str:
     """``Acceleration(float32)``, ``EulerAngles(NED,fp1632)``, ``0x1234`` for unknown ids."""
     kind = data_id & TYPE_MASK
     name = DATA_NAMES.get(kind)
     if name is None:
         return f"0x{data_id:04X}"
-    if kind in _VALUE_COUNTS or kind in (0x2010, 0x2020, 0x2030, 0xD010, 0x4030, 0x5020, 0x5030, 0xC020):
-        precision = PRECISION_NAMES[data_id & PRECISION_MASK]
-        if kind in (0x2010, 0x2020, 0x2030, 0xD010):
-            coord = {ENU: "ENU", NED: "NED", NWU: "NWU"}.get(data_id & COORD_MASK, "?")
-            return f"{name}({coord},{precision})"
-        return f"{name}({precision})"
-    return name
+    if kind not in _HAS_PRECISION:
+        return name
+    precision = PRECISION_NAMES[data_id & PRECISION_MASK]
+    if kind in _HAS_COORDINATES:
+        return f"{name}({_COORDINATE_NAMES.get(data_id & COORD_MASK, '?')},{precision})"
+    return f"{name}({precision})"
 
 
 # ---------------------------------------------------------------------------------- numbers
