@@ -1,0 +1,58 @@
+"""Helpers of the TUI tests: waiting on the headless app, and comparing SVG screenshots by their text."""
+
+from __future__ import annotations
+
+import html
+import os
+import re
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+SNAPSHOTS = Path(__file__).parent / "snapshots"
+_TEXT = re.compile(r'<text[^>]*\sx="([\d.]+)"[^>]*\sy="([\d.]+)"[^>]*>(.*?)</text>', re.S)
+_SIZE = re.compile(r'<svg[^>]*viewBox="0 0 ([\d.]+) ([\d.]+)"')
+
+
+async def wait_for(pilot, condition: Callable[[], object], timeout_s: float, what: str, step_s: float = 0.1):
+    """Let the app run until ``condition()`` is true; fail naming ``what`` after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        await pilot.pause(step_s)
+
+
+def svg_rows(svg: str) -> list[str]:
+    """The screen's text, one string per row, from a textual SVG screenshot (styles ignored)."""
+    rows: dict[float, list[tuple[float, str]]] = {}
+    for x, y, body in _TEXT.findall(svg):
+        text = html.unescape(re.sub(r"<[^>]+>", "", body)).replace("\xa0", " ")
+        rows.setdefault(float(y), []).append((float(x), text))
+    return ["".join(t for _, t in sorted(parts)).rstrip() for _, parts in sorted(rows.items())]
+
+
+def svg_size(svg: str) -> tuple[str, str]:
+    m = _SIZE.search(svg)
+    assert m, "not a textual SVG screenshot"
+    return m.group(1), m.group(2)
+
+
+def assert_snapshot(svg: str, name: str) -> None:
+    """Compare with ``tests/snapshots/<name>.svg`` by size and text rows; UPDATE_SNAPSHOTS=1 rewrites it."""
+    path = SNAPSHOTS / f"{name}.svg"
+    if os.environ.get("UPDATE_SNAPSHOTS") == "1" or not path.exists():
+        if not path.exists() and os.environ.get("UPDATE_SNAPSHOTS") != "1":
+            raise AssertionError(f"no snapshot {path}; run with UPDATE_SNAPSHOTS=1 to create it, then "
+                                 "review it")
+        path.write_text(svg, encoding="utf-8")
+        return
+    expected = path.read_text(encoding="utf-8")
+    assert svg_size(svg) == svg_size(expected), f"{name}: screen size changed"
+    got, want = svg_rows(svg), svg_rows(expected)
+    diff = [f"row {i}: expected {w!r}\n        got      {g!r}"
+            for i, (g, w) in enumerate(zip(got, want, strict=False)) if g != w]
+    assert len(got) == len(want) and not diff, f"{name} differs from {path}:\n" + "\n".join(diff[:10])
