@@ -243,12 +243,42 @@ def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterator
         return rosbag_reader.iter_imu_chunks(path, topic), {}, size
     name = path.name.lower()
     if name.endswith((".h5", ".hdf5")):
-        from station.acquisition.capture import read_capture
-
-        cap = read_capture(path)
-        step = 200_000
-        return ((cap.t[a:a + step], cap.acc[a:a + step], cap.gyro[a:a + step])
-                for a in range(0, len(cap), step)), dict(cap.device), size
+        return _h5_chunks(path), _h5_device(path), size
     from station.acquisition.capture_csv import iter_csv_chunks
 
     return ((c.t, c.acc, c.gyro) for c in iter_csv_chunks(path)), {}, size
+
+
+def _h5_file(path: Path):
+    import h5py
+
+    from station.acquisition.capture_h5 import SCHEMA
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise InputFileError(path, f"is not a readable HDF5 file ({exc})") from None
+    schema = f.attrs.get("schema")
+    schema = schema.decode("utf-8", "replace") if isinstance(schema, bytes) else schema
+    missing = [n for n in ("t_us", "acc", "gyro") if n not in f]
+    if schema != SCHEMA or missing:
+        f.close()
+        raise InputFileError(path, f"is not a station capture file of schema {SCHEMA!r} (schema {schema!r}, "
+                             f"missing {missing})", column="schema")
+    return f
+
+
+def _h5_device(path: Path) -> dict[str, Any]:
+    import json
+
+    with _h5_file(path) as f:
+        return json.loads(f.attrs.get("device", "{}"))
+
+
+def _h5_chunks(path: Path, rows: int = 200_000) -> Iterator[Chunk]:
+    """Slices of a station capture file: memory bounded by ``rows`` whatever the file's length."""
+    with _h5_file(path) as f:
+        t_us, acc, gyro = f["t_us"], f["acc"], f["gyro"]
+        for a in range(0, len(t_us), rows):
+            yield (t_us[a:a + rows].astype(np.float64) * 1e-6, acc[a:a + rows].astype(np.float64),
+                   gyro[a:a + rows].astype(np.float64))
