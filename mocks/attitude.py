@@ -48,7 +48,7 @@ def rotate_vectors(axis: np.ndarray, angle: np.ndarray, v: np.ndarray) -> np.nda
     axis = np.asarray(axis, float)
     v = np.broadcast_to(np.asarray(v, float), (angle.shape[0], 3))
     cross = np.cross(axis, v)
-    dot = v @ axis
+    dot = np.einsum("nk,k->n", v, axis)
     return v * np.cos(angle) + cross * np.sin(angle) + np.outer(dot, axis) * (1.0 - np.cos(angle))
 
 

@@ -170,7 +170,8 @@ class ThermalTruth:
 
     def bias(self, temp: np.ndarray, dtemp: np.ndarray) -> np.ndarray:
         """b_T(T, dT) of eq. (3), shape (N, 3)."""
-        return thermal_terms(np.asarray(temp, float) - self.t_ref, dtemp) @ self.coeffs.T
+        # einsum, not @: tall-skinny BLAS products start threads that stall on a busy machine.
+        return np.einsum("nk,jk->nj", thermal_terms(np.asarray(temp, float) - self.t_ref, dtemp), self.coeffs)
 
 
 @dataclass
@@ -200,7 +201,8 @@ class SensorTruth:
     def measure(self, true: np.ndarray, temp: np.ndarray, dtemp: np.ndarray,
                 noise: np.ndarray | None = None) -> np.ndarray:
         """raw of eq. (1)-(2) for rows of ``true`` (N, 3) at true ``temp`` and ``dtemp`` (N,)."""
-        raw = np.asarray(true, float) @ self.matrix.T + self.bias + self.thermal.bias(temp, dtemp)
+        raw = np.einsum("nk,jk->nj", np.asarray(true, float), self.matrix) + self.bias
+        raw += self.thermal.bias(temp, dtemp)
         if noise is not None:
             raw += noise
         np.clip(raw, -self.saturation, self.saturation, out=raw)
