@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import null_space
@@ -165,10 +165,8 @@ def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
     if step is not None:
         labels = np.asarray(step).astype(str)
         static = (labels != "") & ~np.char.startswith(labels, "rot")
-        names = sorted(set(labels[static]))
-        lookup = {name: i for i, name in enumerate(names)}
-        pose[static] = [lookup[s] for s in labels[static]]
-        return pose, names
+        names, pose[static] = np.unique(labels[static], return_inverse=True)
+        return pose, [str(n) for n in names]
     rate = 1.0 / np.median(np.diff(t)) if n > 1 else 1.0
     w = max(int(round(rate)), 5)
     nw = n // w
@@ -231,24 +229,44 @@ def _block_ids(pose: np.ndarray, ok: np.ndarray, length: int) -> np.ndarray:
     return ids
 
 
-def _make_blocks(ids: np.ndarray, t: np.ndarray, temp: np.ndarray, dtemp: np.ndarray, t_ref: float,
-                 acc: np.ndarray, gyro: np.ndarray, pose: np.ndarray) -> _Blocks:
-    sel = ids >= 0
-    b = ids[sel]
-    count = np.bincount(b).astype(float)
+class _BlockMeans:
+    """Block means of per-sample quantities: what the fit sees instead of the samples."""
 
-    def mean(x: np.ndarray) -> np.ndarray:
-        return np.bincount(b, weights=x[sel]) / count
+    def __init__(self, ids: np.ndarray):
+        self.sel = ids >= 0
+        self.index = ids[self.sel]
+        self.count = np.bincount(self.index).astype(float)
 
-    def mean3(x: np.ndarray) -> np.ndarray:
-        return np.column_stack([mean(x[:, j]) for j in range(3)])
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if x.ndim == 2:
+            return np.column_stack([self(x[:, j]) for j in range(x.shape[1])])
+        return np.bincount(self.index, weights=x[self.sel]) / self.count
 
-    terms = term_matrix(temp - t_ref, dtemp)
-    first = np.zeros(len(count), dtype=int)
-    first[b[::-1]] = np.flatnonzero(sel)[::-1]
-    return _Blocks(count=count, time=mean(t), temp=mean(temp), dtemp=mean(dtemp),
-                   terms=np.column_stack([mean(terms[:, k]) for k in range(len(TERMS))]),
-                   acc=mean3(acc), gyro=mean3(gyro), pose=pose[first])
+
+def _make_blocks(ids: np.ndarray, t: np.ndarray, temp: np.ndarray, t_ref: float, acc: np.ndarray,
+                 gyro: np.ndarray, pose: np.ndarray) -> tuple[_Blocks, _BlockMeans]:
+    """Blocks with the temperature terms; the dT terms are filled in by :func:`_with_dtemp`."""
+    mean = _BlockMeans(ids)
+    t_rel = np.where(np.isfinite(temp), temp - t_ref, 0.0)
+    terms = np.zeros((len(mean.count), len(TERMS)))
+    for k, power in ((0, 3), (1, 2), (2, 1)):
+        terms[:, k] = mean(t_rel**power)
+    terms[:, -1] = 1.0
+    first = np.zeros(len(mean.count), dtype=int)
+    first[mean.index[::-1]] = np.flatnonzero(mean.sel)[::-1]
+    blocks = _Blocks(count=mean.count, time=mean(t), temp=mean(temp), dtemp=np.zeros(len(mean.count)),
+                     terms=terms, acc=mean(acc), gyro=mean(gyro), pose=pose[first])
+    return blocks, mean
+
+
+def _with_dtemp(blocks: _Blocks, mean: _BlockMeans, temp: np.ndarray, t_ref: float,
+                dtemp: np.ndarray) -> _Blocks:
+    """A copy of ``blocks`` with the block means of dT, dT^2 and t dT (eq. 1) of this dT."""
+    t_rel = np.where(np.isfinite(temp), temp - t_ref, 0.0)
+    terms = blocks.terms.copy()
+    d = mean(dtemp)
+    terms[:, 3], terms[:, 4], terms[:, 5] = mean(dtemp**2), d, mean(t_rel * dtemp)
+    return replace(blocks, dtemp=d, terms=terms, pose=blocks.pose.copy())
 
 
 def _fold_ids(pose: np.ndarray, folds: int) -> np.ndarray:
@@ -689,9 +707,11 @@ def fit_thermal(
     t_ref = float(reference_temp) if reference_temp is not None else round(0.5 * (lo + hi), 1)
     warnings: list[str] = []
 
+    base, block_mean = _make_blocks(ids, t, temp, t_ref, acc, gyro, pose)
+
     def blocks_for(tau: float) -> _Blocks:
         dtemp = estimate_dtemp(t, temp_filled, DtempFilter("ema", tau))
-        return _make_blocks(ids, t, temp, dtemp, t_ref, acc, gyro, pose)
+        return _with_dtemp(base, block_mean, temp, t_ref, dtemp)
 
     present = sorted(set(pose[used]))
     remap = np.full(len(names), -1)

@@ -134,8 +134,8 @@ def _ema_scan(alpha: np.ndarray, x: np.ndarray, y0: float) -> np.ndarray:
     start, y = 0, y0
     while start < n:
         base = c[start - 1] if start else 0.0
-        stop = start + int(np.searchsorted(-(c[start:] - base), 600.0, side="right"))
-        stop = min(max(stop, start + 1), start + 4096)
+        window = c[start:start + 4096]
+        stop = start + max(int(np.searchsorted(-(window - base), 600.0, side="right")), 1)
         # A fresh sum per block: the global one carries rounding from every earlier sample.
         d = np.cumsum(log_a[start:stop])
         s = np.cumsum(np.exp(-d) * alpha[start:stop] * x[start:stop])
