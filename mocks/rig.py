@@ -384,6 +384,14 @@ class TemperatureProfile:
         inside = (index >= 0) & (index < len(slopes))
         return np.where(inside, slopes[np.clip(index, 0, len(slopes) - 1)], 0.0)
 
+    @staticmethod
+    def constant(temp_degc: float = 25.0) -> TemperatureProfile:
+        return constant(temp_degc)
+
+    @staticmethod
+    def ramp(points: Sequence[tuple[float, float]]) -> TemperatureProfile:
+        return ramp(points)
+
 
 def constant(temp_degc: float = 25.0) -> TemperatureProfile:
     return TemperatureProfile([0.0], [temp_degc])

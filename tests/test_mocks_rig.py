@@ -17,6 +17,7 @@ from mocks.rig import (
     Move,
     Rotation,
     Static,
+    TemperatureProfile,
     Timeline,
     UnitSampler,
     constant,
@@ -177,6 +178,7 @@ def test_temperature_ramp_and_its_rate() -> None:
     np.testing.assert_allclose(rec.dtemp_true[rec.t >= 2], 0.0)
     assert np.std(rec.temp - rec.temp_true) == pytest.approx(0.05, rel=0.15)
     np.testing.assert_allclose(constant(21.5)(np.array([0.0, 100.0])), 21.5)
+    np.testing.assert_allclose(TemperatureProfile.ramp([(0, 10.0), (10, 20.0)]).rate(np.array([5.0])), 1.0)
     # Any callable works as a profile: its rate comes from a central difference.
     rec2 = simulate(UnitTruth.ideal(), [Static("+z", 1.0)], rate_hz=10, temperature=lambda t: 25 + 0.1 * t)
     np.testing.assert_allclose(rec2.dtemp_true, 0.1, rtol=1e-6)
