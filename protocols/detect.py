@@ -84,6 +84,10 @@ def _describe(name: str, dec: StreamDecoderBase, out: Decoded, nbytes: int) -> s
         if others:
             text += f" and {others}"
         text += f", {n} inertial samples{at}, {_damage(stats)}"
+        if dec.other_source_packets:
+            other = "normal-rate" if dec.source == "hr" else "high-rate (AccelerationHR/RateOfTurnHR)"
+            text += f"; {dec.other_source_packets} {other} packets not used (xsens:normal or xsens:hr " \
+                    f"chooses)"
         if n == 0:
             text += ("; none carries Acceleration, RateOfTurn, DeltaV or DeltaQ: add them to the output "
                      "configuration (MT Manager, or SetOutputConfiguration)")

@@ -22,9 +22,11 @@ DECODERS: dict[str, Callable[[], StreamDecoderBase]] = {
 
 # Decoders that take one option, given as ``name:option``: the CSV column spec and/or the rate of
 # lines without a clock for ``ascii`` (``ascii:t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``,
-# ``ascii:@50``), the IMU message of ``mavlink`` (``mavlink:SCALED_IMU2``).
+# ``ascii:@50``), the IMU message of ``mavlink`` (``mavlink:SCALED_IMU2``), the packets of ``xsens``
+# that make the samples (``xsens:hr`` for AccelerationHR / RateOfTurnHR, ``xsens:normal``).
 DECODER_OPTIONS: dict[str, Callable[[str], StreamDecoderBase]] = {
     "ascii": AsciiDecoder.from_option,
+    "xsens": lambda source: XsensDecoder(source=source),
     "mavlink": lambda source: MavlinkDecoder(source=source),
 }
 

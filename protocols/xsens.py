@@ -13,8 +13,10 @@ definition, and the coordinate-system bits, which only rotate orientation and ve
 outputs, are accepted and ignored for them. (A device-side alignment rotation, if one was set,
 does rotate them: reset it before calibrating.)
 
-A packet becomes one sample when it carries Acceleration (or AccelerationHR or DeltaV) or
-RateOfTurn (or RateOfTurnHR or DeltaQ); a triad the packet lacks is NaN. DeltaV and DeltaQ
+A packet becomes one sample when it carries Acceleration (or DeltaV) or RateOfTurn (or DeltaQ);
+a triad the packet lacks is NaN. The high-rate AccelerationHR / RateOfTurnHR come in packets of
+their own: the first kind of inertial packet seen (or ``source``: ``normal`` or ``hr``) makes
+the samples, the other kind is returned as messages, so two rates never mix. DeltaV and DeltaQ
 are turned into mean acceleration and rate over the interval between consecutive inertial
 packets (from SampleTimeFine). Packets without inertial data (GNSS, orientation only, status)
 are returned as messages, not errors. ``seq`` is the unwrapped PacketCounter less the
@@ -88,7 +90,6 @@ _VALUE_COUNTS = {
     TEMPERATURE: 1, DELTA_V: 3, ACCELERATION: 3, ACCELERATION_HR: 3, RATE_OF_TURN: 3, DELTA_Q: 4,
     RATE_OF_TURN_HR: 3,
 }
-_INERTIAL = {DELTA_V, ACCELERATION, ACCELERATION_HR, RATE_OF_TURN, DELTA_Q, RATE_OF_TURN_HR}
 
 TICKS_PER_SECOND = 10_000  # SampleTimeFine
 _US_PER_TICK = 1_000_000 // TICKS_PER_SECOND
@@ -244,11 +245,19 @@ class MTData2Packet:
     delta_v: tuple[float, ...] | None = None
     gyro: tuple[float, ...] | None = None
     delta_q: tuple[float, ...] | None = None
+    acc_hr: tuple[float, ...] | None = None
+    gyro_hr: tuple[float, ...] | None = None
     temp: float | None = None
 
     @property
-    def inertial(self) -> bool:
-        return any(v is not None for v in (self.acc, self.delta_v, self.gyro, self.delta_q))
+    def source(self) -> str | None:
+        """``normal`` (Acceleration, RateOfTurn, DeltaV, DeltaQ), ``hr`` (only the high-rate
+        AccelerationHR / RateOfTurnHR) or None (no inertial data)."""
+        if any(v is not None for v in (self.acc, self.delta_v, self.gyro, self.delta_q)):
+            return "normal"
+        if self.acc_hr is not None or self.gyro_hr is not None:
+            return "hr"
+        return None
 
 
 class BadPacket(ValueError):
@@ -299,12 +308,16 @@ def parse_mtdata2(payload: bytes, seen: dict[str, int] | None = None) -> MTData2
             values = _decode_values(data, precision, count)
             if kind == TEMPERATURE:
                 packet.temp = values[0]
-            elif kind == ACCELERATION or (kind == ACCELERATION_HR and packet.acc is None):
+            elif kind == ACCELERATION:
                 packet.acc = values
+            elif kind == ACCELERATION_HR:
+                packet.acc_hr = values
             elif kind == DELTA_V:
                 packet.delta_v = values
-            elif kind == RATE_OF_TURN or (kind == RATE_OF_TURN_HR and packet.gyro is None):
+            elif kind == RATE_OF_TURN:
                 packet.gyro = values
+            elif kind == RATE_OF_TURN_HR:
+                packet.gyro_hr = values
             else:
                 packet.delta_q = values
     return packet
@@ -319,9 +332,14 @@ class XsensDecoder(StreamDecoderBase):
 
     name = "xsens"
 
-    def __init__(self, nominal_rate_hz: float = 100.0) -> None:
+    def __init__(self, source: str | None = None, nominal_rate_hz: float = 100.0) -> None:
         super().__init__()
+        if source not in (None, "normal", "hr"):
+            raise ValueError(f"unknown Xsens sample source {source!r}; use normal (Acceleration, RateOfTurn, "
+                             f"DeltaV, DeltaQ) or hr (AccelerationHR, RateOfTurnHR)")
+        self.source = source
         self.nominal_rate_hz = nominal_rate_hz
+        self.other_source_packets = 0  # inertial packets of the source not chosen
         self.items_seen: dict[str, int] = {}
         self.message_ids_seen: dict[int, int] = {}
         self._counter: int | None = None  # unwrapped PacketCounter of the last packet
@@ -416,7 +434,11 @@ class XsensDecoder(StreamDecoderBase):
                 self._fine += ((packet.time_fine - self._fine + 2**31) & 0xFFFFFFFF) - 2**31
         if packet.temp is not None:
             self._temp = packet.temp
-        if not packet.inertial:
+        source = packet.source
+        if source is not None and self.source is None:
+            self.source = source
+        if source is None or source != self.source:
+            self.other_source_packets += source is not None
             self._skipped += 1
             return False
         if packet.counter is not None:
@@ -445,6 +467,8 @@ class XsensDecoder(StreamDecoderBase):
         return True
 
     def _row(self, seq: int, ticks: int, packet: MTData2Packet, dt: float | None) -> tuple:
+        if self.source == "hr":
+            return (seq, ticks * _US_PER_TICK, packet.acc_hr or _NAN3, packet.gyro_hr or _NAN3, self._temp)
         acc = packet.acc
         if acc is None:
             acc = tuple(v / dt for v in packet.delta_v) if packet.delta_v is not None and dt else _NAN3

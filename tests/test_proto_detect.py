@@ -136,6 +136,8 @@ def test_registry_knows_every_protocol() -> None:
     assert out["t_us"][0] == 10_000 and out["acc"][0][2] == pytest.approx(9.80665)
     assert out["gyro"][0][2] == pytest.approx(np.pi / 2)
     with pytest.raises(ValueError, match="takes no option"):
+        make_decoder("native:fast")
+    with pytest.raises(ValueError, match="unknown Xsens sample source"):
         make_decoder("xsens:fast")
     with pytest.raises(ValueError, match="unknown unit"):
         make_decoder("ascii:t:fortnights,ax,ay,az,gx,gy,gz")

@@ -324,3 +324,38 @@ def test_real_packets_in_float64_and_fp1632_with_extended_lengths(shared_data: P
     gyro = np.array([xyz(b["RateOfTurn"]) for b in inertial], dtype=np.float32)
     np.testing.assert_allclose(samples["acc"], acc, rtol=2e-7, atol=1e-9)
     np.testing.assert_allclose(samples["gyro"], gyro, rtol=2e-7, atol=1e-9)
+
+
+def _hr_packet(counter: int, ticks: int, acc: tuple, gyro: tuple) -> bytes:
+    return encode_frame(MID_MTDATA2, encode_item(PACKET_COUNTER, struct.pack(">H", counter))
+                        + encode_item(SAMPLE_TIME_FINE, struct.pack(">I", ticks))
+                        + encode_item(0x4040, struct.pack(">3f", *acc))
+                        + encode_item(0x8040, struct.pack(">3f", *gyro)))
+
+
+@pytest.mark.parametrize("source", [None, "hr"])
+def test_high_rate_packets_and_normal_ones_never_mix(source: str | None) -> None:
+    """An MTi-600 sends AccelerationHR/RateOfTurnHR packets at 1 kHz between its 100 Hz packets."""
+    normal = make_samples(5, seed=11)
+    normal["t_us"] = np.arange(5) * 10_000
+    stream, counter, hr_acc = bytearray(), 0, []
+    for i in range(5):
+        one = normal[i : i + 1].copy()
+        one["seq"] = counter
+        stream += encode_samples(one)
+        counter += 1
+        for k in range(10):
+            acc = (float(i), float(k), 9.81)
+            hr_acc.append(acc)
+            stream += _hr_packet(counter, i * 100 + k * 10 + 1, acc, (0.0, 0.0, 0.1))
+            counter += 1
+    dec = XsensDecoder(source=source)
+    out = feed_ragged(dec, bytes(stream), seed=12)
+    if source is None:  # the first inertial packet was a normal one
+        assert dec.source == "normal" and len(out) == 5 and dec.other_source_packets == 50
+        np.testing.assert_allclose(out["acc"], normal["acc"], rtol=1e-7)
+    else:
+        assert len(out) == 50 and dec.other_source_packets == 5
+        np.testing.assert_allclose(out["acc"], np.array(hr_acc, dtype=np.float32))
+        assert (np.diff(out["t_us"].astype(np.int64))[:9] == 1000).all()
+    assert (np.diff(out["seq"].astype(np.int64)) == 1).all()
