@@ -88,7 +88,7 @@ def test_rk4_step_matches_scipy_ode_and_exact_rotation() -> None:
 
     ts = np.linspace(0.0, 1.0, 201)
     w = np.array([rate(t) for t in ts])
-    a = quat.rk4_step_matrices(w[:-1], w[1:], np.diff(ts))[0]
+    a = quat.rk4_step_matrices(w[:-1], w[1:], np.diff(ts))
     q = np.array([1.0, 0.0, 0.0, 0.0])
     for step in a:
         q = step @ q
@@ -100,7 +100,7 @@ def test_rk4_step_matches_scipy_ode_and_exact_rotation() -> None:
     np.testing.assert_allclose(q, ref, atol=2e-6)
     # A constant rate is integrated to the exact rotation exp(w t)
     wc = np.array([0.3, -1.2, 2.0])
-    a = quat.rk4_step_matrices(np.tile(wc, (100, 1)), np.tile(wc, (100, 1)), np.full(100, 0.01))[0]
+    a = quat.rk4_step_matrices(np.tile(wc, (100, 1)), np.tile(wc, (100, 1)), np.full(100, 0.01))
     q = np.array([1.0, 0.0, 0.0, 0.0])
     for step in a:
         q = step @ q

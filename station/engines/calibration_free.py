@@ -225,10 +225,14 @@ def gyro_blocks(t: np.ndarray, gyro_unbiased: np.ndarray, intervals: np.ndarray,
 class _GyroModel:
     """Eq. (15) over all blocks for one C, with the forward states kept for the Jacobian.
 
-    Forward: s_{n+1} = A_n s_n from s_0 = (1, 0, 0, 0) (``quaternion.rk4_step_matrices``).
-    Jacobian: the adjoint rows lambda_n = (dr/dq) A_{N-1} .. A_{n+1} run backwards, and
-    dr/dC_ij = sum_n lambda_n (dA_n/dw0_i x0_j + dA_n/dw1_i x1_j) s_n (``quaternion.rk4_adjoint``),
-    since w = C x. Padding steps (dt = 0, x = 0) are identities and add nothing.
+    Forward: s_{n+1} = s_n (x) a_n from s_0 = (1, 0, 0, 0) (``quaternion.rk4_step``), i.e.
+    s_{n+1} = A_n s_n with A_n = R(a_n). Jacobian: the adjoint rows
+    lambda_n = (dr/dq) A_{N-1} .. A_{n+1} run backwards, and since dA_n s_n = s_n (x) da_n,
+
+        dr/dC_ij = sum_n lambda_n L(s_n) (da_n/dw0_i x0_j + da_n/dw1_i x1_j)
+
+    (w = C x, L the left-multiplication matrix). Padding steps (dt = 0, x = 0) are identities
+    and add nothing.
     """
 
     def __init__(self, blocks: GyroBlocks):
@@ -247,17 +251,19 @@ class _GyroModel:
         if key == self._key:
             return
         c = np.asarray(cflat, float).reshape(3, 3)
-        self.mats = quat.rk4_step_matrices(self.x0 @ c.T, self.x1 @ c.T, self.dt)
+        step, self.stages = quat.rk4_step(self.x0 @ c.T, self.x1 @ c.T, self.dt)
         nb, length = self.mask.shape
-        a = np.broadcast_to(np.eye(4), (nb, length, 4, 4)).copy()
-        a[self.mask] = self.mats[0]
-        s = np.empty((nb, length + 1, 4))
-        s[:, 0] = (1.0, 0.0, 0.0, 0.0)
+        a = np.zeros((nb, length, 4))
+        a[..., 0] = 1.0
+        a[self.mask] = step
+        step_matrix = quat.right_matrix(a)
+        s = np.empty((nb, length + 1, 4, 1))
+        s[:, 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
         for n in range(length):
-            s[:, n + 1] = (a[:, n] @ s[:, n, :, None])[:, :, 0]
-        self.a = a
-        self.states = s
-        self.r, self.dr_dq = quat.rotate_inverse(s[:, -1], self.blocks.u0)
+            s[:, n + 1] = step_matrix[:, n] @ s[:, n]
+        self.step_matrix = step_matrix
+        self.states = s[..., 0]
+        self.r, self.dr_dq = quat.rotate_inverse(self.states[:, -1], self.blocks.u0)
         self._key = key
 
     def residual(self, cflat: np.ndarray) -> np.ndarray:
@@ -270,8 +276,11 @@ class _GyroModel:
         lam = np.empty((nb, length, 3, 4))
         lam[:, -1] = self.dr_dq
         for n in range(length - 1, 0, -1):
-            lam[:, n - 1] = lam[:, n] @ self.a[:, n]
-        g0, g1 = quat.rk4_adjoint(lam[self.mask], self.states[:, :-1][self.mask], self.dt, *self.mats[1:])
+            lam[:, n - 1] = lam[:, n] @ self.step_matrix[:, n]
+        u = lam[self.mask] @ quat.left_matrix(self.states[:, :-1][self.mask])      # (S, 3, 4)
+        da0, da1 = quat.rk4_step_derivative(self.dt, self.stages)                   # (S, 3, 4) each
+        g0 = u @ np.swapaxes(da0, -1, -2)                                           # (S, 3 res, 3 w)
+        g1 = u @ np.swapaxes(da1, -1, -2)
         per_step = g0[..., None] * self.x0[:, None, None, :] + g1[..., None] * self.x1[:, None, None, :]
         return (self.member @ per_step.reshape(len(self.dt), 27)).reshape(-1, 9)
 
@@ -292,7 +301,8 @@ def gyro_initial_guess(blocks: GyroBlocks) -> np.ndarray:
     angle = np.arccos(np.clip(np.sum(blocks.u0 * blocks.u1, axis=1), -1, 1)).sum()
     rate = np.sum(0.5 * (np.linalg.norm(blocks.x0, axis=2) + np.linalg.norm(blocks.x1, axis=2)) * blocks.dt)
     s0 = angle / rate if rate > 0 and angle > 0 else 1.0
-    grid = s0 * np.geomspace(0.7, 4.0, 9)
+    # the angle between gravity directions underestimates each move's rotation: search upwards
+    grid = s0 * np.geomspace(1.0, 3.0, 5)
     model = _GyroModel(blocks)
     costs = [np.sum(model.residual((s * np.eye(3)).ravel()) ** 2) for s in grid]
     return (grid[int(np.argmin(costs))] * np.eye(3)).ravel()
@@ -333,7 +343,7 @@ def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None):
     c0 = gyro_initial_guess(blocks) if start is None else np.asarray(start, float).ravel()
     model = _GyroModel(blocks)
     return least_squares(model.residual, c0, jac=model.jacobian, method="lm",
-                         x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
+                         x_scale="jac", ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=200)
 
 
 # ------------------------------------------------------------------------------------ the method

@@ -31,82 +31,92 @@ def omega_basis() -> np.ndarray:
     return _OMEGA_BASIS.copy()
 
 
-def rk4_step_matrices(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The RK4 step q_{n+1} = A q_n (before normalisation) and its stage matrices.
+def qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p (x) q of quaternion arrays (..., 4)."""
+    pw, px, py, pz = np.moveaxis(np.asarray(p, float), -1, 0)
+    qw, qx, qy, qz = np.moveaxis(np.asarray(q, float), -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
+                     pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx,
+                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
+
+
+def right_matrix(p: np.ndarray) -> np.ndarray:
+    """R(p) with R(p) q = q (x) p, shape (..., 4, 4); Omega(w) of eq. (1) is R((0, w))."""
+    w, x, y, z = np.moveaxis(np.asarray(p, float), -1, 0)
+    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, z, -y], -1),
+                     np.stack([y, -z, w, x], -1), np.stack([z, y, -x, w], -1)], -2)
+
+
+def left_matrix(p: np.ndarray) -> np.ndarray:
+    """L(p) with L(p) q = p (x) q, shape (..., 4, 4)."""
+    w, x, y, z = np.moveaxis(np.asarray(p, float), -1, 0)
+    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, -z, y], -1),
+                     np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], -2)
+
+
+def _pure(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, float)
+    return np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
+
+
+def rk4_step(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """One RK4 step of eq. (1) as a quaternion: q_{n+1} = q_n (x) a (before normalisation).
 
     With H = Omega/2 at the step's start (H0), midpoint (Hm, from the mean rate) and end (H1),
-    the classical RK4 stages of eq. (1) are k_i = B_i q with
+    the classical RK4 stages are k_i = B_i q with
 
         B1 = H0,  B2 = Hm (I + dt/2 B1),  B3 = Hm (I + dt/2 B2),  B4 = H1 (I + dt B3),
         A  = I + dt/6 (B1 + 2 B2 + 2 B3 + B4).                                         (2)
 
-    This is imu_tk's ``quatIntegrationStepRK4`` written as a matrix; normalising after every
-    step (as imu_tk does) only rescales q, so normalising once at the end gives the same
-    rotation.
+    Every H is a right multiplication, H = R(h) with h = (0, w/2), and R(x) R(y) = R(y (x) x),
+    so A = R(a) with the quaternion
 
-    Returns ``(A, H0, Hm, H1, B2, B3)``, each (..., 4, 4), for the derivative in
-    :func:`rk4_adjoint`.
+        b2 = hm + dt/2 h0 (x) hm,  b3 = hm + dt/2 b2 (x) hm,  b4 = h1 + dt b3 (x) h1,
+        a  = 1 + dt/6 (h0 + 2 b2 + 2 b3 + b4).                                         (3)
+
+    This is imu_tk's ``quatIntegrationStepRK4``; normalising after every step (as imu_tk does)
+    only rescales q, so normalising once at the end gives the same rotation.
+
+    Returns ``a`` (..., 4) and the stages (h0, hm, h1, b2, b3) for :func:`rk4_step_derivative`.
     """
+    w0 = np.asarray(w0, float)
+    w1 = np.asarray(w1, float)
+    dt = np.asarray(dt, float)[..., None]
+    h0 = _pure(0.5 * w0)
+    h1 = _pure(0.5 * w1)
+    hm = _pure(0.25 * (w0 + w1))
+    b2 = hm + 0.5 * dt * qmul(h0, hm)
+    b3 = hm + 0.5 * dt * qmul(b2, hm)
+    b4 = h1 + dt * qmul(b3, h1)
+    a = dt / 6.0 * (h0 + 2.0 * b2 + 2.0 * b3 + b4)
+    a[..., 0] += 1.0
+    return a, (h0, hm, h1, b2, b3)
+
+
+def rk4_step_matrices(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """The step matrix A = R(a) of eq. (2) (..., 4, 4)."""
+    return right_matrix(rk4_step(w0, w1, dt)[0])
+
+
+def rk4_step_derivative(dt: np.ndarray, stages: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """da/dw0_i and da/dw1_i of eq. (3) by the product rule, each (..., 3, 4) (i = x, y, z).
+
+    For w0: dh0 = (0, e_i)/2, dhm = (0, e_i)/4, dh1 = 0; for w1: dh0 = 0, dhm = (0, e_i)/4,
+    dh1 = (0, e_i)/2.
+    """
+    h0, hm, h1, b2, b3 = (x[..., None, :] for x in stages)
     dt = np.asarray(dt, float)[..., None, None]
-    h0 = 0.5 * omega_matrix(w0)
-    h1 = 0.5 * omega_matrix(w1)
-    hm = 0.5 * omega_matrix(0.5 * (np.asarray(w0) + np.asarray(w1)))
-    eye = np.eye(4)
-    b2 = hm + 0.5 * dt * hm @ h0
-    b3 = hm + 0.5 * dt * hm @ b2
-    b4 = h1 + dt * h1 @ b3
-    a = eye + dt / 6.0 * (h0 + 2.0 * b2 + 2.0 * b3 + b4)
-    return a, h0, hm, h1, b2, b3
+    unit = _pure(np.eye(3))                                 # (3, 4): (0, e_i)
 
+    def derivative(alpha: float, beta: float, gamma: float) -> np.ndarray:
+        dh0, dhm, dh1 = alpha * unit, beta * unit, gamma * unit
+        db2 = dhm + 0.5 * dt * (qmul(dh0, hm) + qmul(h0, dhm))
+        db3 = dhm + 0.5 * dt * (qmul(db2, hm) + qmul(b2, dhm))
+        db4 = dh1 + dt * (qmul(db3, h1) + qmul(b3, dh1))
+        return dt / 6.0 * (dh0 + 2.0 * db2 + 2.0 * db3 + db4)
 
-# Each E_i is a signed permutation: (E_i r)_k = _SIGN[i, k] * r[_PERM[i, k]].
-_PERM = np.argmax(np.abs(_OMEGA_BASIS), axis=2)
-_SIGN = np.take_along_axis(_OMEGA_BASIS, _PERM[:, :, None], axis=2)[:, :, 0]
-
-
-def _bilinear(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """l E_i r for the three basis matrices: left (..., R, 4), right (..., 4) -> (..., R, 3)."""
-    er = right[..., _PERM] * _SIGN                               # (..., 3, 4): row i = E_i r
-    return np.sum(left[..., :, None, :] * er[..., None, :, :], axis=-1)
-
-
-def rk4_adjoint(lam: np.ndarray, s: np.ndarray, dt: np.ndarray, h0: np.ndarray, hm: np.ndarray,
-                h1: np.ndarray, b2: np.ndarray, b3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """lambda (dA/dw0_i) s and lambda (dA/dw1_i) s for every step: the Jacobian's building block.
-
-    For the chain q_N = A_{N-1} .. A_0 q_0, the derivative of a function of q_N with respect to
-    the start rate w0 (end rate w1) of step n is lambda_n (dA_n/dw) s_n, with s_n = A_{n-1}..A_0 q_0
-    and lambda_n = (d f/d q_N) A_{N-1} .. A_{n+1}. dA follows from eq. (2) by the product rule
-    with dH0 = E_i/2, dHm = E_i/4 (w0) or dH1 = E_i/2, dHm = E_i/4 (w1); contracting with
-    lambda and s first keeps every term a vector product.
-
-    lam: (..., R, 4) row vectors, s: (..., 4); returns two arrays (..., R, 3).
-    """
-    h = np.asarray(dt, float)[..., None, None]
-    r0 = (h0 @ s[..., None])[..., 0]
-    r2 = (b2 @ s[..., None])[..., 0]
-    r3 = (b3 @ s[..., None])[..., 0]
-    lm = lam @ hm
-    l1 = lam @ h1
-    lmm = lm @ hm
-    l1m = l1 @ hm
-    l1mm = l1m @ hm
-    t_ls, t_l0, t_l2, t_l3 = (_bilinear(lam, r) for r in (s, r0, r2, r3))
-    t_ms, t_m0, t_mms = _bilinear(lm, s), _bilinear(lm, r0), _bilinear(lmm, s)
-    t_1s, t_12 = _bilinear(l1, s), _bilinear(l1, r2)
-    t_1ms, t_1m0, t_1mms = _bilinear(l1m, s), _bilinear(l1m, r0), _bilinear(l1mm, s)
-
-    def contract(alpha: float, beta: float, gamma: float) -> np.ndarray:
-        d_h0 = alpha * t_ls
-        d_b2 = beta * t_ls + 0.5 * h * (beta * t_l0 + alpha * t_ms)
-        m_b2 = beta * t_ms + 0.5 * h * (beta * t_m0 + alpha * t_mms)
-        d_b3 = beta * t_ls + 0.5 * h * (beta * t_l2 + m_b2)
-        m1_b2 = beta * t_1ms + 0.5 * h * (beta * t_1m0 + alpha * t_1mms)
-        m1_b3 = beta * t_1s + 0.5 * h * (beta * t_12 + m1_b2)
-        d_b4 = gamma * t_ls + h * (gamma * t_l3 + m1_b3)
-        return h / 6.0 * (d_h0 + 2.0 * d_b2 + 2.0 * d_b3 + d_b4)
-
-    return contract(0.5, 0.25, 0.0), contract(0.0, 0.25, 0.5)
+    return derivative(0.5, 0.25, 0.0), derivative(0.0, 0.25, 0.5)
 
 
 def to_rotation(q: np.ndarray) -> np.ndarray:
