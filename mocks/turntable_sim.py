@@ -1,0 +1,196 @@
+"""A simulated motorized turntable on its own pseudo-terminal, carrying a simulated unit.
+
+It speaks the table protocol of ``drivers/turntable.py`` and moves the :class:`~mocks.device.SimDevice`
+mounted on it: ``POSE +x`` becomes a smooth move of the unit to +x up, ``ROT +z 360 90`` a turn
+about the unit's z axis held vertical, with the rig's trapezoidal rate profile. The table is
+MOVING until the unit's device clock passes the end of the commanded motion, so a host that waits
+for IDLE and a host that watches the unit's samples see the same motion.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import math
+import os
+import re
+import select
+import threading
+import time
+import tty
+
+import numpy as np
+
+from mocks.device import SimDevice
+
+_POSE_RE = re.compile(r"^(?:[+-][xyz]){1,3}$")
+_AXIS_RE = re.compile(r"^[+-][xyz]$")
+MAX_TURN_DEG = 3600.0
+MAX_RATE_DPS = 720.0
+
+
+def _up_vector(label: str) -> np.ndarray:
+    v = np.zeros(3)
+    for sign, axis in re.findall(r"([+-])([xyz])", label):
+        v["xyz".index(axis)] = 1.0 if sign == "+" else -1.0
+    return v / np.linalg.norm(v)
+
+
+class TurntableSim:
+    """``with TurntableSim(server.device) as table: Turntable(table.port_path)``.
+
+    Parameters
+    ----------
+    device : the simulated unit mounted on the table (the one a ``PtyServer`` serves).
+    slew_dps : speed of positioning moves; a move takes the angle between poses at this speed.
+    settle_s : still time the table adds after a turn before it reports IDLE.
+    serial : the table's own serial number (``ID?``).
+    """
+
+    model = "imu-sim-table"
+    firmware = "1.0.0"
+
+    def __init__(self, device: SimDevice, slew_dps: float = 180.0, settle_s: float = 0.2,
+                 serial: str = "TT-SIM-0001"):
+        self.device = device
+        self.slew_dps = slew_dps
+        self.settle_s = settle_s
+        self.serial = serial
+        self.up = "+z"
+        self.commands: list[str] = []
+        self.port_path = ""
+        self._master = -1
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._move_start = 0.0
+        self._move_end = 0.0  # device time at which the commanded motion (and its settle) ends
+        self._turn_deg = 0.0
+        self._error: BaseException | None = None
+
+    # ---- life cycle -------------------------------------------------------------------------------
+
+    def start(self) -> TurntableSim:
+        master, slave = os.openpty()
+        tty.setraw(master)
+        tty.setraw(slave)
+        self.port_path = os.ttyname(slave)
+        os.close(slave)
+        fcntl.fcntl(master, fcntl.F_SETFL, fcntl.fcntl(master, fcntl.F_GETFL) | os.O_NONBLOCK)
+        self._master = master
+        self._thread = threading.Thread(target=self._run, name="turntable-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self._master >= 0:
+            os.close(self._master)
+            self._master = -1
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise RuntimeError("the turntable simulator failed") from error
+
+    def __enter__(self) -> TurntableSim:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ---- serving ----------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        buffer = b""
+        try:
+            while not self._stop.is_set():
+                readable, _, _ = select.select([self._master], [], [], 0.05)
+                if not readable:
+                    continue
+                try:
+                    data = os.read(self._master, 4096)
+                except BlockingIOError:
+                    continue
+                except OSError as exc:
+                    if exc.errno != errno.EIO:  # EIO: nobody has the port open yet, or any more
+                        raise
+                    time.sleep(0.05)
+                    continue
+                buffer += data
+                while b"\n" in buffer:
+                    line, _, buffer = buffer.partition(b"\n")
+                    reply = self.handle(line.decode("ascii", "replace").strip())
+                    with contextlib.suppress(OSError):
+                        os.write(self._master, reply.encode("ascii") + b"\n")
+        except BaseException as exc:  # surfaced by stop()
+            self._error = exc
+
+    # ---- the controller ---------------------------------------------------------------------------
+
+    def _now(self) -> float:
+        return self.device.next_due_s()
+
+    def moving(self) -> bool:
+        return self._now() < self._move_end
+
+    def handle(self, line: str) -> str:
+        """One command line in, its reply line out (the protocol of ``drivers/turntable.py``)."""
+        with self._lock:
+            self.commands.append(line)
+            parts = line.split()
+            if not parts:
+                return "ERR 1 empty command"
+            name, args = parts[0].upper(), parts[1:]
+            if name == "ID?":
+                return f"ID {self.model},{self.serial},{self.firmware}"
+            if name == "STATE?":
+                return f"STATE {'MOVING' if self.moving() else 'IDLE'} {self.up} {self._turned():.3f}"
+            if name == "STOP":
+                self._move_end = self._now()
+                self.device.set_pose(self.up, move_s=0.2)
+                return "OK"
+            if name in ("HOME", "POSE", "ROT") and self.moving():
+                return "ERR 3 busy: the table is moving; wait for STATE? IDLE"
+            if name == "HOME":
+                return self._pose("+z") if not args else "ERR 2 HOME takes no argument"
+            if name == "POSE":
+                repeated = len(args) == 1 and len(set(args[0][1::2])) != len(args[0]) // 2
+                if len(args) != 1 or not _POSE_RE.match(args[0]) or repeated:
+                    return "ERR 2 POSE takes signed axes like +z, -x or +x+y"
+                return self._pose(args[0])
+            if name == "ROT":
+                return self._rotate(args)
+            return f"ERR 1 unknown command {parts[0]!r}"
+
+    def _turned(self) -> float:
+        span = self._move_end - self._move_start
+        if span <= 0:
+            return self._turn_deg
+        return self._turn_deg * min(1.0, max(0.0, (self._now() - self._move_start) / span))
+
+    def _pose(self, up: str) -> str:
+        angle = math.degrees(math.acos(float(np.clip(_up_vector(self.up) @ _up_vector(up), -1.0, 1.0))))
+        move_s = max(0.3, angle / self.slew_dps)
+        self._move_start = self._now()
+        self._move_end = self.device.set_pose(up, move_s=move_s)
+        self.up, self._turn_deg = up, 0.0
+        return "OK"
+
+    def _rotate(self, args: list[str]) -> str:
+        if len(args) != 3 or not _AXIS_RE.match(args[0]):
+            return "ERR 2 ROT takes <axis> <deg> <dps>, e.g. ROT +z 360 90"
+        try:
+            angle, rate = float(args[1]), float(args[2])
+        except ValueError:
+            return "ERR 2 ROT: <deg> and <dps> must be numbers"
+        if not (math.isfinite(angle) and 0 < abs(angle) <= MAX_TURN_DEG):
+            return f"ERR 2 ROT: the angle must be non-zero and within +-{MAX_TURN_DEG:g} deg"
+        if not (math.isfinite(rate) and 0 < rate <= MAX_RATE_DPS):
+            return f"ERR 2 ROT: the rate must be within 0..{MAX_RATE_DPS:g} deg/s"
+        sign = args[0][0] if angle > 0 else ("-" if args[0][0] == "+" else "+")
+        self._move_start = self._now()
+        self._move_end = self.device.rotate(sign + args[0][1], abs(angle), rate, self.settle_s)
+        self.up, self._turn_deg = "+" + args[0][1], angle if args[0][0] == "+" else -angle
+        return "OK"

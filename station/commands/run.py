@@ -1,0 +1,150 @@
+"""``imu-station run``: one unattended factory run of one unit, recorded, with an exit code."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import sys
+from pathlib import Path
+from typing import Any, NoReturn
+
+from station.errors import StationError
+from station.factory.plan import load_plan
+from station.factory.records import RecordStore, RunRecord
+from station.factory.run import RunRequest, configure_logging, run_unit
+from station.factory.simrig import SimulatedUnit
+
+NAME = "run"
+HELP = "run a factory plan on one unit unattended (turntable or --simulate), record it, exit with its outcome"
+DESCRIPTION = """\
+Run the plan's sequence on the unit at --port with the motorized turntable at --table-port placing
+and turning it, calibrate, judge every measurement against the plan's limits, export, and store one
+record (unit, station, start/end, outcome, phases, measurements with limits and units, attachments
+with SHA-256) in the record database. The raw capture, the parameter file and the exports are kept
+beside the record in FILES/<serial>/<start>-<run id>/, with record.json.
+
+One JSON record on stdout with --json (else a short summary); logs go to stderr."""
+EPILOG = """\
+exit codes:
+  0  pass: every measurement within its limits
+  1  fail: a measurement outside its limits (or the unit reports another serial than --serial)
+  2  aborted: a step kept failing its checks, the calibration could not be determined, Ctrl-C
+  3  device or link error: unit or turntable port missing, lost (unplugged) or not answering
+  4  usage or configuration error: bad options, a plan with an error (the message names the line)
+  5  timeout: the plan's run.timeout_s or run.step_timeout_s was exceeded
+
+environment: IMU_STATION_DB (default --db), IMU_STATION_ID (default --station)
+
+examples:
+  imu-station run --plan plan.yaml --port /dev/ttyUSB0 --table-port /dev/ttyUSB1 --serial A1234 --json
+  imu-station run --plan plan.yaml --simulate --seed 3 --serial SIM-3 --db postgresql://line@db/imu"""
+
+DEFAULT_DB = "imu-station-records.sqlite"
+
+
+def usage_error_exits_4(parser: argparse.ArgumentParser) -> None:
+    """argparse exits 2 on a usage error; on the factory line 2 means aborted, so make it 4."""
+    def error(message: str) -> NoReturn:
+        parser.print_usage(sys.stderr)
+        parser.exit(4, f"{parser.prog}: error: {message}\n")
+
+    parser.error = error  # type: ignore[method-assign]
+
+
+def add_db_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--db", default=None, metavar="URL",
+                        help="record database: a SQLite file path (default $IMU_STATION_DB or "
+                             f"{DEFAULT_DB}) or postgresql://user@host/dbname")
+
+
+def db_url(args: argparse.Namespace) -> str:
+    return args.db or os.environ.get("IMU_STATION_DB") or DEFAULT_DB
+
+
+def files_root(args: argparse.Namespace, url: str) -> Path:
+    """Where attachments go: --files, else beside a SQLite database, else ./imu-station-files."""
+    if args.files is not None:
+        return Path(args.files)
+    if "://" in url and not url.startswith("sqlite:///"):
+        return Path("imu-station-files")
+    db = Path(url.removeprefix("sqlite:///"))
+    return db.with_name(db.stem + "-files")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    usage_error_exits_4(parser)
+    parser.add_argument("--plan", required=True, type=Path, metavar="PLAN.yaml", help="the factory plan")
+    parser.add_argument("--port", metavar="PORT", help="the unit's serial port (device path or pyserial URL)")
+    parser.add_argument("--table-port", metavar="PORT", help="the turntable's serial port")
+    parser.add_argument("--simulate", action="store_true",
+                        help="a simulated unit on a simulated turntable, both on pseudo-terminals")
+    parser.add_argument("--seed", type=int, default=0, metavar="N",
+                        help="--simulate: the simulated unit's intrinsics and noise (default 0)")
+    parser.add_argument("--unplug-after", type=float, default=None, metavar="S",
+                        help="--simulate: pull the unit's cable after S seconds (to rehearse exit 3)")
+    parser.add_argument("--serial", required=True, metavar="SN",
+                        help="the unit's serial number; 'auto' takes the one the unit reports")
+    parser.add_argument("--station", default=None, metavar="ID",
+                        help="this station's id (default $IMU_STATION_ID or the host name)")
+    add_db_arguments(parser)
+    parser.add_argument("--files", type=Path, default=None, metavar="DIR",
+                        help="where captures, parameter files and exports are kept (default: beside a "
+                             "SQLite database as <name>-files/, else ./imu-station-files)")
+    parser.add_argument("--json", action="store_true", help="print the record as JSON on stdout")
+    parser.add_argument("--events", action="store_true",
+                        help="also write progress events as '@event {json}' lines on stderr (run-many)")
+
+
+def _check(args: argparse.Namespace) -> None:
+    if args.simulate and (args.port or args.table_port):
+        raise StationError("give either --simulate or --port/--table-port, not both")
+    if not args.simulate and not args.port:
+        raise StationError("give the unit's --port and the turntable's --table-port, or --simulate")
+    if not args.simulate and not args.table_port:
+        raise StationError("give the turntable's --table-port (a manual fixture is driven from a factory "
+                           "script through the Python API, station.factory.api)")
+    if (args.unplug_after is not None or args.seed) and not args.simulate:
+        raise StationError("--seed and --unplug-after apply to --simulate only")
+    if args.unplug_after is not None and args.unplug_after <= 0:
+        raise StationError(f"--unplug-after {args.unplug_after}: must be a positive number of seconds")
+
+
+def summary(record: RunRecord) -> str:
+    lines = [f"{record.outcome} {record.serial} (exit {record.exit_code})"
+             + (f": {record.reason}" if record.reason else "")]
+    for m in record.measurements().values():
+        if m.outcome == "UNSET":
+            continue
+        value = f"{m.value:.6g}" if isinstance(m.value, float) else str(m.value)
+        bounds = "" if m.low is None and m.high is None else \
+            f"  [{'' if m.low is None else f'{m.low:g}'} .. {'' if m.high is None else f'{m.high:g}'}]"
+        lines.append(f"  {m.outcome:4} {m.name:28} {value:>14} {m.unit:6}{bounds}")
+    lines.append(f"record {record.run_id}; files in {record.files_dir or '(none)'}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    _check(args)
+    plan = load_plan(args.plan)
+    station = args.station or os.environ.get("IMU_STATION_ID") or socket.gethostname()
+    url = db_url(args)
+    configure_logging(args.serial)
+    on_event = None
+    if args.events:
+        def on_event(event: dict[str, Any]) -> None:
+            sys.stderr.write("@event " + json.dumps(event) + "\n")
+            sys.stderr.flush()
+
+    request = RunRequest(plan=plan, serial=args.serial, station=station, port=args.port,
+                         table_port=args.table_port, files_root=files_root(args, url), on_event=on_event,
+                         simulate=SimulatedUnit(args.seed, unplug_after_s=args.unplug_after)
+                         if args.simulate else None)
+    with RecordStore.open(url) as store:
+        record = run_unit(request, store)
+    if args.json:
+        sys.stdout.write(json.dumps(record.to_dict(), indent=1, allow_nan=False) + "\n")
+    else:
+        print(summary(record))
+    return record.exit_code

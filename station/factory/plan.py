@@ -1,0 +1,343 @@
+"""The factory plan: what an unattended run does to each unit, as a YAML file.
+
+A plan names the sequence, the device rate, the engine settings, the pass/fail limits with their
+units, the run's time limits and the export formats::
+
+    schema: imu-station/plan/1
+    name: imu-line-a
+    sequence:                       # or just: sequence: six-position
+      name: six-position            # built-in (six-position, twelve-position, rotations) ...
+      # file: my-sequence.yaml      # ... or a sequence file, relative to the plan
+      rotations: true
+      hold_s: 2
+      rotation_rate_dps: 90
+      settle_s: 1
+    device: {rate_hz: 200}
+    engine: {method: turntable, gravity: 9.80665}   # or latitude: 45.07 (and height: 240)
+    run: {timeout_s: 300, step_timeout_s: 20, max_attempts: 2}
+    limits:
+      accel.bias:         {max_abs: 0.5, unit: m/s^2}
+      accel.scale_error:  {max_abs: 3, unit: "%"}
+      gyro.bias:          {max_abs: 2, unit: deg/s}
+      link.lost_fraction: {max: 0.001}
+    export: [c, json]
+
+Every limit applies to each component of its quantity (the three axes of a bias, the six
+off-diagonal terms of a misalignment) and is written in the unit it names. Every mistake is
+refused with the file, the line and what to write instead.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from station.acquisition import sequences
+from station.acquisition.sequences import Sequence
+from station.errors import InputFileError
+
+SCHEMA = "imu-station/plan/1"
+G0 = 9.80665
+DEG = math.pi / 180.0
+
+# unit name -> (dimension, factor to SI)
+UNITS: dict[str, tuple[str, float]] = {
+    "m/s^2": ("acceleration", 1.0), "mg": ("acceleration", G0 * 1e-3), "g": ("acceleration", G0),
+    "rad/s": ("rate", 1.0), "deg/s": ("rate", DEG), "dps": ("rate", DEG), "deg/h": ("rate", DEG / 3600.0),
+    "rad": ("angle", 1.0), "mrad": ("angle", 1e-3), "deg": ("angle", DEG),
+    "": ("ratio", 1.0), "%": ("ratio", 1e-2), "ppm": ("ratio", 1e-6),
+}
+
+# quantity -> (dimension, what it is)
+QUANTITIES: dict[str, tuple[str, str]] = {
+    "accel.bias": ("acceleration", "accelerometer bias b, per axis"),
+    "accel.scale_error": ("ratio", "accelerometer scale K - 1, per axis"),
+    "accel.misalignment": ("angle", "accelerometer misalignment S, six off-diagonal terms"),
+    "accel.residual_rms": ("acceleration", "accelerometer fit residual RMS"),
+    "gyro.bias": ("rate", "gyroscope bias b, per axis"),
+    "gyro.scale_error": ("ratio", "gyroscope scale K - 1, per axis"),
+    "gyro.misalignment": ("angle", "gyroscope misalignment S, six off-diagonal terms"),
+    "gyro.residual_rms": ("rate", "gyroscope fit residual RMS"),
+    "link.lost_fraction": ("ratio", "samples lost on the link over samples expected"),
+}
+SI_UNIT = {"acceleration": "m/s^2", "rate": "rad/s", "angle": "rad", "ratio": ""}
+EXPORT_FORMATS = ("c", "bin", "json", "yaml", "px4", "ardupilot")
+METHODS = ("turntable",)
+
+_TOP = {"schema", "name", "sequence", "device", "engine", "run", "limits", "export"}
+_SEQUENCE = {"name", "file", "rotations", "hold_s", "rotation_rate_dps", "settle_s"}
+_DEVICE = {"rate_hz", "protocol"}
+_ENGINE = {"method", "gravity", "latitude", "height"}
+_RUN = {"timeout_s", "step_timeout_s", "max_attempts"}
+_LIMIT = {"min", "max", "max_abs", "unit"}
+
+
+@dataclass(frozen=True)
+class LimitSpec:
+    """Limits of one quantity, in ``unit``; ``low``/``high`` None is unbounded on that side."""
+
+    quantity: str
+    low: float | None
+    high: float | None
+    unit: str
+    line: int
+
+    @property
+    def si_factor(self) -> float:
+        return UNITS[self.unit][1]
+
+    def check(self, value: float) -> bool:
+        """True when ``value`` (in this limit's unit) is within it; NaN never is."""
+        if not math.isfinite(value):
+            return False
+        return (self.low is None or value >= self.low) and (self.high is None or value <= self.high)
+
+
+@dataclass(frozen=True)
+class Plan:
+    path: Path
+    name: str
+    sha256: str
+    sequence: Sequence
+    rate_hz: int = 200
+    protocol: str = "native"
+    method: str = "turntable"
+    gravity: float | None = None
+    latitude: float | None = None
+    height: float = 0.0
+    timeout_s: float = 600.0
+    step_timeout_s: float = 30.0
+    max_attempts: int = 2
+    limits: tuple[LimitSpec, ...] = ()
+    export: tuple[str, ...] = ()
+
+    def limit(self, quantity: str) -> LimitSpec | None:
+        for spec in self.limits:
+            if spec.quantity == quantity:
+                return spec
+        return None
+
+
+class _Reader:
+    """Walks the composed YAML nodes so every refusal can name its line."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def fail(self, node: yaml.Node | None, problem: str, column: str | None = None) -> InputFileError:
+        line = node.start_mark.line + 1 if node is not None else None
+        return InputFileError(self.path, problem, line=line, column=column)
+
+    def mapping(self, node: yaml.Node, known: set[str], what: str) -> dict[str, yaml.Node]:
+        if not isinstance(node, yaml.MappingNode):
+            raise self.fail(node, f"{what} must be a mapping (key: value lines)")
+        out: dict[str, yaml.Node] = {}
+        for key_node, value_node in node.value:
+            key = self.scalar(key_node, "a key")
+            if known and key not in known:
+                raise self.fail(key_node, f"unknown key {key!r} in {what}; known keys are "
+                                f"{', '.join(sorted(known))}", column=key)
+            if key in out:
+                raise self.fail(key_node, f"key {key!r} appears twice in {what}", column=key)
+            out[key] = value_node
+        return out
+
+    def scalar(self, node: yaml.Node, what: str) -> str:
+        if not isinstance(node, yaml.ScalarNode):
+            raise self.fail(node, f"{what} must be a plain value")
+        return str(node.value)
+
+    def value(self, node: yaml.Node) -> Any:
+        if isinstance(node, yaml.ScalarNode) and node.style is None:
+            return yaml.safe_load(node.value)
+        return self.scalar(node, "a value")
+
+    def number(self, node: yaml.Node, key: str, positive: bool = True) -> float:
+        value = self.value(node)
+        good = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        if not good or (positive and value <= 0):
+            kind = "a positive number" if positive else "a number"
+            raise self.fail(node, f"'{key}' must be {kind}, not {getattr(node, 'value', '?')!r}", column=key)
+        return float(value)
+
+    def integer(self, node: yaml.Node, key: str) -> int:
+        value = self.value(node)
+        if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+            raise self.fail(node, f"'{key}' must be a positive whole number, not {node.value!r}", column=key)
+        return value
+
+    def boolean(self, node: yaml.Node, key: str) -> bool:
+        value = self.value(node)
+        if not isinstance(value, bool):
+            raise self.fail(node, f"'{key}' must be true or false, not {node.value!r}", column=key)
+        return value
+
+
+def load_plan(path: str | Path) -> Plan:
+    """Read and check a plan file (schema ``imu-station/plan/1``)."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+        text = raw.decode("utf-8")
+    except FileNotFoundError:
+        raise InputFileError(path, "does not exist; give the plan YAML (see examples/plan.yaml)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot be read: {exc}") from None
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise InputFileError(path, f"is not valid YAML: {getattr(exc, 'problem', exc)}",
+                             line=mark.line + 1 if mark else None) from None
+    r = _Reader(path)
+    if root is None:
+        raise InputFileError(path, "is empty; a plan needs at least 'schema', 'name' and 'sequence'")
+    top = r.mapping(root, _TOP, "the plan")
+    if "schema" not in top:
+        raise r.fail(root, f"has no 'schema'; the first line should be 'schema: {SCHEMA}'", column="schema")
+    if r.scalar(top["schema"], "'schema'") != SCHEMA:
+        raise r.fail(top["schema"], f"schema is {top['schema'].value!r}, this station reads {SCHEMA!r}",
+                     column="schema")
+    for key in ("name", "sequence"):
+        if key not in top:
+            raise r.fail(root, f"has no '{key}'", column=key)
+    fields: dict[str, Any] = {"name": r.scalar(top["name"], "'name'")}
+    fields["sequence"] = _sequence(r, top["sequence"])
+    if "device" in top:
+        dev = r.mapping(top["device"], _DEVICE, "'device'")
+        if "rate_hz" in dev:
+            fields["rate_hz"] = r.integer(dev["rate_hz"], "rate_hz")
+            if fields["rate_hz"] > 4000:
+                raise r.fail(dev["rate_hz"], "'rate_hz' above 4000 Hz is beyond the native protocol's range",
+                             column="rate_hz")
+        if "protocol" in dev:
+            protocol = r.scalar(dev["protocol"], "'protocol'")
+            if protocol != "native":
+                raise r.fail(dev["protocol"], f"protocol {protocol!r}: an unattended run sets the rate and "
+                             "asks the unit who it is, which only the native protocol can", column="protocol")
+    if "engine" in top:
+        fields.update(_engine(r, top["engine"]))
+    if "run" in top:
+        run = r.mapping(top["run"], _RUN, "'run'")
+        for key in ("timeout_s", "step_timeout_s"):
+            if key in run:
+                fields[key] = r.number(run[key], key)
+        if "max_attempts" in run:
+            fields["max_attempts"] = r.integer(run["max_attempts"], "max_attempts")
+    if "limits" in top:
+        fields["limits"] = _limits(r, top["limits"])
+    if "export" in top:
+        fields["export"] = _export(r, top["export"])
+    return Plan(path=path, sha256=hashlib.sha256(raw).hexdigest(), **fields)
+
+
+def _sequence(r: _Reader, node: yaml.Node) -> Sequence:
+    if isinstance(node, yaml.ScalarNode):
+        spec: dict[str, yaml.Node] = {"name": node}
+    else:
+        spec = r.mapping(node, _SEQUENCE, "'sequence'")
+    if ("name" in spec) == ("file" in spec):
+        raise r.fail(node, "'sequence' needs either 'name' (a built-in: "
+                     f"{', '.join(sequences.BUILTIN)}) or 'file' (a sequence YAML), not both or neither")
+    hold = r.number(spec["hold_s"], "hold_s") if "hold_s" in spec else 5.0
+    rate = r.number(spec["rotation_rate_dps"], "rotation_rate_dps") if "rotation_rate_dps" in spec else 90.0
+    settle = r.number(spec["settle_s"], "settle_s") if "settle_s" in spec else 1.0
+    if "file" in spec:
+        extra = [k for k in ("rotations", "hold_s", "rotation_rate_dps", "settle_s") if k in spec]
+        if extra:
+            raise r.fail(spec[extra[0]], f"'{extra[0]}' applies to built-in sequences; a sequence file "
+                         "sets its own timing", column=extra[0])
+        target = Path(r.scalar(spec["file"], "'file'"))
+        if not target.is_absolute():
+            target = r.path.parent / target
+        return sequences.load_yaml(target)
+    name = r.scalar(spec["name"], "'name'")
+    if name not in sequences.BUILTIN:
+        raise r.fail(spec["name"], f"unknown sequence {name!r}; built-in ones are "
+                     f"{', '.join(sequences.BUILTIN)}, or give 'file: my-sequence.yaml'", column="name")
+    rotations = r.boolean(spec["rotations"], "rotations") if "rotations" in spec else True
+    return sequences.builtin(name, rotations, hold, rate, settle)
+
+
+def _engine(r: _Reader, node: yaml.Node) -> dict[str, Any]:
+    eng = r.mapping(node, _ENGINE, "'engine'")
+    out: dict[str, Any] = {}
+    if "method" in eng:
+        method = r.scalar(eng["method"], "'method'")
+        if method not in METHODS:
+            raise r.fail(eng["method"], f"method {method!r}: a factory run captures a labelled sequence, "
+                         f"so the method is one of {', '.join(METHODS)}", column="method")
+        out["method"] = method
+    if "gravity" in eng and "latitude" in eng:
+        raise r.fail(eng["latitude"], "give either 'gravity' or 'latitude' (and 'height'), not both",
+                     column="latitude")
+    if "gravity" in eng:
+        g = r.number(eng["gravity"], "gravity")
+        if not 9.7 <= g <= 9.9:
+            raise r.fail(eng["gravity"], f"gravity {g}: local gravity on Earth is 9.78..9.84 m/s^2",
+                         column="gravity")
+        out["gravity"] = g
+    if "latitude" in eng:
+        lat = r.number(eng["latitude"], "latitude", positive=False)
+        if not -90 <= lat <= 90:
+            raise r.fail(eng["latitude"], f"latitude {lat}: must be within -90..90 degrees",
+                         column="latitude")
+        out["latitude"] = lat
+    if "height" in eng:
+        if "latitude" not in eng:
+            raise r.fail(eng["height"], "'height' needs 'latitude' (normal gravity at the station)",
+                         column="height")
+        out["height"] = r.number(eng["height"], "height", positive=False)
+    return out
+
+
+def _limits(r: _Reader, node: yaml.Node) -> tuple[LimitSpec, ...]:
+    entries = r.mapping(node, set(), "'limits'")
+    out = []
+    for quantity, value_node in entries.items():
+        key_node = next(k for k, v in node.value if v is value_node)
+        if quantity not in QUANTITIES:
+            raise r.fail(key_node, f"unknown quantity {quantity!r}; limits can be set on "
+                         f"{', '.join(QUANTITIES)}", column=quantity)
+        dimension = QUANTITIES[quantity][0]
+        spec = r.mapping(value_node, _LIMIT, f"the limit of {quantity}")
+        unit = r.scalar(spec["unit"], "'unit'") if "unit" in spec else SI_UNIT[dimension]
+        allowed = [u for u, (d, _) in UNITS.items() if d == dimension]
+        if unit not in UNITS or UNITS[unit][0] != dimension:
+            raise r.fail(spec.get("unit", value_node), f"unit {unit!r} is not a unit of {quantity} "
+                         f"({dimension}); use one of {', '.join(repr(u) for u in allowed)}", column="unit")
+        if "max_abs" in spec and ("min" in spec or "max" in spec):
+            raise r.fail(spec["max_abs"], "give either 'max_abs' or 'min'/'max', not both", column="max_abs")
+        if "max_abs" in spec:
+            bound = r.number(spec["max_abs"], "max_abs")
+            low, high = -bound, bound
+        else:
+            low = r.number(spec["min"], "min", positive=False) if "min" in spec else None
+            high = r.number(spec["max"], "max", positive=False) if "max" in spec else None
+            if low is None and high is None:
+                raise r.fail(value_node, f"the limit of {quantity} needs 'max_abs', 'min' or 'max'")
+            if low is not None and high is not None and low > high:
+                raise r.fail(spec["min"], f"'min' {low} is above 'max' {high}", column="min")
+        out.append(LimitSpec(quantity, low, high, unit, key_node.start_mark.line + 1))
+    return tuple(out)
+
+
+def _export(r: _Reader, node: yaml.Node) -> tuple[str, ...]:
+    if not isinstance(node, yaml.SequenceNode):
+        raise r.fail(node, f"'export' must be a list of formats, e.g. [c, json]; formats are "
+                     f"{', '.join(EXPORT_FORMATS)}", column="export")
+    out = []
+    for item in node.value:
+        fmt = r.scalar(item, "an export format")
+        if fmt not in EXPORT_FORMATS:
+            raise r.fail(item, f"unknown export format {fmt!r}; formats are {', '.join(EXPORT_FORMATS)}",
+                         column="export")
+        if fmt in out:
+            raise r.fail(item, f"export format {fmt!r} is listed twice", column="export")
+        out.append(fmt)
+    return tuple(out)

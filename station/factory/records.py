@@ -1,0 +1,350 @@
+"""Test records, modelled on OpenHTF's: one record per unit run, phases, measurements, attachments.
+
+A :class:`RunRecord` holds the unit (serial), the station, start and end, the outcome (PASS,
+FAIL, ABORTED, TIMEOUT, ERROR), and its phases; each :class:`Phase` holds measurements (value,
+limits, unit, outcome) and attachments (files kept beside the record, with their SHA-256).
+
+Records are stored in SQLite (WAL mode, so several station processes write one file) or in
+PostgreSQL (``postgresql://...``, through psycopg: the optional extra ``postgres``), in the
+tables ``runs``, ``phases``, ``measurements`` and ``attachments``; ``runs.record`` also keeps the
+whole record as JSON, which is what queries return.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import sqlite3
+import uuid
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from station.errors import StationError
+
+SCHEMA = "imu-station/record/1"
+OUTCOMES = ("PASS", "FAIL", "ABORTED", "TIMEOUT", "ERROR")
+EXIT_CODES = {"PASS": 0, "FAIL": 1, "ABORTED": 2, "ERROR": 3, "TIMEOUT": 5}
+
+
+def utc_now() -> str:
+    """Now in UTC, ISO 8601 with microseconds: sorts as text, in SQLite and PostgreSQL alike."""
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def sha256_file(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+@dataclass
+class Measurement:
+    """One measured value; ``low``/``high`` in ``unit``; outcome PASS, FAIL or UNSET (no limits)."""
+
+    name: str
+    value: float | str | None
+    unit: str = ""
+    low: float | None = None
+    high: float | None = None
+    outcome: str = "UNSET"
+    doc: str = ""
+
+
+@dataclass
+class Attachment:
+    """A file kept beside the record: ``path`` relative to the record's directory."""
+
+    name: str
+    path: str
+    sha256: str
+    size: int
+    mimetype: str = "application/octet-stream"
+
+
+@dataclass
+class Phase:
+    name: str
+    start: str = field(default_factory=utc_now)
+    end: str = ""
+    outcome: str = "PASS"  # PASS, FAIL, SKIP, ERROR
+    measurements: list[Measurement] = field(default_factory=list)
+    attachments: list[Attachment] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class RunRecord:
+    """Everything about one unit's run. ``files_dir`` is where its attachments are."""
+
+    serial: str
+    station: str
+    plan: dict[str, Any]
+    run_id: str = field(default_factory=lambda: uuid.uuid4().hex)
+    start: str = field(default_factory=utc_now)
+    end: str = ""
+    outcome: str = "ERROR"
+    exit_code: int = 3
+    reason: str = ""
+    device: dict[str, Any] = field(default_factory=dict)
+    files_dir: str = ""
+    phases: list[Phase] = field(default_factory=list)
+    schema: str = SCHEMA
+
+    def finish(self, outcome: str, reason: str = "") -> None:
+        if outcome not in OUTCOMES:
+            raise ValueError(f"outcome {outcome!r} is not one of {OUTCOMES}")
+        self.outcome = outcome
+        self.exit_code = EXIT_CODES[outcome]
+        self.reason = reason
+        self.end = utc_now()
+
+    def measurements(self) -> dict[str, Measurement]:
+        return {m.name: m for p in self.phases for m in p.measurements}
+
+    def attachments(self) -> list[Attachment]:
+        return [a for p in self.phases for a in p.attachments]
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RunRecord:
+        if d.get("schema") != SCHEMA:
+            raise StationError(f"a stored record has schema {d.get('schema')!r}, this station reads "
+                               f"{SCHEMA!r}")
+        phases = [Phase(**{**p, "measurements": [Measurement(**m) for m in p["measurements"]],
+                           "attachments": [Attachment(**a) for a in p["attachments"]]}) for p in d["phases"]]
+        return cls(**{**d, "phases": phases})
+
+    def verify(self) -> list[str]:
+        """Problems with the attachments on disk (missing, or a SHA-256 that differs); empty when intact."""
+        problems = []
+        for a in self.attachments():
+            path = Path(self.files_dir) / a.path
+            if not path.exists():
+                problems.append(f"{path}: missing")
+            elif sha256_file(path) != a.sha256:
+                problems.append(f"{path}: SHA-256 differs from the record's")
+        return problems
+
+
+_DDL = [
+    """CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)""",
+    """CREATE TABLE IF NOT EXISTS runs (
+        run_id TEXT PRIMARY KEY, serial TEXT NOT NULL, station TEXT NOT NULL, plan_name TEXT NOT NULL,
+        plan_sha256 TEXT NOT NULL, start_utc TEXT NOT NULL, end_utc TEXT NOT NULL, outcome TEXT NOT NULL,
+        exit_code INTEGER NOT NULL, reason TEXT NOT NULL, files_dir TEXT NOT NULL, record TEXT NOT NULL)""",
+    """CREATE INDEX IF NOT EXISTS runs_serial ON runs (serial, start_utc)""",
+    """CREATE INDEX IF NOT EXISTS runs_start ON runs (start_utc)""",
+    """CREATE TABLE IF NOT EXISTS phases (
+        run_id TEXT NOT NULL, idx INTEGER NOT NULL, name TEXT NOT NULL, outcome TEXT NOT NULL,
+        start_utc TEXT NOT NULL, end_utc TEXT NOT NULL, PRIMARY KEY (run_id, idx))""",
+    """CREATE TABLE IF NOT EXISTS measurements (
+        run_id TEXT NOT NULL, phase TEXT NOT NULL, name TEXT NOT NULL, value DOUBLE PRECISION,
+        text_value TEXT, unit TEXT NOT NULL, low DOUBLE PRECISION, high DOUBLE PRECISION,
+        outcome TEXT NOT NULL, PRIMARY KEY (run_id, name))""",
+    """CREATE TABLE IF NOT EXISTS attachments (
+        run_id TEXT NOT NULL, phase TEXT NOT NULL, name TEXT NOT NULL, path TEXT NOT NULL,
+        sha256 TEXT NOT NULL, size BIGINT NOT NULL, mimetype TEXT NOT NULL, PRIMARY KEY (run_id, name))""",
+]
+
+
+def _date_bound(text: str, end: bool, what: str) -> str:
+    """``2026-11-22`` (the whole day for --until) or an ISO date-time, as the stored UTC text form."""
+    try:
+        if len(text) == 10:
+            day = _dt.date.fromisoformat(text)
+            moment = _dt.datetime.combine(day, _dt.time.max if end else _dt.time.min, _dt.UTC)
+        else:
+            moment = _dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+            if moment.tzinfo is None:
+                moment = moment.replace(tzinfo=_dt.UTC)
+    except ValueError:
+        raise StationError(f"{what} {text!r}: give a date (2026-11-22) or a date and time "
+                           "(2026-11-22T08:30:00Z)") from None
+    return moment.astimezone(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+class RecordStore:
+    """Where records go: ``RecordStore.open('records.sqlite')`` or ``open('postgresql://...')``."""
+
+    def __init__(self, conn: Any, placeholder: str, url: str):
+        self.conn = conn
+        self.ph = placeholder
+        self.url = url
+
+    @classmethod
+    def open(cls, url: str | Path) -> RecordStore:
+        url = str(url)
+        if url.startswith(("postgresql://", "postgres://")):
+            return cls._open_postgres(url)
+        path = Path(url.removeprefix("sqlite:///")) if url.startswith("sqlite:///") else Path(url)
+        return cls._open_sqlite(path)
+
+    @classmethod
+    def _open_sqlite(cls, path: Path) -> RecordStore:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            conn = sqlite3.connect(path, timeout=30.0, isolation_level=None)
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA busy_timeout=30000")
+        except (sqlite3.Error, OSError) as exc:
+            raise StationError(f"--db {path}: cannot open the SQLite record database: {exc}") from None
+        store = cls(conn, "?", str(path))
+        store._create()
+        return store
+
+    @classmethod
+    def _open_postgres(cls, url: str) -> RecordStore:
+        try:
+            import psycopg
+        except ImportError:
+            raise StationError("--db postgresql://...: psycopg is not installed; install the extra: "
+                               "pip install 'imu-station[postgres]'") from None
+        try:
+            conn = psycopg.connect(url, autocommit=True, connect_timeout=10)
+        except psycopg.Error as exc:
+            shown = url.split("@")[-1]
+            raise StationError(f"--db postgresql://...@{shown}: cannot connect: {exc}".strip()) from None
+        store = cls(conn, "%s", url)
+        store._create()
+        return store
+
+    @property
+    def is_postgres(self) -> bool:
+        return self.ph == "%s"
+
+    def _sql(self, text: str) -> str:
+        return text.replace("?", self.ph)
+
+    def _create(self) -> None:
+        with self._transaction() as cur:
+            if self.is_postgres:
+                # Several stations may create the tables at once: serialise on an advisory lock.
+                cur.execute("SELECT pg_advisory_xact_lock(8080808)")
+            for statement in _DDL:
+                cur.execute(statement)
+            cur.execute(self._sql("SELECT value FROM meta WHERE key = ?"), ("schema",))
+            row = cur.fetchone()
+            if row is None:
+                cur.execute(self._sql("INSERT INTO meta (key, value) VALUES (?, ?)"), ("schema", SCHEMA))
+            elif row[0] != SCHEMA:
+                raise StationError(f"--db {self.url}: holds records of schema {row[0]!r}, this station "
+                                   f"writes {SCHEMA!r}; use another database")
+
+    def _transaction(self) -> Any:
+        store = self
+
+        class _Tx:
+            def __enter__(self) -> Any:
+                if store.is_postgres:
+                    self.tx = store.conn.transaction()
+                    self.tx.__enter__()
+                    self.cur = store.conn.cursor()
+                else:
+                    self.cur = store.conn.cursor()
+                    self.cur.execute("BEGIN IMMEDIATE")
+                return self.cur
+
+            def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+                if store.is_postgres:
+                    self.cur.close()
+                    self.tx.__exit__(exc_type, exc, tb)
+                else:
+                    store.conn.execute("COMMIT" if exc_type is None else "ROLLBACK")
+                    self.cur.close()
+
+        return _Tx()
+
+    def save(self, record: RunRecord) -> None:
+        """Insert (or replace) one record with its phases, measurements and attachments, atomically."""
+        data = record.to_dict()
+        with self._transaction() as cur:
+            for table in ("attachments", "measurements", "phases", "runs"):
+                cur.execute(self._sql(f"DELETE FROM {table} WHERE run_id = ?"), (record.run_id,))
+            cur.execute(self._sql(
+                "INSERT INTO runs (run_id, serial, station, plan_name, plan_sha256, start_utc, end_utc, "
+                "outcome, exit_code, reason, files_dir, record) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"),
+                (record.run_id, record.serial, record.station, str(record.plan.get("name", "")),
+                 str(record.plan.get("sha256", "")), record.start, record.end, record.outcome,
+                 record.exit_code, record.reason, record.files_dir, json.dumps(data, allow_nan=False)))
+            for idx, phase in enumerate(record.phases):
+                cur.execute(self._sql("INSERT INTO phases (run_id, idx, name, outcome, start_utc, end_utc) "
+                                      "VALUES (?, ?, ?, ?, ?, ?)"),
+                            (record.run_id, idx, phase.name, phase.outcome, phase.start, phase.end))
+                for m in phase.measurements:
+                    number = m.value if isinstance(m.value, int | float) else None
+                    text = m.value if isinstance(m.value, str) else None
+                    cur.execute(self._sql(
+                        "INSERT INTO measurements (run_id, phase, name, value, text_value, unit, low, high, "
+                        "outcome) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)"),
+                        (record.run_id, phase.name, m.name, number, text, m.unit, m.low, m.high, m.outcome))
+                for a in phase.attachments:
+                    cur.execute(self._sql(
+                        "INSERT INTO attachments (run_id, phase, name, path, sha256, size, mimetype) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?)"),
+                        (record.run_id, phase.name, a.name, a.path, a.sha256, a.size, a.mimetype))
+
+    def query(self, serial: str | None = None, since: str | None = None, until: str | None = None,
+              station: str | None = None, outcome: str | None = None) -> list[RunRecord]:
+        """Records in start order; ``since``/``until`` are dates or ISO date-times (UTC when unzoned)."""
+        where, params = [], []
+        if serial is not None:
+            where.append("serial = ?")
+            params.append(serial)
+        if station is not None:
+            where.append("station = ?")
+            params.append(station)
+        if outcome is not None:
+            where.append("outcome = ?")
+            params.append(outcome.upper())
+        if since is not None:
+            where.append("start_utc >= ?")
+            params.append(_date_bound(since, False, "--since"))
+        if until is not None:
+            where.append("start_utc <= ?")
+            params.append(_date_bound(until, True, "--until"))
+        sql = "SELECT record FROM runs" + (" WHERE " + " AND ".join(where) if where else "")
+        sql += " ORDER BY start_utc, run_id"
+        cur = self.conn.cursor()
+        try:
+            cur.execute(self._sql(sql), tuple(params))
+            rows = cur.fetchall()
+        finally:
+            cur.close()
+        return [RunRecord.from_dict(json.loads(row[0])) for row in rows]
+
+    def table_counts(self) -> dict[str, int]:
+        """Rows per table (consistency checks)."""
+        cur = self.conn.cursor()
+        try:
+            out = {}
+            for table in ("runs", "phases", "measurements", "attachments"):
+                cur.execute(f"SELECT COUNT(*) FROM {table}")
+                out[table] = int(cur.fetchone()[0])
+            return out
+        finally:
+            cur.close()
+
+    def rows(self, sql: str, params: Iterable[Any] = ()) -> list[tuple]:
+        """Raw rows of a read query written with ``?`` placeholders (for reports and tests)."""
+        cur = self.conn.cursor()
+        try:
+            cur.execute(self._sql(sql), tuple(params))
+            return [tuple(r) for r in cur.fetchall()]
+        finally:
+            cur.close()
+
+    def close(self) -> None:
+        self.conn.close()
+
+    def __enter__(self) -> RecordStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,458 @@
+"""One unattended run of one unit: connect, sequence on the table, calibrate, judge, export, record.
+
+Phases, in order (each a phase of the record, OpenHTF style)::
+
+    connect    open the unit's port, ask who it is, set the plan's rate; open the table, home it
+    sequence   the plan's sequence through the sequence runner, the table placing and turning
+               the unit; the labelled raw capture is streamed to capture.csv beside the record
+    calibrate  the engine on the capture; parameters measured against the plan's limits
+    export     params.yaml and the plan's export formats, beside the record
+
+Outcome and exit code: PASS 0, FAIL 1 (a measurement outside its limits, or the unit reports
+another serial), ABORTED 2 (a step kept failing its checks, the calibration could not be
+determined, Ctrl-C), ERROR 3 (device, table or link error), TIMEOUT 5 (the plan's run or step
+time was exceeded). Whatever happens, the record is saved with every file written so far.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import logging
+import re
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drivers import open_device
+from drivers.errors import DriverError
+from drivers.interface import Device
+from drivers.turntable import Turntable
+from station.acquisition.operator import Action, BaseOperator, Operator, Prompt
+from station.acquisition.recorder import Recorder
+from station.acquisition.runner import RecorderSink, RunOptions, RunResult, SequenceRunner
+from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
+from station.engines.calibration_turntable import calibrate_turntable
+from station.engines.earth import STANDARD_GRAVITY, normal_gravity
+from station.errors import StationError
+from station.factory.measure import measure
+from station.factory.plan import Plan
+from station.factory.records import (
+    Attachment,
+    Measurement,
+    Phase,
+    RecordStore,
+    RunRecord,
+    sha256_file,
+    utc_now,
+)
+from station.factory.simrig import SimulatedUnit, simulated_rig
+from station.files import atomic_write_text
+
+log = logging.getLogger("imu_station.factory")
+
+EventSink = Callable[[dict[str, Any]], None]
+CALIBRATION_QUANTITIES = [
+    "accel.bias", "accel.scale_error", "accel.misalignment", "accel.residual_rms",
+    "gyro.bias", "gyro.scale_error", "gyro.misalignment", "gyro.residual_rms",
+]
+MIMETYPES = {".csv": "text/csv", ".yaml": "application/yaml", ".json": "application/json",
+             ".h": "text/x-c", ".c": "text/x-c", ".bin": "application/octet-stream",
+             ".params": "text/plain", ".param": "text/plain"}
+_SAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+class TableOperator(BaseOperator):
+    """The motorized table as the runner's operator: places the unit for each step and turns it.
+
+    A table error does not escape into the runner: it is kept in :attr:`error` and the next
+    :meth:`poll` aborts the run, so the samples captured so far are kept.
+    """
+
+    def __init__(self, table: Turntable, timeout_s: float = 30.0):
+        self.table = table
+        self.timeout_s = timeout_s
+        self.error: DriverError | None = None
+
+    def _do(self, what: Callable[[], None]) -> None:
+        if self.error is not None:
+            return
+        try:
+            what()
+        except DriverError as exc:
+            self.error = exc
+
+    def place(self, step: Step, index: int, total: int) -> None:
+        pose = step.label if isinstance(step, PoseStep) else step.start_pose
+        self._do(lambda: self.table.pose(pose, self.timeout_s))
+
+    def rotate(self, step: RotationStep) -> None:
+        self._do(lambda: self.table.rotate("+" + "xyz"[step.axis], step.angle_deg, step.rate_dps,
+                                           self.timeout_s))
+
+    def poll(self) -> Action | None:
+        return Action.ABORT if self.error is not None else None
+
+
+class FactoryOperator(BaseOperator):
+    """Nobody answers prompts on a line: start, retry a failed step while attempts last, then abort.
+
+    Wraps the operator that moves the unit (a table, a scripted fixture) and passes every event
+    on; aborts the run when ``deadline`` (time.monotonic) passes, or the inner operator asks.
+    """
+
+    def __init__(self, inner: Operator, deadline: float, on_event: EventSink | None = None):
+        self.inner = inner
+        self.deadline = deadline
+        self.on_event = on_event
+        self.timed_out = False
+
+    def _event(self, **kw: Any) -> None:
+        if self.on_event is not None:
+            self.on_event(kw)
+
+    def begin(self, sequence: Sequence) -> None:
+        self.inner.begin(sequence)
+        self._event(event="sequence", name=sequence.name, steps=len(sequence))
+
+    def place(self, step: Step, index: int, total: int) -> None:
+        log.info("step %d/%d: %s", index + 1, total, step.label)
+        self._event(event="step", label=step.label, index=index, total=total)
+        self.inner.place(step, index, total)
+
+    def rotate(self, step: RotationStep) -> None:
+        self.inner.rotate(step)
+
+    def status(self, status: Any) -> None:
+        self.inner.status(status)
+
+    def poll(self) -> Action | None:
+        if time.monotonic() > self.deadline:
+            self.timed_out = True
+            return Action.ABORT
+        return self.inner.poll()
+
+    def confirm(self, prompt: Prompt) -> Action:
+        if prompt.kind == "start":
+            return Action.ACCEPT
+        if prompt.kind == "review" and Action.REDO in prompt.choices:
+            label = prompt.step.label if prompt.step else ""
+            log.warning("step %s failed its checks (%s): trying again", label, "; ".join(prompt.details))
+            return Action.REDO
+        log.warning("%s", prompt.text)
+        return Action.ABORT
+
+    def step_finished(self, record: Any) -> None:
+        self.inner.step_finished(record)
+        self._event(event="step_done", label=record.label, status=record.status, attempts=record.attempts)
+
+    def end(self, result: RunResult) -> None:
+        self.inner.end(result)
+
+
+@dataclass
+class RunRequest:
+    """One unit to run. Give ``port`` and ``table_port``, or ``port`` and ``operator`` (a manual
+    fixture driven by a factory script), or ``simulate``."""
+
+    plan: Plan
+    serial: str = "auto"
+    station: str = "station"
+    port: str | None = None
+    table_port: str | None = None
+    operator: Operator | None = None
+    simulate: SimulatedUnit | None = None
+    files_root: Path = Path("imu-station-files")
+    on_event: EventSink | None = None
+
+
+class _Stop(Exception):
+    """Ends the run early with an outcome (the record is still completed and saved)."""
+
+    def __init__(self, outcome: str, reason: str):
+        super().__init__(reason)
+        self.outcome = outcome
+        self.reason = reason
+
+
+def _dir_name(text: str) -> str:
+    return _SAFE.sub("_", text).strip("._") or "unknown"
+
+
+class UnitRun:
+    """Runs :class:`RunRequest` into a :class:`RunRecord` (see the module docstring)."""
+
+    def __init__(self, request: RunRequest):
+        self.req = request
+        plan = request.plan
+        self.record = RunRecord(serial=request.serial, station=request.station,
+                                plan={"name": plan.name, "path": str(plan.path), "sha256": plan.sha256,
+                                      "sequence": plan.sequence.name})
+        self.deadline = time.monotonic() + plan.timeout_s
+        self.device: Device | None = None
+        self.table: Turntable | None = None
+        self.files: Path | None = None
+
+    def _event(self, **kw: Any) -> None:
+        if self.req.on_event is not None:
+            self.req.on_event({"serial": self.record.serial, **kw})
+
+    def _phase(self, name: str) -> Phase:
+        phase = Phase(name)
+        self.record.phases.append(phase)
+        log.info("phase %s", name)
+        self._event(event="phase", phase=name)
+        return phase
+
+    def _attach(self, phase: Phase, path: Path, name: str | None = None) -> None:
+        assert self.files is not None
+        rel = path.relative_to(self.files)
+        phase.attachments.append(Attachment(name or str(rel), str(rel), sha256_file(path),
+                                            path.stat().st_size,
+                                            MIMETYPES.get(path.suffix, "application/octet-stream")))
+
+    def _check_time(self, phase: Phase) -> None:
+        if time.monotonic() > self.deadline:
+            phase.outcome = "ERROR"
+            raise _Stop("TIMEOUT", f"the run took longer than the plan's timeout_s "
+                        f"({self.req.plan.timeout_s:g} s)")
+
+    def execute(self) -> RunRecord:
+        outcome, reason = "ERROR", ""
+        if self.req.simulate is None and (self.req.port is None
+                                          or (self.req.operator is None and self.req.table_port is None)):
+            raise StationError("give the unit's --port and the turntable's --table-port, or --simulate "
+                               "(a manual fixture is driven from a factory script: the Python API with a "
+                               "ScriptedOperator)")
+        try:
+            if self.req.simulate is not None:
+                serial = self.req.serial if self.req.serial != "auto" else f"SIM-{self.req.simulate.seed:06d}"
+                with simulated_rig(self.req.simulate, serial, self.req.plan.rate_hz) as ports:
+                    outcome, reason = self._run(ports.port, ports.table_port)
+            else:
+                outcome, reason = self._run(self.req.port, self.req.table_port)
+        except _Stop as stop:
+            outcome, reason = stop.outcome, stop.reason
+        except DriverError as exc:
+            outcome, reason = "ERROR", str(exc)
+        except KeyboardInterrupt:
+            outcome, reason = "ABORTED", "interrupted (Ctrl-C)"
+        finally:
+            for phase in self.record.phases:
+                phase.end = phase.end or utc_now()
+            self.record.finish(outcome, reason)
+            self._close()
+            if self.files is not None:
+                import json
+
+                atomic_write_text(self.files / "record.json",
+                                  json.dumps(self.record.to_dict(), indent=1, allow_nan=False) + "\n")
+        log.info("outcome %s%s", outcome, f": {reason}" if reason else "")
+        self._event(event="outcome", outcome=outcome, exit_code=self.record.exit_code, reason=reason)
+        return self.record
+
+    def _close(self) -> None:
+        for thing in (self.device, self.table):
+            if thing is not None:
+                with contextlib.suppress(Exception):
+                    thing.close()
+
+    def _run(self, port: str | None, table_port: str | None) -> tuple[str, str]:
+        plan = self.req.plan
+        phase = self._phase("connect")
+        try:
+            self._connect(phase, port, table_port)
+        except DriverError:
+            phase.outcome = "ERROR"
+            raise
+        phase.end = utc_now()
+        serial_ok = all(m.outcome != "FAIL" for m in phase.measurements)
+        self._check_time(phase)
+
+        phase = self._phase("sequence")
+        result = self._sequence(phase)
+        phase.end = utc_now()
+        stopped = self._sequence_outcome(result)
+        if stopped is not None:
+            phase.outcome = "ERROR" if stopped[0] in ("ERROR", "TIMEOUT") else "FAIL"
+            return stopped
+        self._check_time(phase)
+
+        phase = self._phase("calibrate")
+        try:
+            report = self._calibrate(phase, result)
+        except StationError as exc:
+            phase.outcome = "ERROR"
+            phase.end = utc_now()
+            return "ABORTED", f"calibration: {exc}"
+        phase.end = utc_now()
+
+        phase = self._phase("export")
+        try:
+            self._export(phase, report, plan)
+        except StationError as exc:
+            phase.outcome = "ERROR"
+            phase.end = utc_now()
+            return "ABORTED", f"export: {exc}"
+        phase.end = utc_now()
+        failed = [m for p in self.record.phases for m in p.measurements if m.outcome == "FAIL"]
+        if failed or not serial_ok:
+            names = ", ".join(m.name for m in failed[:6]) + (" ..." if len(failed) > 6 else "")
+            return "FAIL", f"outside limits: {names}"
+        return "PASS", ""
+
+    # ---- phases -------------------------------------------------------------------------------------
+
+    def _connect(self, phase: Phase, port: str, table_port: str | None) -> None:
+        plan = self.req.plan
+        self.device = open_device(port, protocol=plan.protocol)
+        info = self.device.get_info()
+        self.device.set_rate(plan.rate_hz)
+        self.device.start()
+        reported = str(info.get("serial", ""))
+        if self.record.serial == "auto":
+            if not reported:
+                raise StationError(f"{port}: the unit did not report a serial number; give --serial SN")
+            self.record.serial = reported
+        self.record.device = {"port": port, **{k: info.get(k) for k in ("serial", "model", "firmware")},
+                              "rate_hz": plan.rate_hz}
+        expected = self.record.serial
+        phase.measurements.append(Measurement(
+            "device.serial", reported, outcome="PASS" if reported == expected else "FAIL",
+            doc=f"serial the unit reports; expected {expected}"))
+        phase.measurements.append(Measurement("device.firmware", str(info.get("firmware", ""))))
+        day = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        self.files = (self.req.files_root / _dir_name(self.record.serial) /
+                      f"{day}-{self.record.run_id[:8]}").resolve()
+        self.files.mkdir(parents=True, exist_ok=True)
+        self.record.files_dir = str(self.files)
+        log.info("unit %s (%s, firmware %s) on %s at %d Hz", reported, info.get("model"),
+                 info.get("firmware"), port, plan.rate_hz)
+        if self.req.operator is None:
+            self.table = Turntable(table_port)
+            table_info = self.table.identify()
+            self.table.home()
+            phase.measurements.append(Measurement("table.serial", table_info.get("serial", "")))
+            log.info("turntable %s %s on %s", table_info.get("model"), table_info.get("serial"), table_port)
+
+    def _sequence(self, phase: Phase) -> RunResult:
+        plan = self.req.plan
+        assert self.device is not None and self.files is not None
+        inner: Operator = self.req.operator if self.req.operator is not None else TableOperator(self.table)
+        self._inner = inner
+        self._factory_op = FactoryOperator(inner, self.deadline, self._relay)
+        options = RunOptions(step_timeout_s=plan.step_timeout_s, max_attempts=plan.max_attempts)
+        capture_path = self.files / "capture.csv"
+        recorder = Recorder(capture_path, device=self.device.info, with_step=True, port=self.device.port,
+                            protocol=self.device.protocol)
+        try:
+            runner = SequenceRunner(self.device, plan.sequence, self._factory_op, options,
+                                    sink=RecorderSink(recorder, self.device))
+            result = runner.run()
+        finally:
+            recorder.close(self.device.stats.as_dict())
+            self._attach(phase, capture_path, "raw capture")
+        link = self.device.stats.as_dict()
+        accepted = sum(1 for s in result.steps if s.status == "accepted")
+        phase.measurements.append(Measurement("sequence.steps_accepted", float(accepted), "",
+                                              float(len(plan.sequence)), float(len(plan.sequence)),
+                                              "PASS" if accepted == len(plan.sequence) else "FAIL"))
+        attempts = float(sum(s.attempts for s in result.steps))
+        phase.measurements.append(Measurement("sequence.attempts", attempts))
+        phase.measurements.append(Measurement("capture.samples", float(len(result.capture))))
+        phase.measurements += measure(plan, ["link.lost_fraction"], None, link)
+        phase.notes += [f"{s.label}: {s.status} after {s.attempts} attempt(s)"
+                        + (f" ({'; '.join(s.problems)})" if s.problems else "") for s in result.steps]
+        self._link = link
+        return result
+
+    def _relay(self, event: dict[str, Any]) -> None:
+        self._event(**event)
+
+    def _sequence_outcome(self, result: RunResult) -> tuple[str, str] | None:
+        if result.outcome == "completed":
+            if all(s.status == "accepted" for s in result.steps):
+                return None
+            return "ABORTED", "not every step was accepted"
+        if result.outcome == "link-error":
+            return "ERROR", f"link lost during the sequence: {result.reason}"
+        if result.outcome == "timeout":
+            return "TIMEOUT", result.reason
+        table_error = getattr(self._inner, "error", None)
+        if table_error is not None:
+            return "ERROR", f"turntable: {table_error}"
+        if self._factory_op.timed_out:
+            return "TIMEOUT", f"the run took longer than the plan's timeout_s ({self.req.plan.timeout_s:g} s)"
+        return "ABORTED", result.reason
+
+    def _calibrate(self, phase: Phase, result: RunResult) -> Any:
+        plan = self.req.plan
+        capture = result.capture
+        if plan.gravity is not None:
+            gravity = plan.gravity
+        elif plan.latitude is not None:
+            gravity = normal_gravity(plan.latitude, plan.height)
+        else:
+            gravity = STANDARD_GRAVITY
+        report = calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
+                                     latitude_deg=plan.latitude, rate_hz=float(plan.rate_hz))
+        phase.measurements += measure(plan, CALIBRATION_QUANTITIES, report, self._link)
+        phase.notes += list(report.warnings)
+        if any(m.outcome == "FAIL" for m in phase.measurements):
+            phase.outcome = "FAIL"
+        return report
+
+    def _export(self, phase: Phase, report: Any, plan: Plan) -> None:
+        import argparse
+        import contextlib as _cl
+        import io
+
+        from station.commands import export
+        from station.export.params_file import ParamsFile
+
+        assert self.files is not None
+        params_path = self.files / "params.yaml"
+        params = ParamsFile()
+        params.update_device({**self.record.device, "serial": self.record.serial})
+        params.accel = report.accel
+        params.gyro = report.gyro
+        params.save(params_path)
+        self._attach(phase, params_path, "parameter file")
+        for fmt in plan.export:
+            target = self.files / ("c" if fmt == "c" else export.DEFAULT_NAMES[fmt])
+            parser = argparse.ArgumentParser()
+            export.add_arguments(parser)
+            args = parser.parse_args([str(params_path), "-f", fmt, "-o", str(target), "--json",
+                                      "--station-id", self.record.station])
+            with _cl.redirect_stdout(io.StringIO()):
+                export.run(args)
+            paths = sorted(p for p in target.rglob("*") if p.is_file()) if target.is_dir() else [target]
+            for path in paths:
+                self._attach(phase, path, f"export {fmt}: {path.name}")
+
+
+def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord:
+    """Run one unit and save its record in ``store`` (when given)."""
+    record = UnitRun(request).execute()
+    if store is not None:
+        store.save(record)
+    return record
+
+
+_LOG_LOCK = threading.Lock()
+
+
+def configure_logging(serial: str, stream: Any = None) -> None:
+    """Log lines on stderr, each naming the unit (several units' logs interleave on a line)."""
+    import sys
+
+    with _LOG_LOCK:
+        handler = logging.StreamHandler(stream or sys.stderr)
+        handler.setFormatter(logging.Formatter(f"%(asctime)s {serial} %(levelname)s %(message)s",
+                                               "%H:%M:%S"))
+        log.handlers[:] = [handler]
+        log.setLevel(logging.INFO)
+        log.propagate = False
