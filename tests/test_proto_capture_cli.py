@@ -120,3 +120,17 @@ def test_auto_on_noise_explains_what_it_saw(tmp_path: Path, capsys) -> None:
 def test_bad_column_options_are_usage_errors(tmp_path: Path, capsys, argv: list[str], words: str) -> None:
     code = main(["capture", "--port", "/dev/null-imu", *argv, "-o", str(tmp_path / "x.csv")])
     assert code == 4 and words in capsys.readouterr().err
+
+
+def test_protocol_options_on_the_command_line(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "imu2.csv"
+    with PtyServer(SimDevice(seed=5, rate_hz=50, encoder="mavlink-scaled"), record=True) as server:
+        code = main(["capture", "--port", server.port_path, "--protocol", "mavlink:SCALED_IMU", "--duration",
+                     "0.5", "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    assert len(read_capture(out)) >= 20
+    for bad, words in [("nmea", "unknown protocol 'nmea'"), ("xsens:fast", "unknown Xsens sample source"),
+                       ("native:x", "takes no option")]:
+        with pytest.raises(SystemExit):
+            main(["capture", "--port", "/dev/null-imu", "--protocol", bad, "-o", str(out)])
+        assert words in capsys.readouterr().err

@@ -26,7 +26,7 @@ from drivers.serial_device import open_serial
 from protocols.ascii_lines import parse_columns
 from protocols.detect import ENOUGH_BYTES, Detection, detect
 from protocols.mavlink import pymavlink_available
-from protocols.registry import DECODERS
+from protocols.registry import DECODER_OPTIONS, DECODERS, make_decoder
 from station.acquisition.recorder import CaptureResult, record
 from station.cli import EXIT_INTERRUPTED
 from station.errors import StationError
@@ -54,9 +54,11 @@ examples:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", required=True,
                         help="serial device path (/dev/ttyUSB0, a pty), or pyserial URL (sim://, loop://)")
-    parser.add_argument("--protocol", default="native", choices=sorted(DECODERS),
-                        help="wire protocol of the unit (default: native); auto: recognise it from the "
-                             "first bytes and say what was found")
+    parser.add_argument("--protocol", default="native", type=_protocol, metavar="NAME[:OPTION]",
+                        help=f"wire protocol of the unit: {', '.join(sorted(DECODERS))} (default: native); "
+                             f"auto: recognise it from the first bytes and say what was found. "
+                             f"{', '.join(DECODER_OPTIONS)} take an option: xsens:hr (the high-rate "
+                             f"packets), mavlink:SCALED_IMU2 (which IMU message), ascii:COLUMNS@HZ")
     parser.add_argument("--columns", metavar="SPEC",
                         help="with --protocol ascii: CSV columns and units, e.g. t:ms,ax:g,ay:g,az:g,gx:dps,"
                              "gy:dps,gz:dps (default: t,ax,ay,az,gx,gy,gz,temp in s, m/s^2, rad/s, degC)")
@@ -69,6 +71,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"line speed of a real serial port (default: {DEFAULT_BAUDRATE})")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="FILE",
                         help="capture file to write: .csv, or .h5/.hdf5 for the HDF5 capture file")
+
+
+def _protocol(text: str) -> str:
+    name = text.partition(":")[0]
+    if name not in DECODERS:
+        raise argparse.ArgumentTypeError(f"unknown protocol {name!r}; known: {', '.join(sorted(DECODERS))}")
+    if ":" in text:
+        try:
+            make_decoder(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def _positive_float(text: str) -> float:
@@ -195,7 +209,7 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
             parse_columns(columns)
         except ValueError as exc:
             raise StationError(f"--columns: {exc}") from None
-    if protocol == "mavlink" and not pymavlink_available():
+    if protocol.partition(":")[0] == "mavlink" and not pymavlink_available():
         raise StationError("--protocol mavlink needs pymavlink: pip install 'imu-station[mavlink]'")
     if protocol == "auto":
         found = sniff_protocol(port, baudrate)
