@@ -18,7 +18,8 @@ These formats carry no sample counter and, except CSV with a time column, no dev
 A line longer than ``max_line`` bytes is dropped (``length_errors``); a line whose numbers are
 malformed or implausible (beyond ``max_acc``, ``max_gyro``, ``temp_range``, or not finite) is a
 ``bad_payloads`` error; a sentence with a wrong checksum is a ``crc_errors`` error. Lines of
-text that hold no numbers (banners, headers) are returned as messages.
+text that hold no numbers (banners, headers) and tagged lines of other kinds (``Cal1:...``) are
+returned as messages.
 """
 
 from __future__ import annotations
@@ -131,6 +132,8 @@ class _Reject(ValueError):
 
 
 _LINE_END = re.compile(rb"[\r\n]")
+# "Cal1:...", "Info: ...": a tagged line of another kind, text for us (Raw: and Uni: are read before).
+_TAGGED = re.compile(r"[A-Za-z][A-Za-z0-9 _-]*:")
 
 
 class AsciiDecoder(StreamDecoderBase):
@@ -317,7 +320,7 @@ class AsciiDecoder(StreamDecoderBase):
                     messages.append(Message(MSG_VECTORNAV, line))
                     return
             else:
-                kind, values = "csv", self._csv(text)
+                kind, values = "csv", None if _TAGGED.match(text) else self._csv(text)
                 if values is None:
                     self._seen("text")
                     stats.frames += 1

@@ -251,3 +251,10 @@ def test_block_and_line_by_line_paths_give_the_same_samples() -> None:
     assert fast.tobytes() == slow.tobytes() and len(fast) == 200
     assert clean.kinds_seen["csv"] == mixed.kinds_seen["csv"] == 200 and mixed.kinds_seen["text"] == 2
     assert clean.clock_lines == mixed.clock_lines == 200
+
+
+def test_tagged_lines_of_other_kinds_are_text_not_errors() -> None:
+    dec = AsciiDecoder()
+    out = dec.feed(b"Raw:0,0,8192,0,0,0,0,0,0\nCal1:0.1,0.2,0.3,1,2,3,4,5,6,7\nInfo: 100 Hz\n")
+    assert len(out.samples) == 1 and dec.stats.errors == 0
+    assert [m.payload for m in out.messages] == [b"Cal1:0.1,0.2,0.3,1,2,3,4,5,6,7", b"Info: 100 Hz"]
