@@ -228,6 +228,8 @@ def test_unlabelled_recording_finds_its_poses() -> None:
     fit = fit_thermal(r.t, r.temp, r.acc, r.gyro, None, tau_s=5.0, **calibration(truth))
     assert sorted(fit.poses) == ["+z", "-x"]
     assert np.all(residual_share(fit, run, "accel")[0] < 0.03)
+    empty = np.full(len(r.t), "", dtype=object)  # a step column nobody filled in
+    assert sorted(fit_thermal(r.t, r.temp, r.acc, r.gyro, empty, tau_s=5.0, segments=1).poses) == ["+z", "-x"]
 
 
 def test_warns_of_a_narrow_span() -> None:

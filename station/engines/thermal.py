@@ -156,14 +156,15 @@ def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
     """Pose index of every sample (-1: moving or unlabelled) and the pose names.
 
     With step labels (capture-csv spec) every static label is a pose and rows between steps
-    or in rotation steps are left out. Without labels, one-second windows whose accelerometer
+    or in rotation steps are left out. Without labels (or with a step column left empty, as
+    an unlabelled recording writes it), one-second windows whose accelerometer
     or gyroscope spread exceeds five times the median spread are motion; still windows are
     grouped by the direction of their mean specific force (within 5 degrees).
     """
     n = len(t)
     pose = np.full(n, -1, dtype=int)
-    if step is not None:
-        labels = np.asarray(step).astype(str)
+    labels = np.asarray(step).astype(str) if step is not None else np.array([], dtype=str)
+    if np.any(labels != ""):
         static = (labels != "") & ~np.char.startswith(labels, "rot")
         names, pose[static] = np.unique(labels[static], return_inverse=True)
         return pose, [str(n) for n in names]
