@@ -18,7 +18,6 @@ without encoding sample by sample.
 
 from __future__ import annotations
 
-import math
 import struct
 import threading
 from collections.abc import Callable, Sequence
@@ -114,10 +113,8 @@ class SimDevice:
         return self.sampler.rate_hz
 
     def info(self) -> dict[str, object]:
-        info = self.truth.device_info(self.rate_hz)
         rate = self.rate_hz
-        info["rate_hz"] = int(rate) if float(rate).is_integer() else rate
-        return info
+        return self.truth.device_info(int(rate) if float(rate).is_integer() else rate)
 
     def next_due_s(self) -> float:
         """Device time at which the next sample is due."""
@@ -155,19 +152,11 @@ class SimDevice:
 
     # --- samples ---------------------------------------------------------------------------
 
-    def due_count(self, t_s: float) -> int:
-        """How many samples fall due at or before device time ``t_s`` and are not produced yet."""
-        s = self.sampler
-        last = s._k_base + math.floor((t_s - s._t_base) * s.rate_hz + 1e-9)
-        return max(0, last + 1 - s.count)
-
-    def produce(self, t_s: float, max_samples: int | None = None) -> np.ndarray:
+    def produce(self, t_s: float) -> np.ndarray:
         """Every sample due at or before ``t_s`` (``SAMPLE_DTYPE``). While streaming is stopped the
         unit still runs (time, motion and noise go on) but nothing is returned and seq holds."""
         with self._lock:
-            n = self.due_count(t_s)
-            if max_samples is not None:
-                n = min(n, max_samples)
+            n = self.sampler.due_count(t_s)
             if n == 0:
                 return np.zeros(0, dtype=SAMPLE_DTYPE)
             rec = self.sampler.next(n)

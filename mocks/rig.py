@@ -260,7 +260,7 @@ class Timeline:
         self._end_t = math.inf
 
     def _extend(self, t: float) -> None:
-        while self._end_t <= t:
+        while self.loop and self._end_t <= t:
             segs = [Move(DEFAULT_MOVE_S), *self._cycle]
             pieces, self._end_r, self._end_t = build_pieces(segs, self._end_r, self._end_t,
                                                             after_last=Move(DEFAULT_MOVE_S))
@@ -278,8 +278,8 @@ class Timeline:
                 return p.attitude_at(t)
         return self.pieces[-1].attitude_at(t)
 
-    def command(self, segments: Sequence[Segment], t: float, hold: bool = True) -> float:
-        """Drive the unit from time ``t`` with ``segments``; returns the time they end."""
+    def command(self, segments: Sequence[Segment], t: float) -> float:
+        """Drive the unit from time ``t`` with ``segments``, then hold; returns the time they end."""
         r = self.attitude_at(t)
         kept = [p for p in self.pieces if p.t0 < t]
         if kept:
@@ -288,8 +288,7 @@ class Timeline:
         self.pieces = kept + pieces
         self._end_t = end
         self.loop = False
-        if hold:
-            self._append_hold()
+        self._append_hold()
         return end
 
     def evaluate(self, t: np.ndarray,
@@ -506,6 +505,11 @@ class UnitSampler:
     def time_of(self, k: int) -> float:
         """Device-clock time (s) of sample number ``k`` under the current rate."""
         return self._t_base + (k - self._k_base) / self.rate_hz
+
+    def due_count(self, t_s: float) -> int:
+        """How many samples fall due at or before time ``t_s`` and are not produced yet."""
+        last = self._k_base + math.floor((t_s - self._t_base) * self.rate_hz + 1e-9)
+        return max(0, last + 1 - self.count)
 
     def set_rate(self, rate_hz: float) -> None:
         self._t_base = self.time_of(self.count)
