@@ -31,7 +31,7 @@ from drivers import open_device
 from drivers.errors import DriverError
 from drivers.interface import Device
 from drivers.turntable import Turntable
-from station.acquisition.operator import Action, BaseOperator, Operator, Prompt
+from station.acquisition.operator import Action, BaseOperator, Operator, Prompt, SimulatedOperator
 from station.acquisition.recorder import Recorder
 from station.acquisition.runner import RecorderSink, RunOptions, RunResult, SequenceRunner
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
@@ -231,6 +231,9 @@ class UnitRun:
             if self.req.simulate is not None:
                 serial = self.req.serial if self.req.serial != "auto" else f"SIM-{self.req.simulate.seed:06d}"
                 with simulated_rig(self.req.simulate, serial, self.req.plan.rate_hz) as ports:
+                    if self.req.operator is not None:
+                        # A manual fixture in simulation: a simulated hand does what the script asks.
+                        self.req.operator = SimulatedOperator(ports.rig, self.req.operator)
                     outcome, reason = self._run(ports.port, ports.table_port)
             else:
                 outcome, reason = self._run(self.req.port, self.req.table_port)

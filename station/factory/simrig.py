@@ -11,6 +11,7 @@ import contextlib
 import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -27,8 +28,11 @@ class SimulatedUnit:
 
 @dataclass(frozen=True)
 class SimulatedPorts:
+    """The two ports, and the simulated unit itself (a simulated hand for a manual fixture)."""
+
     port: str
     table_port: str
+    rig: Any
 
 
 @contextlib.contextmanager
@@ -44,4 +48,4 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float) -> Iterator[
     faults = FaultSpec(disconnect_after_s=unit.unplug_after_s) if unit.unplug_after_s is not None else None
     server = PtyServer(SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still"), faults=faults)
     with server, TurntableSim(server.device) as table:
-        yield SimulatedPorts(server.port_path, table.port_path)
+        yield SimulatedPorts(server.port_path, table.port_path, server.device)

@@ -1,0 +1,93 @@
+"""``imu-station records``: query the factory records by serial and date; export a unit's history."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from station.commands.run import add_db_arguments, db_url, usage_error_exits_4
+from station.errors import StationError
+from station.factory.records import OUTCOMES, RecordStore, RunRecord, utc_now
+from station.files import atomic_write_text
+
+NAME = "records"
+HELP = "list factory run records by serial and date, export a unit's history as JSON, verify files"
+DESCRIPTION = """\
+List the records of 'imu-station run' / 'run-many' from the record database (SQLite or PostgreSQL),
+oldest first, filtered by unit serial, station, outcome and start date (UTC). --json prints the
+full records (phases, measurements with limits and units, attachments with SHA-256); --export FILE
+writes them as one JSON document (schema imu-station/records-export/1), e.g. a unit's history
+with --serial. --verify re-hashes every attachment and reports missing or altered files."""
+EPILOG = """\
+exit codes: 0 done; 1 --verify found a missing or altered file; 4 bad option or database.
+
+examples:
+  imu-station records --serial A1234
+  imu-station records --since 2026-11-01 --until 2026-11-22 --outcome FAIL
+  imu-station records --serial A1234 --export A1234-history.json --verify
+  imu-station records --db postgresql://line@db/imu --station line-a-3 --json"""
+
+EXPORT_SCHEMA = "imu-station/records-export/1"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    usage_error_exits_4(parser)
+    add_db_arguments(parser)
+    parser.add_argument("--serial", metavar="SN", help="only this unit")
+    parser.add_argument("--station", metavar="ID", help="only this station")
+    parser.add_argument("--outcome", type=str.upper, choices=OUTCOMES, help="only this outcome")
+    parser.add_argument("--since", metavar="DATE", help="started on or after (2026-11-22 or ISO date-time)")
+    parser.add_argument("--until", metavar="DATE",
+                        help="started on or before (a date includes the whole day)")
+    parser.add_argument("--json", action="store_true", help="print the full records as JSON on stdout")
+    parser.add_argument("--export", type=Path, metavar="FILE.json", help="write the records as one JSON file")
+    parser.add_argument("--verify", action="store_true",
+                        help="check every attachment against its SHA-256 (exit 1 when one differs)")
+
+
+def _table(records: list[RunRecord]) -> Table:
+    table = Table(title=f"{len(records)} record(s)")
+    for column in ("start (UTC)", "serial", "station", "plan", "outcome", "failed", "run id"):
+        table.add_column(column)
+    for r in records:
+        failed = [m.name for m in r.measurements().values() if m.outcome == "FAIL"]
+        table.add_row(r.start[:19].replace("T", " "), r.serial, r.station, r.plan.get("name", ""), r.outcome,
+                      ", ".join(failed[:3]) + (" ..." if len(failed) > 3 else "") or r.reason[:40],
+                      r.run_id[:8])
+    return table
+
+
+def run(args: argparse.Namespace) -> int:
+    url = db_url(args)
+    if "://" not in url and not Path(url).exists():
+        raise StationError(f"--db {url}: no such record database; give the file 'imu-station run' wrote "
+                           "(or set IMU_STATION_DB)")
+    with RecordStore.open(url) as store:
+        records = store.query(args.serial, args.since, args.until, args.station, args.outcome)
+    problems: list[str] = []
+    if args.verify:
+        for r in records:
+            problems += [f"{r.serial} {r.run_id[:8]}: {p}" for p in r.verify()]
+    if args.export:
+        doc = {"schema": EXPORT_SCHEMA, "exported": utc_now(), "query": {
+            k: getattr(args, k) for k in ("serial", "station", "outcome", "since", "until")},
+            "records": [r.to_dict() for r in records]}
+        atomic_write_text(args.export, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    if args.json:
+        sys.stdout.write(json.dumps([r.to_dict() for r in records], indent=1, allow_nan=False) + "\n")
+    else:
+        console = Console(file=sys.stdout, width=160)
+        console.print(_table(records))
+        if args.export:
+            console.print(f"{args.export}: {len(records)} record(s) written")
+        if args.verify:
+            console.print(f"verified {sum(len(r.attachments()) for r in records)} attachment(s): "
+                          + ("all intact" if not problems else f"{len(problems)} problem(s)"))
+    for p in problems:
+        print(f"imu-station records: {p}", file=sys.stderr)
+    return 1 if problems else 0

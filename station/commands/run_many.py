@@ -1,0 +1,101 @@
+"""``imu-station run-many``: one ``run`` process per unit, a live summary table, the worst outcome."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rich.console import Console
+
+from station.commands.run import add_db_arguments, db_url, files_root, usage_error_exits_4
+from station.errors import StationError
+from station.factory.many import RunMany, UnitSpec, summary_table, worst_exit_code
+from station.factory.plan import load_plan
+
+NAME = "run-many"
+HELP = "run a factory plan on several units at once, one process per port, with a live summary table"
+DESCRIPTION = """\
+Start one 'imu-station run' process per unit (--port P with its --table-port T, in the same order;
+or --simulate N simulated units on simulated tables), follow them in a live table on stderr
+(unit, serial, phase, step, time, outcome), and print the summary (or, with --json, every unit's
+outcome and record) on stdout. Every unit's record goes to the one database --db; each unit's log
+lines go to FILES/logs/<start>-<unit>.log."""
+EPILOG = """\
+exit code: the worst of the units' exit codes (see 'imu-station run --help'), ranked
+  0 pass < 1 fail < 2 aborted < 5 timeout < 3 device or link error < 4 usage or configuration.
+
+examples:
+  imu-station run-many --plan plan.yaml --port /dev/ttyUSB0 --table-port /dev/ttyUSB1 \\
+                       --port /dev/ttyUSB2 --table-port /dev/ttyUSB3 --serial A1 --serial A2
+  imu-station run-many --plan plan.yaml --simulate 4 --db line.sqlite --json"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    usage_error_exits_4(parser)
+    parser.add_argument("--plan", required=True, type=Path, metavar="PLAN.yaml", help="the factory plan")
+    parser.add_argument("--port", action="append", default=[], metavar="PORT",
+                        help="a unit's serial port (repeat for each unit)")
+    parser.add_argument("--table-port", action="append", default=[], metavar="PORT",
+                        help="the turntable port of the unit given by the --port in the same position")
+    parser.add_argument("--serial", action="append", default=[], metavar="SN",
+                        help="serial numbers in --port order (default: each unit's own, as it reports it)")
+    parser.add_argument("--simulate", type=int, default=None, metavar="N",
+                        help="N simulated units on simulated turntables (seeds --seed .. --seed+N-1)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="--simulate: first seed (default 0)")
+    parser.add_argument("--station", default=None, metavar="ID",
+                        help="this station's id (default $IMU_STATION_ID or the host name)")
+    add_db_arguments(parser)
+    parser.add_argument("--files", type=Path, default=None, metavar="DIR",
+                        help="where captures, exports and logs are kept (as for 'run')")
+    parser.add_argument("--json", action="store_true", help="print every unit's outcome and record as JSON")
+
+
+def units_of(args: argparse.Namespace) -> list[UnitSpec]:
+    if args.simulate is not None:
+        if args.port or args.table_port:
+            raise StationError("give either --simulate N or --port/--table-port pairs, not both")
+        if not 1 <= args.simulate <= 64:
+            raise StationError(f"--simulate {args.simulate}: give 1 to 64 simulated units")
+        if args.serial and len(args.serial) != args.simulate:
+            raise StationError(f"{len(args.serial)} --serial for {args.simulate} simulated units")
+        serials = args.serial or ["auto"] * args.simulate
+        return [UnitSpec(f"sim {args.seed + i}", serials[i], seed=args.seed + i)
+                for i in range(args.simulate)]
+    if not args.port:
+        raise StationError("give --port P --table-port T for each unit, or --simulate N")
+    if len(args.table_port) != len(args.port):
+        raise StationError(f"{len(args.port)} --port but {len(args.table_port)} --table-port: each unit "
+                           "needs its turntable, in the same order")
+    if len(set(args.port)) != len(args.port) or len(set(args.table_port)) != len(args.table_port):
+        raise StationError("a port is given twice: each unit and each table has its own port")
+    if args.serial and len(args.serial) != len(args.port):
+        raise StationError(f"{len(args.serial)} --serial for {len(args.port)} --port: give one per unit "
+                           "or none")
+    serials = args.serial or ["auto"] * len(args.port)
+    return [UnitSpec(port, serials[i], port=port, table_port=args.table_port[i])
+            for i, port in enumerate(args.port)]
+
+
+def run(args: argparse.Namespace) -> int:
+    units = units_of(args)
+    plan = load_plan(args.plan)  # refused here, once, rather than by every child
+    url = db_url(args)
+    root = files_root(args, url)
+    common = ["--db", url, "--files", str(root)]
+    if args.station:
+        common += ["--station", args.station]
+    console = Console(stderr=True)
+    results = RunMany(plan.path.resolve(), units, common, root / "logs", console).run()
+    code = worst_exit_code([u.exit_code if u.exit_code is not None else 3 for u in results])
+    if args.json:
+        out = {"plan": plan.name, "exit_code": code, "units": [
+            {"unit": u.spec.label, "serial": u.serial or u.spec.serial, "outcome": u.outcome,
+             "exit_code": u.exit_code, "reason": u.reason, "elapsed_s": round(u.elapsed_s, 3),
+             "log": str(u.log_path), "record": u.record} for u in results]}
+        sys.stdout.write(json.dumps(out, indent=1, allow_nan=False) + "\n")
+    else:
+        table = summary_table(results, f"run-many {plan.name}: exit {code}")
+        Console(file=sys.stdout, width=140).print(table)
+    return code
