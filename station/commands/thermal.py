@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     err = Console(stderr=True)
     params = ParamsFile.load_or_new(args.output)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
-                  transient=True) as progress:
+                  transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task(f"reading {args.input}", total=1.0)
         capture = read_capture(args.input)
         if capture.temp is None:
