@@ -214,6 +214,8 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
         if restore is not None:
             restore()
         recorder.close(_link(device, recorder))
+    if on_status is not None:
+        on_status(device.stats, recorder.rows, recorder.device_time_s)
     return CaptureResult(path=recorder.path, rows=recorder.rows, device_time_s=recorder.device_time_s,
                          link=device.stats, ended_by=ended_by, error=error,
                          non_increasing=recorder.non_increasing)
