@@ -19,10 +19,11 @@ their own: the first kind of inertial packet seen (or ``source``: ``normal`` or 
 the samples, the other kind is returned as messages, so two rates never mix. DeltaV and DeltaQ
 are turned into mean acceleration and rate over the interval between consecutive inertial
 packets (from SampleTimeFine). Packets without inertial data (GNSS, orientation only, status)
-are returned as messages, not errors. ``seq`` is the unwrapped PacketCounter less the
-packets skipped so far, so consecutive samples are consecutive and a gap means lost packets;
-``t_us`` is the unwrapped SampleTimeFine (10 kHz ticks) in microseconds; ``temp`` is the
-last Temperature item seen (NaN before the first).
+are returned as messages, not errors. ``seq`` is the PacketCounter unwrapped past 65535 (a
+packet without a counter takes the next number); packets that are not samples (GNSS-only,
+the other rate) consume counter values too, so they show as gaps in ``seq``. ``t_us`` is the
+unwrapped SampleTimeFine (10 kHz ticks) in microseconds; ``temp`` is the last Temperature item
+seen (NaN before the first).
 """
 
 from __future__ import annotations
@@ -343,7 +344,6 @@ class XsensDecoder(StreamDecoderBase):
         self.items_seen: dict[str, int] = {}
         self.message_ids_seen: dict[int, int] = {}
         self._counter: int | None = None  # unwrapped PacketCounter of the last packet
-        self._skipped = 0  # packets without inertial data so far
         self._own_seq = 0  # for packets without PacketCounter
         self._fine: int | None = None  # unwrapped SampleTimeFine of the last packet with one
         self._last_inertial_ticks: int | None = None
@@ -439,13 +439,12 @@ class XsensDecoder(StreamDecoderBase):
             self.source = source
         if source is None or source != self.source:
             self.other_source_packets += source is not None
-            self._skipped += 1
             return False
         if packet.counter is not None:
-            seq = (self._counter - self._skipped) & 0xFFFFFFFF
+            seq = self._counter & 0xFFFFFFFF
         else:
             seq = self._own_seq & 0xFFFFFFFF
-        self._own_seq += 1
+        self._own_seq = seq + 1
         if packet.time_fine is not None:
             ticks = self._fine
         elif packet.time_coarse is not None:
