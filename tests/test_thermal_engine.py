@@ -236,7 +236,9 @@ def test_warns_of_a_narrow_span() -> None:
     truth = cubic_rate_unit(3)
     run = chamber_sweep(truth, ChamberSweep(low_degc=20.0, high_degc=27.0, start_degc=22.0, soak_s=120.0,
                                             ramp_degc_per_min=1.0), rate_hz=5.0, seed=1)
-    fit = fit_run(run, tau_s=5.0)
+    done: list[float] = []
+    fit = fit_run(run, tau_s=5.0, progress=done.append)
+    assert done == sorted(done) and done[-1] == 1.0
     assert any("span" in w and "under 10 degC" in w for w in fit.warnings)
     assert len(fit.model.accel.segments) == 1
 
