@@ -338,6 +338,25 @@ def _direction_covariance(cflat: np.ndarray, blocks: GyroBlocks, jac: np.ndarray
     return d @ acc_cov @ d.T
 
 
+def _bias_covariance(cflat: np.ndarray, blocks: GyroBlocks, jac: np.ndarray,
+                     bias_sd: np.ndarray) -> np.ndarray:
+    """Covariance C inherits from the bias subtracted before integration (implicit-function theorem,
+    as in :func:`_direction_covariance`; dr/db by central differences of eq. 15)."""
+    moving = (blocks.dt > 0)[..., None]
+    dr = np.empty((3 * len(blocks.dt), 3))
+    for k in range(3):
+        h = max(float(bias_sd[k]), 1e-12)
+        shifted = []
+        for sign in (1.0, -1.0):
+            step = sign * h * np.eye(3)[k] * moving
+            trial = GyroBlocks(blocks.x0 - step, blocks.x1 - step, blocks.dt, blocks.u0, blocks.u1,
+                               blocks.spans)
+            shifted.append(_GyroModel(trial).residual(cflat))
+        dr[:, k] = (shifted[0] - shifted[1]) / (2 * h)
+    d = -np.linalg.pinv(jac.T @ jac) @ jac.T @ dr
+    return d @ np.diag(np.asarray(bias_sd, float) ** 2) @ d.T
+
+
 def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None):
     """Levenberg-Marquardt on eq. (15) with its analytic Jacobian; returns scipy's solution."""
     c0 = gyro_initial_guess(blocks) if start is None else np.asarray(start, float).ravel()
@@ -513,6 +532,7 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     interval_means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals])
     wander = interval_means.std(axis=0, ddof=1)
     bias_sd = np.sqrt(gyro[:n_still].var(axis=0, ddof=1) / n_still + wander**2)
+    cov_g += _bias_covariance(sol.x, blocks, jac_g, bias_sd)
 
     def gyro_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.linalg.inv(p.reshape(3, 3)), gyro_bias
