@@ -50,7 +50,17 @@ def usage_error_exits_4(parser: argparse.ArgumentParser) -> None:
         parser.print_usage(sys.stderr)
         parser.exit(4, f"{parser.prog}: error: {message}\n")
 
+    parse_known = parser.parse_known_args
+
+    def parse_known_args(args: Any = None, namespace: Any = None) -> Any:
+        # Left-over words would be refused by the top-level parser with its exit 2: refuse them here.
+        parsed, extras = parse_known(args, namespace)
+        if extras:
+            error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed, extras
+
     parser.error = error  # type: ignore[method-assign]
+    parser.parse_known_args = parse_known_args  # type: ignore[method-assign]
 
 
 def add_db_arguments(parser: argparse.ArgumentParser) -> None:
