@@ -1,8 +1,9 @@
 """The device contract: what every unit speaking the native protocol does, whatever is behind the port.
 
 The same tests run on the simulated unit served on a pseudo-terminal, on the in-process ``sim://``
-URL, and on a real unit when one is given (``pytest --imu-port /dev/ttyUSB0``), as python-can runs
-one test suite on its virtual bus and on hardware. A real unit must lie still during the run.
+URL, and on a real unit when one is given (``pytest --imu-port /dev/ttyUSB0``, or
+``--imu-port /dev/ttyUSB0@115200`` for another baud rate than 921600), as python-can runs one test
+suite on its virtual bus and on hardware. A real unit must lie still during the run.
 """
 
 from __future__ import annotations
@@ -35,9 +36,15 @@ def port(request: pytest.FixtureRequest):
         yield real
 
 
+def open_port(port: str) -> Device:
+    """``PATH@BAUD`` opens a real port at that baud rate."""
+    path, _, baud = port.rpartition("@") if "@" in port and "://" not in port else (port, "", "")
+    return open_device(path, baudrate=int(baud)) if baud else open_device(port)
+
+
 @pytest.fixture
 def device(port: str):
-    with open_device(port) as dev:
+    with open_port(port) as dev:
         yield dev
 
 
@@ -133,8 +140,8 @@ def test_commands_while_streaming_lose_no_sample(device: Device) -> None:
 
 
 def test_close_releases_the_port(port: str) -> None:
-    first = open_device(port)
+    first = open_port(port)
     first.close()
-    with open_device(port) as again:
+    with open_port(port) as again:
         again.start()
         assert len(collect(again, 0.5)) > 0
