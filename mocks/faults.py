@@ -9,8 +9,8 @@ streams consumed in frame order, so the faults do not depend on how frames come 
 - ``bitflip``: one random bit of the frame is flipped;
 - ``garbage``: 1 .. ``garbage_max`` random bytes are sent before the frame;
 - ``stall``: output pauses ``stall_s`` before the frame (the server holds it, then bursts);
-- ``disconnect_after_bytes`` / ``disconnect_after_s``: the link ends there (a frame cut by
-  it is not intact).
+- ``disconnect_after_bytes`` / ``disconnect_after_s``: the link ends after that many bytes of
+  output, or seconds since serving began (a frame cut by it is not intact).
 
 drop, truncate and bitflip exclude each other (in that order of precedence); garbage and
 stalls combine with anything. The injector reports exactly which frames it left intact:

@@ -241,6 +241,25 @@ def test_sim_url_faults_and_disconnect() -> None:
     assert 400 < len(intact) < 500
 
 
+def test_sim_url_stalls_delay_but_lose_nothing() -> None:
+    url = "sim://?rate=200&stall=0.01&stall_s=0.3&fault_seed=4&record=1"
+    with serial.serial_for_url(url, timeout=0.01) as port:
+        host = Host(port)
+        arrivals = []
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            data = port.read(4096)
+            if data:
+                arrivals.append(time.monotonic())
+                host._take(data)
+        assert port.injector.counts.stalls >= 1
+        sent = port.sent()
+    got = host.all_samples()
+    assert max(np.diff(arrivals)) > 0.25  # the link went quiet for a stall
+    np.testing.assert_array_equal(got, sent[: len(got)])  # then burst: nothing lost, nothing changed
+    assert len(got) > 150
+
+
 def test_sim_url_speed_runs_the_device_clock_faster() -> None:
     with serial.serial_for_url("sim://?rate=1000&speed=20&ideal=1", timeout=0.05) as port:
         host = Host(port)
