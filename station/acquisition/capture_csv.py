@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import gzip
 import io
+import itertools
 import math
 import os
 from collections.abc import Iterator
@@ -84,10 +85,13 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
         last_t = -math.inf
         while True:
             try:
-                lines = [ln for ln in (fh.readline() for _ in range(chunk_rows)) if ln]
+                lines = list(itertools.islice(fh, chunk_rows))
             except UnicodeDecodeError as exc:
                 raise InputFileError(path, f"is not UTF-8 text ({exc.reason})", line=line_no + 1) from None
-            lines = [ln for ln in lines if ln.strip()]
+            if len(lines) < chunk_rows:
+                # The end of the file: blank lines there are harmless; inside the file they are refused.
+                while lines and not lines[-1].strip():
+                    lines.pop()
             if not lines:
                 return
             first = line_no + 1
