@@ -16,8 +16,11 @@ from station.engines.calibration_common import (
     triangular_correction,
 )
 from station.engines.calibration_free import (
+    GyroBlocks,
+    _GyroModel,
     acc_jacobian,
     acc_residual,
+    bias_sensitivity,
     gyro_blocks,
     gyro_jacobian,
     gyro_residual,
@@ -66,6 +69,25 @@ def test_gyroscope_jacobian_equals_finite_differences() -> None:
     c = np.array([[1.01, 0.02, -0.01], [0.005, 0.98, 0.03], [-0.02, 0.01, 1.02]]) / 100.0
     analytic = gyro_jacobian(c.ravel(), blocks)
     numeric = central_difference(lambda q: gyro_residual(q, blocks), c.ravel())
+    np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-8 * np.abs(numeric).max())
+
+
+def test_gyroscope_bias_sensitivity_equals_finite_differences() -> None:
+    blocks = _synthetic_blocks(7)
+    c = np.array([[1.01, 0.02, -0.01], [0.005, 0.98, 0.03], [-0.02, 0.01, 1.02]]) / 100.0
+    moving = (blocks.dt > 0)[..., None]
+    base = np.full(3, 1e-3)
+    model = _GyroModel(GyroBlocks(blocks.x0 - base * moving, blocks.x1 - base * moving, blocks.dt, blocks.u0,
+                                  blocks.u1, blocks.spans))
+    model.jacobian(c.ravel())
+    analytic = bias_sensitivity(model, c.ravel())
+
+    def residual_with_bias(b: np.ndarray) -> np.ndarray:
+        shifted = GyroBlocks(blocks.x0 - b * moving, blocks.x1 - b * moving, blocks.dt, blocks.u0, blocks.u1,
+                             blocks.spans)
+        return gyro_residual(c.ravel(), shifted)
+
+    numeric = central_difference(residual_with_bias, np.full(3, 1e-3), rel=1e-3)
     np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-8 * np.abs(numeric).max())
 
 

@@ -281,6 +281,8 @@ class _GyroModel:
         da0, da1 = quat.rk4_step_derivative(self.dt, self.stages)                   # (S, 3, 4) each
         g0 = u @ np.swapaxes(da0, -1, -2)                                           # (S, 3 res, 3 w)
         g1 = u @ np.swapaxes(da1, -1, -2)
+        # dr/dw summed over each block: a constant rate offset d (a bias error) moves r by this @ d
+        self.rate_gradient = (self.member @ (g0 + g1).reshape(len(self.dt), 9)).reshape(-1, 3, 3)
         per_step = g0[..., None] * self.x0[:, None, None, :] + g1[..., None] * self.x1[:, None, None, :]
         return (self.member @ per_step.reshape(len(self.dt), 27)).reshape(-1, 9)
 
@@ -308,7 +310,7 @@ def gyro_initial_guess(blocks: GyroBlocks) -> np.ndarray:
     return (grid[int(np.argmin(costs))] * np.eye(3)).ravel()
 
 
-def _direction_covariance(cflat: np.ndarray, blocks: GyroBlocks, jac: np.ndarray, acc: np.ndarray,
+def _direction_covariance(model: _GyroModel, cflat: np.ndarray, jac: np.ndarray, acc: np.ndarray,
                           intervals: np.ndarray, acc_params: np.ndarray, acc_cov: np.ndarray,
                           convention: str) -> np.ndarray:
     """Covariance the gyroscope's C inherits from the accelerometer fit through the gravity
@@ -330,7 +332,6 @@ def _direction_covariance(cflat: np.ndarray, blocks: GyroBlocks, jac: np.ndarray
         dp = np.zeros(len(acc_params))
         dp[k] = h
         du[:, :, k] = (directions(acc_params + dp) - directions(acc_params - dp)) / (2 * h)
-    model = _GyroModel(blocks)
     model.residual(cflat)
     rot = quat.to_rotation(model.states[:, -1])
     dr = np.einsum("bji,bjk->bik", rot, du[:-1]) - du[1:]
@@ -338,21 +339,18 @@ def _direction_covariance(cflat: np.ndarray, blocks: GyroBlocks, jac: np.ndarray
     return d @ acc_cov @ d.T
 
 
-def _bias_covariance(cflat: np.ndarray, blocks: GyroBlocks, jac: np.ndarray,
+def bias_sensitivity(model: _GyroModel, cflat: np.ndarray) -> np.ndarray:
+    """dr/db (3B, 3) of eq. (15) for the bias subtracted before integration: a bias error d shifts
+    every rate by -C d, so dr/db = -(sum over the block's steps of dr/dw) C, from the adjoint pass
+    of ``model.jacobian`` (which must have run at ``cflat``)."""
+    return -(model.rate_gradient @ np.asarray(cflat, float).reshape(3, 3)).reshape(-1, 3)
+
+
+def _bias_covariance(model: _GyroModel, cflat: np.ndarray, jac: np.ndarray,
                      bias_sd: np.ndarray) -> np.ndarray:
     """Covariance C inherits from the bias subtracted before integration (implicit-function theorem,
-    as in :func:`_direction_covariance`; dr/db by central differences of eq. 15)."""
-    moving = (blocks.dt > 0)[..., None]
-    dr = np.empty((3 * len(blocks.dt), 3))
-    for k in range(3):
-        h = max(float(bias_sd[k]), 1e-12)
-        shifted = []
-        for sign in (1.0, -1.0):
-            step = sign * h * np.eye(3)[k] * moving
-            trial = GyroBlocks(blocks.x0 - step, blocks.x1 - step, blocks.dt, blocks.u0, blocks.u1,
-                               blocks.spans)
-            shifted.append(_GyroModel(trial).residual(cflat))
-        dr[:, k] = (shifted[0] - shifted[1]) / (2 * h)
+    as in :func:`_direction_covariance`)."""
+    dr = bias_sensitivity(model, cflat)
     d = -np.linalg.pinv(jac.T @ jac) @ jac.T @ dr
     return d @ np.diag(np.asarray(bias_sd, float) ** 2) @ d.T
 
@@ -522,17 +520,18 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     gyro_bias = gyro[:n_still].mean(axis=0)
     blocks = gyro_blocks(t, gyro - gyro_bias, intervals, directions)
     sol = fit_gyroscope(blocks)
-    jac_g = gyro_jacobian(sol.x, blocks)
+    model = _GyroModel(blocks)
+    jac_g = model.jacobian(sol.x)
     _check_rank(jac_g, GYRO_PARAM_NAMES, "gyroscope")
     cov_g, _ = covariance(jac_g, sol.fun)
-    cov_g += _direction_covariance(sol.x, blocks, jac_g, acc, intervals, fit.params, cov_a, convention)
+    cov_g += _direction_covariance(model, sol.x, jac_g, acc, intervals, fit.params, cov_a, convention)
     gyro_c = sol.x.reshape(3, 3)
     # The rate is zero in every static interval, so the scatter of their gyro means shows how far
     # the bias wanders during the session (white noise alone would understate it).
     interval_means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals])
     wander = interval_means.std(axis=0, ddof=1)
     bias_sd = np.sqrt(gyro[:n_still].var(axis=0, ddof=1) / n_still + wander**2)
-    cov_g += _bias_covariance(sol.x, blocks, jac_g, bias_sd)
+    cov_g += _bias_covariance(model, sol.x, jac_g, bias_sd)
 
     def gyro_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.linalg.inv(p.reshape(3, 3)), gyro_bias
