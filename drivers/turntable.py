@@ -22,6 +22,7 @@ table is still again. A motion command sent while the table moves is refused wit
 from __future__ import annotations
 
 import re
+import termios
 import time
 from dataclasses import dataclass
 
@@ -79,7 +80,7 @@ class Turntable:
             self._buffer = b""
             self._serial.write(line.encode("ascii") + b"\n")
             reply = self._readline()
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
             raise PortLost(f"{self.port}: turntable link lost ({exc}); check its cable and power",
                            self.port) from None
         if reply.startswith("ERR"):
