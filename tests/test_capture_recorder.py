@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -15,6 +16,7 @@ from protocols.native import encode_samples
 from station.acquisition.capture import read_capture
 from station.acquisition.capture_h5 import read_samples
 from station.acquisition.recorder import Recorder, record
+from station.errors import OutputFileError
 
 
 @pytest.fixture
@@ -107,3 +109,35 @@ def test_rows_carry_the_step_label_current_when_written(tmp_path: Path, suffix: 
     rec.close()
     cap = read_capture(tmp_path / f"cap{suffix}")
     assert cap.step.tolist() == ["+z"] * 10 + [""] * 5 + ["rot+z"] * 15
+
+
+@pytest.fixture
+def small_fs(tmp_path: Path):
+    """A real 8 MiB tmpfs that the capture fills (needs the right to mount: root in CI containers)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True,
+                          text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs to fill a disk: {done.stderr.strip() or done.returncode}")
+    yield mnt
+    subprocess.run(["umount", "--lazy", str(mnt)], check=True)
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".csv"])
+def test_a_filling_disk_stops_the_capture_with_a_complete_file(small_fs: Path, suffix: str) -> None:
+    path = small_fs / f"cap{suffix}"
+    s = make_samples(400_000)
+    rec = Recorder(path)
+    full = r"the disk is almost full .* the capture stopped at \d+ samples and the file is complete"
+    with pytest.raises(OutputFileError, match=full) as exc:
+        for i in range(0, len(s), 5000):
+            rec.write(s[i:i + 5000])
+    rec.close()
+    kept = rec.rows
+    assert 0 < kept < len(s) and f"stopped at {kept} samples" in str(exc.value)
+    if suffix == ".h5":
+        assert read_samples(path).tobytes() == s[:kept].tobytes()
+    else:
+        cap = read_capture(path)
+        assert len(cap) == kept and np.array_equal(cap.acc.astype(np.float32), s["acc"][:kept])

@@ -51,6 +51,7 @@ class H5CaptureWriter:
                  port: str = "", protocol: str = ""):
         self.path = Path(path)
         self.rows = 0
+        self._broken = False
         self._labels: list[str] = [""]
         self._label_index = {"": 0}
         try:
@@ -96,8 +97,8 @@ class H5CaptureWriter:
                 ds[self.rows:end] = values
         except (OSError, RuntimeError) as exc:
             self._abandon()
-            raise OutputFileError(self.path, f"writing failed ({exc}); the file keeps the samples flushed "
-                                  f"before (about {self.rows}); free space and capture again") from None
+            raise OutputFileError(self.path, f"writing failed ({exc}); the file may be incomplete or damaged "
+                                  f"after {self.rows} samples; free space and capture again") from None
         self.rows = end
 
     def _code(self, label: str) -> int:
@@ -117,19 +118,20 @@ class H5CaptureWriter:
             self._file.flush()
         except (OSError, RuntimeError) as exc:
             self._abandon()
-            raise OutputFileError(self.path, f"flushing failed ({exc}); free space and capture again"
-                                  ) from None
+            raise OutputFileError(self.path, f"flushing failed ({exc}); the file may be incomplete or "
+                                  f"damaged; free space and capture again") from None
 
     def set_device(self, device: dict[str, Any]) -> None:
         self._file.attrs["device"] = json.dumps(device)
 
     def close(self, link: dict[str, Any] | None = None) -> None:
-        if not self._file:
+        if self._broken or not self._file:
             return
         self.flush(link)
         self._file.close()
 
     def _abandon(self) -> None:
+        self._broken = True
         try:
             self._file.close()
         except (OSError, RuntimeError):

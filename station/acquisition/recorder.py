@@ -9,6 +9,7 @@ or when the link breaks, and in every case leaves every sample received so far i
 
 from __future__ import annotations
 
+import shutil
 import signal
 import threading
 import time
@@ -24,11 +25,15 @@ from drivers.interface import Device
 from drivers.link_stats import LinkStats
 from station.acquisition.capture_csv import CsvCaptureWriter
 from station.acquisition.capture_h5 import H5CaptureWriter
+from station.errors import OutputFileError
 
 FLUSH_INTERVAL_S = 1.0
 READ_TIMEOUT_S = 0.1
 NO_SAMPLES_TIMEOUT_S = 5.0
 H5_SUFFIXES = (".h5", ".hdf5")
+# Below this much free space the recorder stops and closes the file while it still can: an HDF5
+# file that meets a full disk mid-write may be left damaged, a closed one is complete.
+MIN_FREE_BYTES = 4 * 1024 * 1024
 
 
 class CaptureWriter(Protocol):
@@ -95,6 +100,7 @@ class Recorder:
         self._with_step = with_step
         self._flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
+        self._unflushed_bytes = 0
 
     @property
     def rows(self) -> int:
@@ -121,13 +127,24 @@ class Recorder:
             if len(samples) == 0:
                 self.tick(link)
                 return 0
+        self._check_space(samples.nbytes, link)
         step = [self.step] * len(samples) if self._with_step else None
         self.writer.write(samples, step)
+        self._unflushed_bytes += samples.nbytes
         if self.first_t_us is None:
             self.first_t_us = int(samples["t_us"][0])
         self.last_t_us = int(samples["t_us"][-1])
         self.tick(link)
         return len(samples)
+
+    def _check_space(self, batch_bytes: int, link: dict[str, Any] | None) -> None:
+        # What the writer still holds in memory (HDF5 caches chunks until a flush) needs room too.
+        free = shutil.disk_usage(self.path.parent).free - self._unflushed_bytes - batch_bytes
+        if free < MIN_FREE_BYTES:
+            self.writer.close(link)
+            raise OutputFileError(self.path, f"the disk is almost full ({free // 1024} KiB left): the "
+                                  f"capture stopped at {self.rows} samples and the file is complete; free "
+                                  f"space and capture again")
 
     def tick(self, link: dict[str, Any] | None = None) -> None:
         """Flush if the last flush is a second old (call it when idle, too)."""
@@ -135,6 +152,7 @@ class Recorder:
         if now - self._last_flush >= self._flush_interval_s:
             self.writer.flush(link)
             self._last_flush = now
+            self._unflushed_bytes = 0
 
     def close(self, link: dict[str, Any] | None = None) -> None:
         self.writer.close(link)
