@@ -63,6 +63,20 @@ def test_upper_convention_is_the_exact_rotation_of_the_lower_one(session, lower)
     assert upper.details["acc_cost"] == pytest.approx(lower.details["acc_cost"], rel=1e-8)
 
 
+def test_reversed_gyro_axes_and_per_interval_bias() -> None:
+    truth = UnitTruth.random(14)
+    truth.gyro.scale = truth.gyro.scale * np.array([-1.0, 1.0, -1.0])   # x and z gyro mounted reversed
+    segments = handheld_session(n_poses=30, seed=14, hold_s=6.0, initial_still_s=20.0)
+    rec = simulate(truth, segments, rate_hz=100.0, seed=14)
+    report = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity, None, "lower",
+                            FreeSettings(gyro_bias="intervals"))
+    _, gyro_c, _ = convert_convention(np.linalg.inv(truth.accel.matrix), np.linalg.inv(truth.gyro.matrix),
+                                      "lower")
+    assert np.abs(report.gyro.matrix - np.linalg.inv(gyro_c)).max() < 2e-4
+    assert np.abs(report.gyro.bias - truth.gyro.bias).max() < 1e-4
+    assert np.all(np.sign(np.diag(report.gyro.matrix)) == [-1, 1, -1])
+
+
 def _read_imu_tk(path) -> np.ndarray:
     """imu_tk's ASCII data: ``t x y z`` per line, spaces, gzipped here."""
     with gzip.open(path, "rt") as fh:

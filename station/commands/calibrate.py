@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -74,6 +75,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--imu-tk", action="store_true",
                         help="free method: imu_tk's detector and cost (101-sample window, first 100 "
                              "samples of each interval, 1/2 sum r^2)")
+    parser.add_argument("--gyro-bias", choices=("still", "intervals"), default="still",
+                        help="free method: gyro bias from the initial still period (default) or, per move, "
+                             "from the static intervals on either side (follows a drifting bias)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="the sample rate the device was set to; refused if the timestamps disagree")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
@@ -104,6 +108,7 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
         return calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
                                    latitude_deg=latitude, rate_hz=args.rate)
     settings = FreeSettings.imu_tk() if args.imu_tk else FreeSettings(window_s=args.window)
+    settings = dataclasses.replace(settings, gyro_bias=args.gyro_bias)
     if args.rate is not None:
         check_rate(capture.t, args.rate)
     return calibrate_free(capture.t, capture.acc, capture.gyro, gravity, args.initial_still,

@@ -79,6 +79,9 @@ class FreeSettings:
     cost: "mean" (mean of r^2, comparable across thresholds) or "half_sum" (1/2 sum r^2, Ceres).
     min_intervals: fewest static intervals a fit accepts (imu_tk: 12).
     inclusive_still_end: the still period is samples 0..n inclusive (imu_tk) rather than 0..n-1.
+    gyro_bias: "still": the gyro bias is the mean of the initial still period (imu_tk);
+        "intervals": each move between static intervals k and k+1 subtracts the mean of the gyro
+        over those two intervals, following a bias that drifts during the session.
     """
 
     window_s: float = 1.0
@@ -89,6 +92,7 @@ class FreeSettings:
     cost: str = "mean"
     min_intervals: int = 12
     inclusive_still_end: bool = False
+    gyro_bias: str = "still"
 
     @classmethod
     def imu_tk(cls) -> FreeSettings:
@@ -298,16 +302,24 @@ def gyro_jacobian(cflat: np.ndarray, blocks: GyroBlocks) -> np.ndarray:
 
 
 def gyro_initial_guess(blocks: GyroBlocks) -> np.ndarray:
-    """Data-driven start C = s I: s from the angles between consecutive gravity directions over
-    the integrated raw rate magnitude, refined on a coarse grid of the residual."""
+    """Data-driven start C = diag(+-s): s from the angles between consecutive gravity directions
+    over the integrated raw rate magnitude, signs and s refined on coarse grids of the residual."""
     angle = np.arccos(np.clip(np.sum(blocks.u0 * blocks.u1, axis=1), -1, 1)).sum()
     rate = np.sum(0.5 * (np.linalg.norm(blocks.x0, axis=2) + np.linalg.norm(blocks.x1, axis=2)) * blocks.dt)
     s0 = angle / rate if rate > 0 and angle > 0 else 1.0
     # the angle between gravity directions underestimates each move's rotation: search upwards
-    grid = s0 * np.geomspace(1.0, 3.0, 5)
     model = _GyroModel(blocks)
-    costs = [np.sum(model.residual((s * np.eye(3)).ravel()) ** 2) for s in grid]
-    return (grid[int(np.argmin(costs))] * np.eye(3)).ravel()
+
+    def cost(diagonal: np.ndarray) -> float:
+        return float(np.sum(model.residual(np.diag(diagonal).ravel()) ** 2))
+
+    # a gyro axis may be mounted reversed relative to the accelerometer's: pick the sign pattern
+    # first (at a typical scale), then the scale with those signs
+    signs = np.array([[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)], float)
+    sign = signs[int(np.argmin([cost(1.7 * s0 * sg) for sg in signs]))]
+    grid = s0 * np.geomspace(1.0, 3.0, 5)
+    scale = grid[int(np.argmin([cost(s * sign) for s in grid]))]
+    return np.diag(scale * sign).ravel()
 
 
 def _direction_covariance(model: _GyroModel, cflat: np.ndarray, jac: np.ndarray, acc: np.ndarray,
@@ -355,12 +367,33 @@ def _bias_covariance(model: _GyroModel, cflat: np.ndarray, jac: np.ndarray,
     return d @ np.diag(np.asarray(bias_sd, float) ** 2) @ d.T
 
 
+# A converged gyro fit leaves unit-vector residuals of a few hundredths at most.
+GYRO_CONVERGED_RMS = 0.05
+
+
 def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None):
-    """Levenberg-Marquardt on eq. (15) with its analytic Jacobian; returns scipy's solution."""
+    """Levenberg-Marquardt on eq. (15) with its analytic Jacobian; returns scipy's solution.
+
+    Should the data-driven start lead to a poor minimum, every sign pattern of the start's
+    diagonal is tried and the best solution kept.
+    """
     c0 = gyro_initial_guess(blocks) if start is None else np.asarray(start, float).ravel()
     model = _GyroModel(blocks)
-    return least_squares(model.residual, c0, jac=model.jacobian, method="lm",
-                         x_scale="jac", ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=200)
+
+    def solve(c: np.ndarray):
+        return least_squares(model.residual, c, jac=model.jacobian, method="lm",
+                             x_scale="jac", ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=200)
+
+    best = solve(c0)
+    if start is None and np.sqrt(np.mean(best.fun**2)) > GYRO_CONVERGED_RMS:
+        diagonal = np.abs(np.diag(c0.reshape(3, 3)))
+        for sx in (1, -1):
+            for sy in (1, -1):
+                for sz in (1, -1):
+                    trial = solve(np.diag(diagonal * [sx, sy, sz]).ravel())
+                    if trial.cost < best.cost:
+                        best = trial
+    return best
 
 
 # ------------------------------------------------------------------------------------ the method
@@ -519,6 +552,14 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     # Gyroscope
     gyro_bias = gyro[:n_still].mean(axis=0)
     blocks = gyro_blocks(t, gyro - gyro_bias, intervals, directions)
+    if settings.gyro_bias == "intervals":
+        means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals]) - gyro_bias
+        drift = 0.5 * (means[:-1] + means[1:])[:, None, :] * (blocks.dt > 0)[..., None]
+        blocks = GyroBlocks(blocks.x0 - drift, blocks.x1 - drift, blocks.dt, blocks.u0, blocks.u1,
+                            blocks.spans)
+        gyro_bias = gyro_bias + means.mean(axis=0)
+    elif settings.gyro_bias != "still":
+        raise ValueError(f"gyro_bias must be 'still' or 'intervals', got {settings.gyro_bias!r}")
     sol = fit_gyroscope(blocks)
     model = _GyroModel(blocks)
     jac_g = model.jacobian(sol.x)
