@@ -10,6 +10,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from drivers.errors import DriverError
 from station import __version__
@@ -32,11 +33,20 @@ COMMANDS = [
 ]
 
 EXIT_INTERRUPTED = 130
+EXIT_USAGE = 4
 
 
-def _load_commands() -> list:
+class _Parser(argparse.ArgumentParser):
+    """argparse with the station's exit code for usage errors (4, not argparse's 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message}\n")
+
+
+def _load_commands(names: Sequence[str] = COMMANDS) -> list:
     modules = []
-    for name in COMMANDS:
+    for name in names:
         try:
             modules.append(importlib.import_module(f"station.commands.{name}"))
         except ModuleNotFoundError as exc:
@@ -45,15 +55,16 @@ def _load_commands() -> list:
     return modules
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole parser, or with ``only`` the one command's (engines are slow to import)."""
+    parser = _Parser(
         prog="imu-station",
         description="IMU acquisition and calibration station.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"imu-station {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in _load_commands():
+    for module in _load_commands([only] if only else COMMANDS):
         cmd = sub.add_parser(
             module.NAME,
             help=module.HELP,
@@ -66,12 +77,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _chosen_command(argv: Sequence[str]) -> str | None:
+    first = next((a for a in argv if not a.startswith("-")), None)
+    module = first.replace("-", "_") if first else None
+    return module if module in COMMANDS else None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_chosen_command(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
-        return 4
+        return EXIT_USAGE
     try:
         return int(args._run(args) or 0)
     except (StationError, DriverError) as exc:

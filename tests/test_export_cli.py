@@ -118,5 +118,5 @@ def test_empty_parameter_file_and_file_as_directory(tmp_path: Path, unit_file: P
 def test_bad_device_id_is_a_usage_error(unit_file: Path, tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["export", str(unit_file), "-f", "px4", "-o", str(tmp_path / "u"), "--device-id", "-3"])
-    assert exc.value.code == 2
+    assert exc.value.code == 4
     assert "outside" in capsys.readouterr().err
