@@ -226,11 +226,22 @@ def gyro_blocks(t: np.ndarray, gyro_unbiased: np.ndarray, intervals: np.ndarray,
     return GyroBlocks(x0, x1, dt, u[:-1], u[1:], spans)
 
 
+def _product(a: np.ndarray) -> np.ndarray:
+    """a[:, 0] (x) a[:, 1] (x) ... (x) a[:, L-1] for every row, by pairwise reduction over L."""
+    while a.shape[1] > 1:
+        if a.shape[1] % 2:
+            identity = np.zeros((a.shape[0], 1, 4))
+            identity[..., 0] = 1.0
+            a = np.concatenate([a, identity], axis=1)
+        a = quat.qmul(a[:, 0::2], a[:, 1::2])
+    return a[:, 0]
+
+
 class _GyroModel:
-    """Eq. (15) over all blocks for one C, with the forward states kept for the Jacobian.
+    """Eq. (15) over all blocks for one C, and its Jacobian.
 
     Forward: s_{n+1} = s_n (x) a_n from s_0 = (1, 0, 0, 0) (``quaternion.rk4_step``), i.e.
-    s_{n+1} = A_n s_n with A_n = R(a_n). Jacobian: the adjoint rows
+    s_{n+1} = A_n s_n with A_n = R(a_n); the end quaternion by pairwise products. Jacobian: the adjoint rows
     lambda_n = (dr/dq) A_{N-1} .. A_{n+1} run backwards, and since dA_n s_n = s_n (x) da_n,
 
         dr/dC_ij = sum_n lambda_n L(s_n) (da_n/dw0_i x0_j + da_n/dw1_i x1_j)
@@ -260,14 +271,9 @@ class _GyroModel:
         a = np.zeros((nb, length, 4))
         a[..., 0] = 1.0
         a[self.mask] = step
-        step_matrix = quat.right_matrix(a)
-        s = np.empty((nb, length + 1, 4, 1))
-        s[:, 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        for n in range(length):
-            s[:, n + 1] = step_matrix[:, n] @ s[:, n]
-        self.step_matrix = step_matrix
-        self.states = s[..., 0]
-        self.r, self.dr_dq = quat.rotate_inverse(self.states[:, -1], self.blocks.u0)
+        self.a = a
+        self.final = _product(a)
+        self.r, self.dr_dq = quat.rotate_inverse(self.final, self.blocks.u0)
         self._key = key
 
     def residual(self, cflat: np.ndarray) -> np.ndarray:
@@ -277,11 +283,16 @@ class _GyroModel:
     def jacobian(self, cflat: np.ndarray) -> np.ndarray:
         self._forward(cflat)
         nb, length = self.mask.shape
+        step_matrix = quat.right_matrix(self.a)
+        states = np.empty((nb, length, 4, 1))                  # s_n, before step n
+        states[:, 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
+        for n in range(length - 1):
+            states[:, n + 1] = step_matrix[:, n] @ states[:, n]
         lam = np.empty((nb, length, 3, 4))
         lam[:, -1] = self.dr_dq
         for n in range(length - 1, 0, -1):
-            lam[:, n - 1] = lam[:, n] @ self.step_matrix[:, n]
-        u = lam[self.mask] @ quat.left_matrix(self.states[:, :-1][self.mask])      # (S, 3, 4)
+            lam[:, n - 1] = lam[:, n] @ step_matrix[:, n]
+        u = lam[self.mask] @ quat.left_matrix(states[..., 0][self.mask])           # (S, 3, 4)
         da0, da1 = quat.rk4_step_derivative(self.dt, self.stages)                   # (S, 3, 4) each
         g0 = u @ np.swapaxes(da0, -1, -2)                                           # (S, 3 res, 3 w)
         g1 = u @ np.swapaxes(da1, -1, -2)
@@ -345,7 +356,7 @@ def _direction_covariance(model: _GyroModel, cflat: np.ndarray, jac: np.ndarray,
         dp[k] = h
         du[:, :, k] = (directions(acc_params + dp) - directions(acc_params - dp)) / (2 * h)
     model.residual(cflat)
-    rot = quat.to_rotation(model.states[:, -1])
+    rot = quat.to_rotation(model.final)
     dr = np.einsum("bji,bjk->bik", rot, du[:-1]) - du[1:]
     d = -np.linalg.pinv(jac.T @ jac) @ jac.T @ dr.reshape(-1, len(acc_params))
     return d @ acc_cov @ d.T

@@ -103,8 +103,7 @@ def rk4_step_derivative(dt: np.ndarray, stages: tuple[np.ndarray, ...]) -> tuple
     """da/dw0_i and da/dw1_i of eq. (3) by the product rule, each (..., 3, 4) (i = x, y, z).
 
     For w0: dh0 = e_i/2, dhm = e_i/4, dh1 = 0; for w1: dh0 = 0, dhm = e_i/4, dh1 = e_i/2, with
-    e_i = (0, unit vector i). Products with e_i are the constant matrices L(e_i), R(e_i); products
-    with a derivative on the left are R(.) applied to it.
+    e_i = (0, unit vector i). Products with e_i are the constant matrices L(e_i), R(e_i).
     """
     h0, hm, h1, b2, b3 = stages
     dt = np.asarray(dt, float)[..., None, None]
@@ -119,13 +118,12 @@ def rk4_step_derivative(dt: np.ndarray, stages: tuple[np.ndarray, ...]) -> tuple
     h0_e = times_unit(h0, right_unit)                       # h0 (x) e_i
     b2_e = times_unit(b2, right_unit)                       # b2 (x) e_i
     b3_e = times_unit(b3, right_unit)                       # b3 (x) e_i
-    r_hm = np.swapaxes(right_matrix(hm), -1, -2)[..., None, :, :]
-    r_h1 = np.swapaxes(right_matrix(h1), -1, -2)[..., None, :, :]
+    hm_, h1_ = hm[..., None, :], h1[..., None, :]
 
     def derivative(alpha: float, beta: float, gamma: float) -> np.ndarray:
         db2 = beta * unit + 0.5 * dt * (alpha * e_hm + beta * h0_e)
-        db3 = beta * unit + 0.5 * dt * ((db2[..., None, :] @ r_hm)[..., 0, :] + beta * b2_e)
-        db4 = gamma * unit + dt * ((db3[..., None, :] @ r_h1)[..., 0, :] + gamma * b3_e)
+        db3 = beta * unit + 0.5 * dt * (qmul(db2, hm_) + beta * b2_e)
+        db4 = gamma * unit + dt * (qmul(db3, h1_) + gamma * b3_e)
         return dt / 6.0 * (alpha * unit + 2.0 * db2 + 2.0 * db3 + db4)
 
     return derivative(0.5, 0.25, 0.0), derivative(0.0, 0.25, 0.5)
