@@ -80,10 +80,9 @@ class WizardScreen(Screen[None]):
         self.title = f"imu-station · sequence {self.sequence.name}"
         self.operator = TuiOperator(self)
         overview = Text(f"Sequence {self.sequence.name}\n\n", style="bold")
-        overview.append("For each step: put the unit as drawn and let go. Capture starts by itself\n"
-                        "once the unit is in the pose and still, and the next step follows. A turn is\n"
-                        "asked for after a short still capture; turn at about the rate shown, then\n"
-                        "hold still.\n\n"
+        overview.append("For each step: put the unit as drawn and let go. Capture starts by itself once the "
+                        "unit is in the pose and still, and the next step follows. A turn is asked for "
+                        "after a short still capture; turn at about the rate shown, then hold still.\n\n"
                         "r redo · s skip · x abort (what was captured is kept) · ? help")
         self.query_one("#step", Static).update(overview)
         self.show_steps()

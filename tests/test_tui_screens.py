@@ -1,0 +1,234 @@
+"""TUI screens headless: SVG snapshots of key screens, keys (skip, abort, help), Allan and thermal screens,
+and the text drawings and plots they are made of."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+from tui_helpers import assert_snapshot, svg_rows, wait_for
+
+from drivers import open_device
+from mocks.device import SimDevice
+from mocks.pty_server import PtyServer
+from mocks.rig import ramp, sequence_segments, simulate
+from mocks.truth import UnitTruth
+from station.acquisition.capture import read_capture
+from station.acquisition.runner import RunResult
+from station.acquisition.sequences import RotationStep, builtin
+from station.export.params_file import ParamsFile
+from station.tui.app import StationApp
+from station.tui.art import bar, pose_art, rotation_art
+from station.tui.config import TuiConfig
+from station.tui.limits import ACCEL_LIMITS, evaluate
+from station.tui.plot import Series, braille_plot
+from station.tui.screens.allan import AllanScreen
+from station.tui.screens.results import ResultsScreen
+from station.tui.screens.thermal import ThermalScreen, block_means, temperature_rate
+from station.tui.screens.wizard import WizardScreen
+from station.tui.session import Session
+
+pytestmark = pytest.mark.timeout(180)
+SIZE = (110, 40)
+
+
+# ---- drawings and plots ----------------------------------------------------------------------------
+
+def test_pose_and_rotation_drawings_name_the_faces_and_the_turn():
+    art = pose_art("-z")
+    assert "-Z" in art.splitlines()[2] and "+Z towards the table" in art
+    assert "edge up" in pose_art("+x+y") and "corner up" in pose_art("+x+y+z")
+    ccw = rotation_art(RotationStep("rot+z", rate_dps=45))
+    cw = rotation_art(RotationStep("rot-x:180"))
+    assert "+360 deg (1 turn) about +Z, counter-clockwise" in ccw and "45 deg/s" in ccw
+    assert "-180 deg about +X, clockwise" in cw
+    # Counter-clockwise seen from above: the far side moves left, the near side right.
+    assert "◀" in ccw.splitlines()[2] and "▶" in ccw.splitlines()[6]
+    assert "▶" in cw.splitlines()[2] and "◀" in cw.splitlines()[6]
+    assert bar(0.5, 10) == "█████░░░░░" and bar(1.7, 4) == "████" and bar(float("nan"), 3) == "░░░"
+    assert bar(0.55, 10) == "█████▌░░░░"
+
+
+def test_braille_log_log_plot_places_a_falling_line_from_top_left_to_bottom_right():
+    tau = np.logspace(-2, 2, 200)
+    text = braille_plot([Series("white", tau, 0.01 / np.sqrt(tau))], width=40, height=8, logx=True, logy=True)
+    rows = text.plain.splitlines()[:8]
+    canvas = [row.split("┤", 1)[-1].split("│", 1)[-1] for row in rows]
+    first = [next(i for i, ch in enumerate(row) if ch.strip()) for row in canvas]
+    assert first == sorted(first) and first[0] == 0 and first[-1] >= 30
+    assert "1e-01" in rows[0] and "1e-03" in rows[-1]
+    assert "(no data yet)" in braille_plot([Series("x", np.array([]), np.array([]))]).plain
+
+
+def test_limits_flag_what_is_outside():
+    from station.engines.sensor_model import SensorCalibration
+
+    good = SensorCalibration.from_parts([1.01, 0.99, 1.0], np.zeros((3, 3)), [0.1, 0, 0], residual_rms=0.01)
+    assert all(v.passed for v in evaluate("accel", good, ACCEL_LIMITS, "m/s^2"))
+    bad = SensorCalibration.from_parts([1.3, 1, 1], np.zeros((3, 3)), [2.0, 0, 0], residual_rms=0.01)
+    failed = {v.name for v in evaluate("accel", bad, ACCEL_LIMITS, "m/s^2") if not v.passed}
+    assert failed == {"max |bias|", "max |scale - 1|"}
+
+
+# ---- snapshots and keys on the simulated unit ------------------------------------------------------
+
+def test_wizard_snapshot_help_skip_and_abort(tmp_path):
+    # Holds long enough that no step can finish before the keys arrive on a loaded machine.
+    config = TuiConfig(simulate=True, seed=1, hold_s=30.0, out=tmp_path / "p.yaml")
+    app = StationApp(config)
+
+    async def run() -> None:
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
+            await pilot.press("w")
+            wizard = await wait_for(pilot, lambda: isinstance(app.screen, WizardScreen) and app.screen, 5,
+                                    "the wizard")
+            await wait_for(pilot, lambda: wizard.prompt is not None, 10, "the start prompt")
+            await pilot.pause(0.3)
+            assert_snapshot(app.export_screenshot(), "wizard_start")
+            await pilot.press("question_mark")
+            await pilot.pause(0.3)
+            assert_snapshot(app.export_screenshot(), "help")
+            await pilot.press("escape")
+            await pilot.press("enter")  # start
+            await wait_for(pilot, lambda: wizard.current == 0, 10, "the first step")
+            await pilot.press("s")  # skip +x
+            await wait_for(pilot, lambda: wizard.current == 1, 10, "the second step")
+            rows = "\n".join(svg_rows(app.export_screenshot()))
+            assert "Step 2 of 12: -x" in rows and "Place the unit with -X up" in rows
+            await pilot.press("x")  # abort
+            await wait_for(pilot, lambda: wizard.result is not None, 10, "the end of the run")
+            assert wizard.result.outcome == "aborted"
+            assert [r.status for r in wizard.result.steps] == ["skipped", "aborted"]
+            await pilot.press("enter")  # results: nothing was captured, so the calibration says so
+            results = await wait_for(pilot, lambda: isinstance(app.screen, ResultsScreen) and app.screen, 5,
+                                     "results")
+            await pilot.pause(0.5)
+            assert results.report is None
+            assert "no step was captured" in "\n".join(svg_rows(app.export_screenshot()))
+            await pilot.press("q")
+
+    asyncio.run(run())
+    assert app.return_value == 1  # an aborted run
+    assert not (tmp_path / "p.yaml").exists()
+
+
+def test_results_snapshot_of_an_ideal_unit(tmp_path):
+    truth = UnitTruth.ideal()
+    segments = sequence_segments("six-position", hold_s=1.0, rotation_rate_dps=180.0)
+    rec = simulate(truth, segments, rate_hz=100.0)
+    capture = rec.to_capture()
+    capture.device = {"serial": "SIM-IDEAL", "model": "imu-sim", "firmware": "1.0.0", "rate_hz": 100}
+    run = RunResult("completed", capture, [], builtin("six-position"))
+    out = tmp_path / "ideal.yaml"
+    app = StationApp(TuiConfig(out=out))
+
+    async def drive() -> None:
+        async with app.run_test(size=(110, 60)) as pilot:
+            await _connect_screen_ready(pilot, app)
+            app.show_results(run)
+            screen = await wait_for(pilot, lambda: isinstance(app.screen, ResultsScreen) and app.screen, 5,
+                                    "results")
+            await wait_for(pilot, lambda: screen.report is not None, 30, "the calibration")
+            await pilot.pause(0.3)
+            assert_snapshot(app.export_screenshot(), "results_ideal")
+            await pilot.press("enter")
+            await wait_for(pilot, lambda: screen.saved, 5, "save")
+            await pilot.press("enter")
+
+    asyncio.run(drive())
+    params = ParamsFile.load(out)
+    assert np.allclose(params.accel.matrix, np.eye(3), atol=1e-9)
+    assert np.allclose(params.gyro.matrix, np.eye(3), atol=1e-6)
+    assert params.device["serial"] == "SIM-IDEAL"
+    assert app.return_value == 0
+
+
+def test_allan_screen_plots_and_fits_the_white_noise(tmp_path):
+    out = tmp_path / "noise.yaml"
+    config = TuiConfig(simulate=True, seed=6, rate_hz=1000.0, out=out)
+    app = StationApp(config)
+    holder = {}
+
+    async def run() -> None:
+        async with app.run_test(size=(130, 44)) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
+            holder["truth"] = app.session.rig.truth
+            await pilot.press("a")
+            screen = await wait_for(pilot, lambda: isinstance(app.screen, AllanScreen) and app.screen, 5,
+                                    "Allan")
+            await wait_for(pilot, lambda: recorded(screen) >= 8000, 60, "8 s of samples")
+            await pilot.pause(1.2)
+            rows = svg_rows(app.export_screenshot())
+            assert any("gyro ADEV (rad/s)" in r for r in rows)
+            assert sum(any(0x2800 < ord(c) <= 0x28FF for c in r) for r in rows) >= 6  # braille dots drawn
+            await pilot.press("enter")
+            await wait_for(pilot, lambda: out.exists(), 60, "the noise section")
+            await pilot.pause(0.3)
+            assert any("noise section saved" in r for r in svg_rows(app.export_screenshot()))
+            await pilot.press("q")
+
+    asyncio.run(run())
+    noise = ParamsFile.load(out).noise
+    truth_n = holder["truth"].gyro.noise.N
+    fitted = np.asarray(noise["gyro"]["N"], float)
+    assert np.allclose(fitted, truth_n, rtol=0.25), (fitted, truth_n)
+    recording = read_capture(tmp_path / "noise-allan.h5")
+    assert len(recording) >= 8000 and recording.rate_hz == pytest.approx(1000.0, rel=1e-3)
+
+
+def test_thermal_screen_follows_a_ramp_and_fits(tmp_path):
+    out = tmp_path / "thermal.yaml"
+    profile = ramp([(0.0, 20.0), (30.0, 50.0), (60.0, 20.0)])
+    server = PtyServer(SimDevice(seed=8, rate_hz=100.0, scenario="still", temperature=profile)).start()
+    device = open_device(server.port_path)
+    app = StationApp(TuiConfig(out=out))
+
+    async def run() -> None:
+        async with app.run_test(size=(130, 44)) as pilot:
+            await _connect_screen_ready(pilot, app)
+            app.session = Session(device, "simulated chamber", info=device.get_info())
+            app.show("thermal")
+            screen = await wait_for(pilot, lambda: isinstance(app.screen, ThermalScreen) and app.screen, 5,
+                                    "thermal")
+            await wait_for(pilot, lambda: recorded(screen) >= 2500, 60, "25 s of the sweep")
+            await pilot.pause(0.6)
+            rows = "\n".join(svg_rows(app.export_screenshot()))
+            assert "temperature (degC)" in rows and "degC/min" in rows
+            await pilot.press("enter")
+            await wait_for(pilot, lambda: out.exists(), 60, "the thermal section")
+            await pilot.press("q")
+
+    try:
+        asyncio.run(run())
+    finally:
+        device.close()
+        server.stop()
+    params = ParamsFile.load(out)
+    assert params.thermal is not None
+    recording = read_capture(tmp_path / "thermal-thermal.h5")
+    blocks = block_means(_samples(recording))
+    # The ramp climbs 1 degC/s: the monitor's rate estimate over the first 20 s says so.
+    first = blocks["t"] <= 20
+    assert temperature_rate(blocks["t"][first], blocks["temp"][first], 15.0) == pytest.approx(1.0, rel=0.05)
+
+
+def recorded(screen) -> int:
+    """Samples the screen's recording holds (0 until the screen has mounted)."""
+    recording = getattr(screen, "recording", None)
+    return recording.count if recording is not None else 0
+
+
+async def _connect_screen_ready(pilot, app) -> None:
+    await wait_for(pilot, lambda: type(app.screen).__name__ == "ConnectScreen", 5, "the connect screen")
+    await pilot.pause(0.2)
+
+
+def _samples(capture):
+    from protocols.base import SAMPLE_DTYPE
+
+    out = np.zeros(len(capture), SAMPLE_DTYPE)
+    out["t_us"] = np.round(capture.t * 1e6).astype(np.uint64)
+    out["acc"], out["gyro"], out["temp"] = capture.acc, capture.gyro, capture.temp
+    return out
