@@ -79,7 +79,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="free method: gyro bias from the initial still period (default) or, per move, "
                              "from the static intervals on either side (follows a drifting bias)")
     parser.add_argument("--rate", type=float, metavar="HZ",
-                        help="the sample rate the device was set to; refused if the timestamps disagree")
+                        help="the sample rate the device was set to (default: the capture's device "
+                             "info, if any); refused if the timestamps disagree")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write a residual plot (PNG)")
 
@@ -103,14 +104,17 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
     gravity = local_gravity(args)
     has_labels = capture.step is not None and any(str(s).strip() for s in capture.step)
     method = args.method if args.method != "auto" else ("turntable" if has_labels else "free")
+    # the rate the device says it runs at, unless the user states one
+    rate = args.rate if args.rate is not None else capture.device.get("rate_hz")
+    rate = float(rate) if rate is not None else None
     if method == "turntable":
         latitude = None if args.no_earth_rate else args.latitude
         return calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
-                                   latitude_deg=latitude, rate_hz=args.rate)
+                                   latitude_deg=latitude, rate_hz=rate)
     settings = FreeSettings.imu_tk() if args.imu_tk else FreeSettings(window_s=args.window)
     settings = dataclasses.replace(settings, gyro_bias=args.gyro_bias)
-    if args.rate is not None:
-        check_rate(capture.t, args.rate)
+    if rate is not None:
+        check_rate(capture.t, rate)
     return calibrate_free(capture.t, capture.acc, capture.gyro, gravity, args.initial_still,
                           args.convention, settings)
 
