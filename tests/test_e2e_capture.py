@@ -109,6 +109,8 @@ def test_port_vanishing_mid_capture_exits_3_with_everything_received(tmp_path: P
     # The kernel drops what the pty still held when its master closed: at most the last blocks.
     assert len(expected) - k - len(got) <= 25
     assert f"wrote {len(got)} samples" in out
+    status = next(line for line in err.splitlines() if line.startswith("capturing"))
+    assert f"{len(got)} samples" in status and " errors" in status and " lost" in status
 
 
 def test_ctrl_c_saves_everything_and_the_h5_file_is_flushed_while_capturing(tmp_path: Path) -> None:
@@ -266,3 +268,17 @@ def test_demo_steps_capture_verify_and_report(tmp_path: Path) -> None:
     assert not ctx.server.running  # the simulated unit was stopped at the end
     text = out.getvalue()
     assert "[4/4] report the link" in text and "all 400 samples equal, bit for bit" in text
+
+
+def test_capture_sets_the_rate_it_is_given(tmp_path: Path) -> None:
+    import io
+
+    from station.commands.capture import capture_to_file
+
+    err = io.StringIO()
+    path = tmp_path / "rate.h5"
+    result = capture_to_file("sim://?seed=5&rate=200", path, duration_s=0.5, rate_hz=500, err=err)
+    got = read_samples(path)
+    assert result.error is None and "at 200 Hz" in err.getvalue()  # what the unit said before SET_RATE
+    assert len(got) == 250 and np.all(np.diff(got["t_us"]) == 2000)  # only samples at the new rate
+    assert read_capture(path).device["rate_hz"] == 500

@@ -96,7 +96,8 @@ def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:
     """Ask the unit who it is, set its rate if asked, and start it if it does not stream yet.
 
     A unit that does not answer GET_INFO or START_STREAM is still recorded (a warning says so):
-    a device streams from power-up. A refused or unanswered SET_RATE is an error.
+    a device streams from power-up. A refused or unanswered SET_RATE is an error; after a rate
+    change the capture starts with the samples at the new rate.
     """
     try:
         info = device.get_info(timeout=0.5, retries=1)
@@ -108,6 +109,11 @@ def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:
         print(f"warning: {exc}; recording without the unit's info", file=err)
     if rate_hz is not None:
         device.set_rate(rate_hz)
+        try:
+            device.get_info(timeout=0.5, retries=1)  # the file records the unit's info at the new rate
+        except CommandTimeout:
+            pass
+        device.read(0)  # samples at the old rate are not part of this capture
     if device.stats.samples == 0:
         try:
             device.start()
