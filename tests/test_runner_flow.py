@@ -7,6 +7,8 @@ so the suite stays quick.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -42,8 +44,11 @@ def poses(*labels: str, hold_s: float = 0.6) -> Sequence:
 def test_six_position_and_rotations_recover_the_units_truth(unit, tmp_path):
     server, device = unit
     truth = server.device.truth
-    seq = builtin("six-position", hold_s=1.0, rotation_rate_dps=360.0, settle_s=0.4)
+    # The six poses and two turns (both senses, two axes); the TUI tests run all six turns.
+    full = builtin("six-position", hold_s=1.0, rotation_rate_dps=360.0, settle_s=0.4)
+    seq = Sequence("six+2", full.steps[:6] + (full.steps[6], full.steps[11]))
     script = ScriptedOperator()
+    started = time.monotonic()
     path = tmp_path / "run.csv"
     recorder = Recorder(path, device=device.info, with_step=True, port=device.port, protocol="native")
     result = SequenceRunner(device, seq, SimulatedOperator(server.device, script, move_s=0.4),
@@ -53,7 +58,8 @@ def test_six_position_and_rotations_recover_the_units_truth(unit, tmp_path):
     assert result.accepted == seq.labels
     assert [s.status for s in result.steps] == ["accepted"] * len(seq)
     assert [e.event for e in script.transcript][:3] == ["begin", "confirm:start", "place"]
-    assert script.statuses > 20
+    # Live status reaches the operator at most ~20 times a second, however fast samples arrive.
+    assert 20 < script.statuses <= 21 * (time.monotonic() - started)
 
     capture = result.capture
     assert [label for label, _ in capture.segments()] == seq.labels
@@ -68,6 +74,7 @@ def test_six_position_and_rotations_recover_the_units_truth(unit, tmp_path):
         assert len(capture.t[sl]) >= 200
     # Every turn: the raw gyro integrates to the truth's scale times the angle (misalignment is
     # second order), within 1 %.
+    assert [r.label for r in result.steps[6:]] == ["rot+x", "rot-z"]
     for record in result.steps[6:]:
         step = seq.steps[seq.labels.index(record.label)]
         scale = truth.gyro.matrix[step.axis, step.axis]
