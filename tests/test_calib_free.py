@@ -77,6 +77,13 @@ def test_reversed_gyro_axes_and_per_interval_bias() -> None:
     assert np.all(np.sign(np.diag(report.gyro.matrix)) == [-1, 1, -1])
 
 
+def test_refuses_saturated_moves(session) -> None:
+    truth, rec = session
+    limit = 0.6 * np.abs(rec.gyro).max()
+    with pytest.raises(EngineInputError, match=r"gyroscope . axis is saturated at t = "):
+        calibrate_free(rec.t, rec.acc, np.clip(rec.gyro, -limit, limit), truth.gravity)
+
+
 def _read_imu_tk(path) -> np.ndarray:
     """imu_tk's ASCII data: ``t x y z`` per line, spaces, gzipped here."""
     with gzip.open(path, "rt") as fh:

@@ -168,6 +168,17 @@ def convert_convention(accel_correction: np.ndarray, gyro_correction: np.ndarray
     return acc_c, gyro_c, q.T
 
 
+def pinned_run(values: np.ndarray, extreme: float) -> tuple[int, int]:
+    """The longest run of consecutive samples equal to ``extreme``: (start index, length)."""
+    pinned = np.concatenate([[0], (np.asarray(values) == extreme).astype(np.int8), [0]])
+    edges = np.flatnonzero(np.diff(pinned))
+    if len(edges) == 0:
+        return 0, 0
+    starts, lengths = edges[::2], edges[1::2] - edges[::2]
+    k = int(np.argmax(lengths))
+    return int(starts[k]), int(lengths[k])
+
+
 def require(condition: bool, message: str) -> None:
     if not condition:
         raise EngineInputError(message)

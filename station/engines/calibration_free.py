@@ -49,6 +49,7 @@ from station.engines.calibration_common import (
     convert_convention,
     covariance,
     describe_null,
+    pinned_run,
     stddev_from,
 )
 from station.engines.sensor_model import SensorCalibration
@@ -64,6 +65,8 @@ ACC_PARAM_NAMES = {
     "lower": ["t_yx", "t_zx", "t_zy", "k_x", "k_y", "k_z", "b_x", "b_y", "b_z"],
 }
 GYRO_PARAM_NAMES = [f"C_{i}{j}" for i in "xyz" for j in "xyz"]
+# Fewest consecutive samples pinned at an axis's extreme that count as saturation.
+SATURATION_RUN = 5
 
 
 @dataclass(frozen=True)
@@ -454,6 +457,23 @@ def _interval_samples(acc: np.ndarray, intervals: np.ndarray, settings: FreeSett
     return means, valid
 
 
+def _check_gyro_saturation(t: np.ndarray, gyro: np.ndarray, n_still: int) -> None:
+    """Refuse a session where a gyro axis sits at its extreme for several samples: the moves were
+    too fast for the range and their integrated rotation is wrong. A noiseless (constant) still
+    period means the check cannot tell clipping from a steady signal, so it is skipped then."""
+    noisy = gyro[:n_still].std(axis=0) > 1e-9 * np.maximum(1.0, np.abs(gyro).max(axis=0))
+    for i, axis in enumerate("xyz"):
+        if not noisy[i]:
+            continue
+        for extreme in (gyro[:, i].max(), gyro[:, i].min()):
+            start, run = pinned_run(gyro[:, i], extreme)
+            if run >= SATURATION_RUN:
+                raise EngineInputError(
+                    f"the gyroscope {axis} axis is saturated at t = {t[start]:.2f} s (held at {extreme:g} "
+                    f"for {run} samples): the moves were too fast for its range; move more slowly and "
+                    "record again")
+
+
 def _check_rank(jac: np.ndarray, names: list[str], what: str) -> None:
     scale = np.linalg.norm(jac, axis=0)
     scale[scale == 0] = 1.0
@@ -561,6 +581,7 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     pose_res = [float(g) for g in gravity - np.linalg.norm(directions, axis=1)]
 
     # Gyroscope
+    _check_gyro_saturation(t, gyro, n_still)
     gyro_bias = gyro[:n_still].mean(axis=0)
     blocks = gyro_blocks(t, gyro - gyro_bias, intervals, directions)
     if settings.gyro_bias == "intervals":

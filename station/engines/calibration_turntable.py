@@ -8,6 +8,7 @@ import numpy as np
 
 from station.engines.calibration_common import (
     CalibrationReport,
+    pinned_run,
     pose_vector,
     rotation_of,
     segments,
@@ -55,14 +56,11 @@ def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label:
         if not noisy[i]:
             continue
         for extreme in (x[:, i].max(), x[:, i].min()):
-            pinned = seg[:, i] == extreme
-            if pinned.sum() < SATURATION_RUN:
-                continue
-            runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], pinned.astype(np.int8), [0]]))))[::2]
-            if runs.size and runs.max() >= SATURATION_RUN:
+            _, run = pinned_run(seg[:, i], extreme)
+            if run >= SATURATION_RUN:
                 raise EngineInputError(
                     f"step '{label}' ({_span(t, sl)}): the {name} {axis} axis is saturated (held at "
-                    f"{extreme:g} for {int(runs.max())} samples); lower the rotation rate or raise the range")
+                    f"{extreme:g} for {run} samples); lower the rotation rate or raise the range")
 
 
 def _small_sample_factor(dof: int) -> float:
