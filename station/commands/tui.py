@@ -29,8 +29,10 @@ Files: --out PARAMS.yaml gets the accel and gyro sections (other sections are ke
 labelled capture of the sequence goes to --capture (default PARAMS-capture.csv beside --out);
 Allan and temperature recordings go to PARAMS-allan.h5 and PARAMS-thermal.h5.
 
-exit codes: 0 done, 1 the run was aborted or a result is outside its limits, 3 device or link
-error, 4 usage."""
+A port that cannot be opened, or a link lost during the run, is shown on the screen (what was
+captured is kept) and another port can be chosen.
+
+exit codes: 0 done, 1 the run was aborted or a result is outside its limits, 4 usage."""
 EPILOG = """\
 examples:
   imu-station tui --port /dev/ttyUSB0 --out unit42.yaml --export c
@@ -59,8 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sequence", default="six-position", metavar="NAME|FILE",
                         help="six-position (default), twelve-position, rotations, or a YAML sequence file")
     parser.add_argument("--no-rotations", action="store_true",
-                        help="leave out the six rotations after the poses (the gyro then keeps its "
-                        "bias only)")
+                        help="leave out the six rotations after the poses (the gyroscope section is "
+                        "then not written: its scale and misalignment need the turns)")
     parser.add_argument("--hold", type=_positive, default=5.0, metavar="S",
                         help="seconds of capture per pose (default 5)")
     parser.add_argument("--rotation-rate", type=_positive, default=90.0, metavar="DPS",

@@ -22,6 +22,7 @@ class SensorLimits:
 
 
 ACCEL_LIMITS = SensorLimits(bias_max=1.5, scale_error_max=0.1, misalignment_max=0.05, residual_rms_max=0.05)
+# The gyro residual of the rotation method is the integrated angle error (rad): 0.05 rad is 3 deg.
 GYRO_LIMITS = SensorLimits(bias_max=0.2, scale_error_max=0.1, misalignment_max=0.05, residual_rms_max=0.05)
 
 
@@ -40,8 +41,13 @@ class Verdict:
         return bool(np.isfinite(self.value)) and self.value <= self.limit
 
 
-def evaluate(sensor: str, cal: SensorCalibration, limits: SensorLimits, unit: str) -> list[Verdict]:
-    """The largest |bias|, |scale - 1|, |misalignment| and the residual RMS against ``limits``."""
+def evaluate(sensor: str, cal: SensorCalibration, limits: SensorLimits, unit: str,
+             residual_unit: str | None = None) -> list[Verdict]:
+    """The largest |bias|, |scale - 1|, |misalignment| and the residual RMS against ``limits``.
+
+    ``residual_unit``: the unit of the method's residual when it is not the sensor's (the
+    rotation fit's residual is an angle, rad).
+    """
     worst = lambda values: float(np.max(np.abs(values)))  # noqa: E731
     verdicts = [
         Verdict(sensor, "max |bias|", worst(cal.bias), limits.bias_max, unit),
@@ -50,5 +56,5 @@ def evaluate(sensor: str, cal: SensorCalibration, limits: SensorLimits, unit: st
     ]
     if cal.residual_rms is not None:
         verdicts.append(Verdict(sensor, "residual rms", float(cal.residual_rms), limits.residual_rms_max,
-                                unit))
+                                residual_unit or unit))
     return verdicts

@@ -36,6 +36,11 @@ def _pm(values: np.ndarray, sigma: object, fmt: str) -> list[str]:
     return [f"{format(v, fmt)} ± {format(s, '.1e')}" for v, s in zip(values, sig, strict=True)]
 
 
+def residual_unit(cal: SensorCalibration, unit: str) -> str:
+    """The rotation method's residual is an angle; the engine says so in ``extra['residual']``."""
+    return "rad" if "angle" in str(cal.extra.get("residual", "")) else unit
+
+
 def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
     table = Table(title=title, title_justify="left", title_style="bold", expand=False, padding=(0, 1))
     table.add_column("parameter")
@@ -57,7 +62,7 @@ def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
                 cells.append(_pm(np.array([s[i, j]]), None if sig is None else np.array([sig]), "+.5f")[0])
         table.add_row(f"misalign {axis}·", *cells, "rad")
     if cal.residual_rms is not None:
-        table.add_row("residual rms", f"{cal.residual_rms:.3e}", "", "", unit)
+        table.add_row("residual rms", f"{cal.residual_rms:.3e}", "", "", residual_unit(cal, unit))
     return table
 
 
@@ -124,7 +129,8 @@ class ResultsScreen(Screen[None]):
             self.verdicts += evaluate("accel", report.accel, ACCEL_LIMITS, "m/s^2")
         if report.gyro is not None:
             parts.append(sensor_table("gyroscope", report.gyro, "rad/s"))
-            self.verdicts += evaluate("gyro", report.gyro, GYRO_LIMITS, "rad/s")
+            self.verdicts += evaluate("gyro", report.gyro, GYRO_LIMITS, "rad/s",
+                                      residual_unit(report.gyro, "rad/s"))
         parts.append(verdict_table(self.verdicts))
         residuals = self.residual_table(report)
         if residuals is not None:
