@@ -90,3 +90,24 @@ def test_errors_are_one_line_without_traceback(twelve_csv, tmp_path, capsys) -> 
     assert "stated sample rate 250 Hz disagrees" in err and "Traceback" not in err
     assert cli.main(["calibrate", str(tmp_path / "missing.csv")]) == 4
     assert "missing.csv: does not exist" in capsys.readouterr().err
+
+
+def test_demo_ends_with_a_calibration_of_the_simulated_unit(tmp_path) -> None:
+    import io
+
+    from station.commands import demo
+
+    out = io.StringIO()
+    ctx = demo.DemoContext(out_dir=tmp_path / "demo", seed=3, out=out, err=io.StringIO())
+    steps = [(title, step) for title, step in demo.STEPS
+             if step in (demo.start_simulated_unit, demo.calibrate_unit)]
+    assert steps[-1][1] is demo.STEPS[-1][1]  # the calibration is the demo's final step
+    demo.run_demo(ctx, steps)
+    errors = ctx.results["calibration"]
+    assert errors["accel scale"] < 2e-4 and errors["gyro scale"] < 2e-4
+    assert errors["gyro bias"] < 1e-4
+    text = out.getvalue()
+    assert "recovered" in text and "true" in text and "accel bias" in text
+    params = ParamsFile.load(tmp_path / "demo" / "params.yaml")
+    assert params.device["serial"] == "SIM-000003"
+    assert params.accel is not None and params.gyro is not None
