@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from station.engines.sensor_model import SensorCalibration
-from station.errors import EngineInputError
 
 AXES = "xyz"
 _POSE = re.compile(r"^(?:[+-][xyz])+$")
@@ -177,8 +176,3 @@ def pinned_run(values: np.ndarray, extreme: float) -> tuple[int, int]:
     starts, lengths = edges[::2], edges[1::2] - edges[::2]
     k = int(np.argmax(lengths))
     return int(starts[k]), int(lengths[k])
-
-
-def require(condition: bool, message: str) -> None:
-    if not condition:
-        raise EngineInputError(message)

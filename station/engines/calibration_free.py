@@ -46,7 +46,6 @@ from scipy.optimize import least_squares
 from station.engines import quaternion as quat
 from station.engines.calibration_common import (
     CalibrationReport,
-    convert_convention,
     covariance,
     describe_null,
     pinned_run,
@@ -652,9 +651,3 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     }
     return CalibrationReport(accel, gyro_cal, "free", gravity, poses, warnings, details)
 
-
-def in_convention(report: CalibrationReport, to: str) -> tuple[np.ndarray, np.ndarray]:
-    """The report's (accel, gyro) corrections re-expressed in convention ``to`` (exact rotation)."""
-    acc_c, gyro_c, _ = convert_convention(report.details["accel_correction"],
-                                          report.details["gyro_correction"], to)
-    return acc_c, gyro_c

@@ -26,11 +26,6 @@ def omega_matrix(w: np.ndarray) -> np.ndarray:
     return np.einsum("...i,ijk->...jk", np.asarray(w, float), _OMEGA_BASIS)
 
 
-def omega_basis() -> np.ndarray:
-    """The three constant matrices E_i with Omega(w) = sum_i w_i E_i (shape (3, 4, 4))."""
-    return _OMEGA_BASIS.copy()
-
-
 def qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Hamilton product p (x) q of quaternion arrays (..., 4)."""
     pw, px, py, pz = np.moveaxis(np.asarray(p, float), -1, 0)
