@@ -17,7 +17,7 @@ import pytest
 from imucal import FerrarisCalibration
 from imucal.ferraris_calibration import FerrarisSignalRegions
 
-from mocks.rig import Move, Static, sequence_segments, simulate
+from mocks.rig import Move, Rotation, Static, sequence_segments, simulate
 from mocks.truth import UnitTruth
 from station.engines.calibration_static import fit_poses, six_position
 from station.engines.calibration_turntable import calibrate_turntable
@@ -233,3 +233,16 @@ def test_real_ferraris_session_against_imucal(shared_data) -> None:
     assert np.abs(report.gyro.matrix - m_imucal).max() < 1e-3 * np.abs(np.diag(m_imucal)).min()
     np.testing.assert_allclose(report.gyro.bias, b_g, rtol=1e-9)
     assert any("one way only" in w for w in report.warnings)
+
+
+def test_rotations_by_any_angle_in_any_order() -> None:
+    truth = UnitTruth.random(17)
+    segments = [Static(p, 20.0) for p in ("+z", "-z", "+x", "-x", "+y", "-y")]
+    segments += [Rotation("+x", 180.0), Rotation("-y", 540.0, rate_dps=120.0), Rotation("+z", 270.0),
+                 Rotation("-x", 180.0), Rotation("+y", 540.0, rate_dps=120.0), Rotation("-z", 270.0)]
+    rec = simulate(truth, segments, rate_hz=RATE_HZ, seed=17)
+    assert {"rot+x:180", "rot-y:540", "rot+z:270"} <= set(rec.step)
+    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+    dm = report.gyro.matrix - truth.gyro.matrix
+    assert np.abs(dm).max() < 2e-4
+    assert np.all(np.abs(dm) < 3 * report.gyro.stddev["matrix"])
