@@ -18,7 +18,7 @@ from mocks.faults import FaultSpec
 from mocks.pty_server import PtyServer
 from station.acquisition.capture import read_capture
 from station.acquisition.checks import Limits
-from station.acquisition.operator import Action, ScriptedOperator, SimulatedOperator
+from station.acquisition.operator import FACTORY_ANSWERS, Action, ScriptedOperator, SimulatedOperator
 from station.acquisition.recorder import Recorder
 from station.acquisition.runner import RecorderSink, RunOptions, SequenceRunner
 from station.acquisition.sequences import PoseStep, Sequence, builtin
@@ -139,6 +139,13 @@ def test_failed_check_is_reviewed_redo_then_skip(unit):
     kept = SequenceRunner(device, poses("+z"), SimulatedOperator(server.device, script2), limited).run()
     assert kept.steps[0].status == "accepted" and kept.steps[0].problems
     assert [label for label, _ in kept.capture.segments()] == ["+z"]
+    # The factory's answers: redo while offered, then abort; the step counts as failed.
+    factory = ScriptedOperator(answers=FACTORY_ANSWERS)
+    two = RunOptions(limits=Limits(acc_saturation=9.0), max_attempts=2)
+    failed = SequenceRunner(device, poses("+z"), SimulatedOperator(server.device, factory), two).run()
+    assert failed.outcome == "aborted" and "saturated" in failed.reason
+    assert (failed.steps[0].status, failed.steps[0].attempts) == ("failed", 2)
+    assert [e.detail for e in factory.transcript if e.event == "confirm:review"] == ["redo", "abort"]
     with pytest.raises(ValueError, match="not one of"):
         SequenceRunner(device, poses("+z"), SimulatedOperator(server.device, ScriptedOperator(
             answers={"review": "redo"})), limited).run()

@@ -105,9 +105,15 @@ class BaseOperator:
 
 Answer = Action | str | Callable[[Prompt], Action | str]
 
-# What a factory line wants when nobody is there: go on, retry a failed step a few times
-# (counted by the runner's max_attempts), give up on a unit that never gets into position.
-FACTORY_ANSWERS: dict[str, Answer] = {"start": Action.ACCEPT, "review": Action.REDO, "timeout": Action.ABORT}
+def redo_then_abort(prompt: Prompt) -> Action:
+    """Redo a failed step while the runner still offers it (``RunOptions.max_attempts``), then abort."""
+    return Action.REDO if Action.REDO in prompt.choices else Action.ABORT
+
+
+# What a factory line wants when nobody is there: go on, retry a failed step a few times,
+# give up on a unit that never gets into position.
+FACTORY_ANSWERS: dict[str, Answer] = {"start": Action.ACCEPT, "review": redo_then_abort,
+                                      "timeout": Action.ABORT}
 
 
 @dataclass
