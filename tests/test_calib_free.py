@@ -124,8 +124,10 @@ def test_reproduces_imu_tk_on_its_xsens_session(xsens) -> None:
     np.testing.assert_allclose(1 / np.diag(g), [4777.96, 4764.21, 4773.66], rtol=1e-4)
     published_t = np.array([[1, 0.00593634, 0.00111101], [0.00808812, 1, -0.0535569],
                             [0.0253067, -0.0025513, 1]])
-    # off-diagonal terms agree to 2e-6 (the gyro problem is flat there: imu_tk stops on Ceres'
-    # default tolerances); relative to the matrix that is better than 1e-4
+    # off-diagonal terms agree to 2e-6 absolute (better than 1e-4 relative to the matrix). Closer is
+    # not meaningful: imu_tk's accelerometer fit stops at Ceres' default function tolerance (1e-6),
+    # and moving our accelerometer parameters along the fit's flattest directions by that much of
+    # its cost moves these terms by up to 3e-6 and the gyro cost by 1e-4 (measured).
     np.testing.assert_allclose(g / np.diag(g)[None, :], published_t, rtol=0, atol=2e-6)
     np.testing.assert_allclose(report.gyro.bias, [32777.1, 32459.8, 32511.8], rtol=1e-5)
 
