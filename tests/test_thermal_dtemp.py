@@ -68,3 +68,13 @@ def test_short_inputs() -> None:
     f = DtempFilter("ema", 5.0)
     assert estimate_dtemp(np.array([]), np.array([]), f).shape == (0,)
     np.testing.assert_array_equal(estimate_dtemp(np.array([1.0]), np.array([20.0]), f), [0.0])
+
+
+def test_unknown_readings_count_as_the_last_known_one() -> None:
+    """As the firmware filter: NaN holds the last reading; the filter starts at the first known one."""
+    t = np.arange(10.0)
+    with_gaps = np.array([np.nan, np.nan, 20, 21, np.nan, 23, 24, 25, np.nan, 27.0])
+    held = np.array([20, 20, 20, 21, 21, 23, 24, 25, 25, 27.0])
+    filt = DtempFilter("ema", 2.0)
+    assert np.array_equal(estimate_dtemp(t, with_gaps, filt), estimate_dtemp(t, held, filt))
+    assert not estimate_dtemp(t, np.full(10, np.nan), filt).any()

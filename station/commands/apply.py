@@ -6,7 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -58,8 +57,7 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
     elif dtemp is not None:
         how["thermal"] = "applied with the input's dtemp column"
     else:
-        dtemp = estimate_dtemp(capture.t, np.nan_to_num(capture.temp, nan=params.thermal.reference_temp),
-                               params.thermal.dtemp_filter)
+        dtemp = estimate_dtemp(capture.t, capture.temp, params.thermal.dtemp_filter)
         filt = params.thermal.dtemp_filter
         how["thermal"] = f"applied with dT estimated by the file's filter ({filt.kind}, tau {filt.tau_s:g} s)"
     acc, gyro = apply_calibration(capture.acc, capture.gyro, capture.temp, dtemp, params.accel, params.gyro,

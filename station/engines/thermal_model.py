@@ -151,13 +151,19 @@ def estimate_dtemp(t_s: np.ndarray, temp: np.ndarray, filt: DtempFilter) -> np.n
     Firmware runs the recursion sample by sample; here it is evaluated as two vectorised
     first-order scans (``_ema_scan``) with each sample's own dt, equal to the sample loop to
     rounding (within 1e-9 of the largest dT, far below float32). A sample whose dt is not
-    positive leaves the state as it was and repeats the last dT.
+    positive leaves the state as it was and repeats the last dT. An unknown (NaN) reading
+    counts as the last known one, and the filter starts at the first known reading, as the
+    firmware's ``imu_calib_dtemp_update`` does.
     """
     t_s = np.asarray(t_s, float)
     temp = np.asarray(temp, float)
     out = np.zeros_like(temp)
-    if len(temp) < 2:
+    known = np.isfinite(temp)
+    if len(temp) < 2 or not known.any():
         return out
+    if not known.all():
+        last_known = np.maximum.accumulate(np.where(known, np.arange(len(temp)), -1))
+        temp = temp[np.where(last_known >= 0, last_known, np.argmax(known))]
     dt = np.diff(t_s)
     valid = dt > 0
     safe_dt = np.where(valid, dt, 1.0)
