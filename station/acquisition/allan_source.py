@@ -6,6 +6,9 @@ float64 files; then each file is turned in place into the demeaned cumulative su
 input chunk (at most 200,000 rows) plus the engine's cache blocks, whatever the length of the record;
 the disk holds 6 x 8 bytes per sample (4.1 GB for 24 h at 1 kHz) in a temporary folder removed afterwards.
 
+The sums are read back through read-only maps whose pages the engine releases as it goes, so the
+process's resident memory does not grow with the record either.
+
 Timestamps are checked on the way: duplicates and samples older than the newest one are dropped and
 counted, gaps (steps over 1.5 nominal periods) are counted with the samples they miss. Nothing is assumed
 silently: the report goes to the user and into the outputs.
@@ -196,22 +199,34 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
         means = sums / report.samples
         tau0 = 1.0 / report.rate_hz
         phase = []
+        buf = np.empty(PASS2_ROWS + 1)
         for j, p in enumerate(paths):
-            x = np.memmap(p, dtype=np.float64, mode="r+")
-            carry = 0.0
-            for a in range(1, len(x), PASS2_ROWS):
-                part = x[a:a + PASS2_ROWS]
-                s = np.cumsum(np.concatenate([[carry], part - means[j]]))[1:]
-                carry = float(s[-1])
-                s *= tau0
-                part[:] = s
-            x.flush()
-            phase.append(np.memmap(p, dtype=np.float64, mode="r"))
-            del x
+            # plain reads and writes, not a writable map: dirty mapped pages would count against the
+            # process for the whole file
+            with open(p, "r+b") as f:
+                carry = 0.0
+                for a in range(report.samples // PASS2_ROWS + 1):
+                    f.seek((1 + a * PASS2_ROWS) * 8)
+                    raw = np.fromfile(f, dtype=np.float64, count=PASS2_ROWS)
+                    if len(raw) == 0:
+                        break
+                    part = buf[:len(raw) + 1]
+                    part[0] = carry
+                    np.subtract(raw, means[j], out=part[1:])
+                    np.cumsum(part, out=part)
+                    carry = float(part[-1])
+                    f.seek((1 + a * PASS2_ROWS) * 8)
+                    f.write((part[1:] * tau0).tobytes())
+            phase.append(_map(p))
         return IntegratedRecord(phase, report.rate_hz, report, means, source, device or {}, tmp)
     except BaseException:
         tmp.cleanup()
         raise
+
+
+def _map(path: Path) -> np.ndarray:
+    """A read-only view of a file of float64 whose map the engine can release page by page."""
+    return np.memmap(path, dtype=np.float64, mode="r")
 
 
 def _merge_first(chunks: Iterable[Chunk], rows: int = FIRST_ROWS) -> Iterator[Chunk]:

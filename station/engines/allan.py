@@ -23,6 +23,7 @@ The confidence interval is the chi-square interval of NIST SP 1065, eq. 45.
 from __future__ import annotations
 
 import math
+import mmap
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -34,8 +35,10 @@ from scipy import special, stats
 from station.errors import EngineInputError
 
 ONE_SIGMA = float(special.erf(1.0 / math.sqrt(2.0)))  # 0.6827: the "68 %" interval
-BLOCK = 131_072  # doubles per buffer: two buffers and three input windows stay in L2/L3 cache
+BLOCK = 65_536  # doubles per block: the window of every small m (<= BLOCK) stays in L2/L3 cache
 MIN_SAMPLES = 16
+INTEGRATE_ROWS = 1 << 20
+_FAULT_AROUND = 1 << 21  # bytes: fault-around (64 kB) or a whole large folio (up to 2 MB)
 
 ProgressCallback = Callable[[int, int], None]
 
@@ -62,17 +65,69 @@ def integrate_rates(rates: np.ndarray, rate_hz: float) -> np.ndarray:
     if y.ndim == 1:
         y = y[:, None]
     tau0 = 1.0 / float(rate_hz)
-    phase = np.empty((y.shape[1], y.shape[0] + 1), dtype=np.float64)
+    n = y.shape[0]
+    phase = np.empty((y.shape[1], n + 1), dtype=np.float64)
+    buf = np.empty(min(n, INTEGRATE_ROWS) + 1)
     for j in range(y.shape[1]):
         col = y[:, j]
+        mean = np.mean(col)
         phase[j, 0] = 0.0
-        np.cumsum(col - np.mean(col), out=phase[j, 1:])
-        phase[j, 1:] *= tau0
+        carry = 0.0
+        # in pieces, each prefixed with the running sum: the sequential float64 sum of the whole column
+        # without a second full-length temporary
+        for a in range(0, n, INTEGRATE_ROWS):
+            length = min(INTEGRATE_ROWS, n - a)
+            part = buf[:length + 1]
+            part[0] = carry
+            np.subtract(col[a:a + length], mean, out=part[1:])
+            np.cumsum(part, out=part)
+            carry = float(part[-1])
+            np.multiply(part[1:], tau0, out=phase[j, 1 + a:1 + a + length])
     return phase
 
 
-def _sum_second_differences(x: np.ndarray, m: int, block: int) -> float:
-    """sum_i (x_{i+2m} - 2 x_{i+m} + x_i)^2 of eq. (2), block by block in cache-resident buffers."""
+def _release(x: np.ndarray, start: int, stop: int) -> None:
+    """Drop pages of a file-backed row from this process once read: memory stays bounded on day-long
+    records (the pages stay in the page cache, the next read is a cheap minor fault)."""
+    mm = x.base if isinstance(x.base, mmap.mmap) else None
+    if mm is None or not hasattr(mm, "madvise"):
+        return
+    # a fault maps the pages around it (fault-around, or a whole large folio of the page cache), before
+    # the window too: release that much behind the start as well (those pages were read already)
+    start = max(start - _FAULT_AROUND // x.itemsize, 0)
+    first = (start * x.itemsize) // mmap.PAGESIZE * mmap.PAGESIZE
+    last = min(stop * x.itemsize, len(mm))
+    if last > first:
+        mm.madvise(mmap.MADV_DONTNEED, first, last - first)
+
+
+def _sums_small(x: np.ndarray, m: np.ndarray, first: int, stop: int, block: int) -> np.ndarray:
+    """sum_i v_i^2 of eq. (2) for i in [first, stop) and every small m, one cache-resident window per block.
+
+    With d_i = x_{i+m} - x_i, the second difference is v_i = d_{i+m} - d_i: two subtractions and a dot
+    product per m while the window x[a : a + block + 2 max(m)] stays in cache for all of them.
+    """
+    n_phase = len(x)
+    totals = np.zeros(len(m))
+    d = np.empty(block + int(m.max()))
+    for a in range(first, stop, block):
+        for k, mk in enumerate(m):
+            mk = int(mk)
+            length = min(block, stop - a, n_phase - 2 * mk - a)
+            if length <= 0:
+                continue
+            dd = d[:length + mk]
+            np.subtract(x[a + mk:a + 2 * mk + length], x[a:a + mk + length], out=dd)
+            v = dd[mk:]
+            np.subtract(v, dd[:length], out=v)
+            totals[k] += float(np.dot(v, v))
+        _release(x, a, min(a + block, stop))
+    _release(x, stop, stop + block + 2 * int(m.max()))  # the windows' reach past this task's range
+    return totals
+
+
+def _sum_large(x: np.ndarray, m: int, block: int) -> float:
+    """sum_i v_i^2 of eq. (2) for one large m: three windows a block long, far apart."""
     n = len(x) - 2 * m
     d_outer = np.empty(min(block, n))
     d_inner = np.empty(min(block, n))
@@ -86,6 +141,8 @@ def _sum_second_differences(x: np.ndarray, m: int, block: int) -> float:
         np.subtract(x[a + m:a + m + length], x[a:a + length], out=inner)
         outer -= inner
         total += float(np.dot(outer, outer))
+        for w in (a, a + m, a + 2 * m):
+            _release(x, w, w + length)
     return total
 
 
@@ -135,17 +192,30 @@ def overlapping_adev_phase(phase: np.ndarray | Sequence[np.ndarray], rate_hz: fl
     if len(m) and (m.min() < 1 or 2 * m.max() >= p):
         raise EngineInputError(f"cluster sizes must lie in 1..{(p - 1) // 2} for {p - 1} samples; "
                                f"got {int(m.min())}..{int(m.max())}")
-    tasks = [(j, i) for i in range(len(m)) for j in range(len(x))]
-    sums = np.empty((len(m), len(x)))
+    workers = workers or os.cpu_count() or 1
+    small = np.flatnonzero(m <= block)  # these share one cache window per block
+    large = np.flatnonzero(m > block)
+    n_small = p - 2 * int(m[small].min()) if len(small) else 0
+    # contiguous block ranges, a few per worker and axis for balance, block-aligned
+    per = max(block, -(-n_small // (4 * workers)) // block * block) if n_small else block
+    tasks: list[tuple[str, int, int, int]] = []
+    tasks += [("small", j, a, min(a + per, n_small)) for j in range(len(x)) for a in range(0, n_small, per)]
+    tasks += [("large", j, int(i), 0) for i in large for j in range(len(x))]
+    sums = np.zeros((len(m), len(x)))
     done = 0
 
-    def run(task: tuple[int, int]) -> None:
-        j, i = task
-        sums[i, j] = _sum_second_differences(x[j], int(m[i]), block)
+    def run(task: tuple[str, int, int, int]) -> tuple[tuple[str, int, int, int], np.ndarray | float]:
+        kind, j, a, b = task
+        if kind == "small":
+            return task, _sums_small(x[j], m[small], a, b, block)
+        return task, _sum_large(x[j], int(m[a]), block)
 
-    workers = workers or os.cpu_count() or 1
     with _blas_one_thread(), ThreadPoolExecutor(max_workers=workers) as pool:
-        for _ in pool.map(run, tasks):
+        for (kind, j, a, _), part in pool.map(run, tasks):
+            if kind == "small":
+                sums[small, j] += part
+            else:
+                sums[a, j] = part
             done += 1
             if on_progress is not None:
                 on_progress(done, len(tasks))

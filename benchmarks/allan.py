@@ -1,0 +1,162 @@
+"""Allan engine against allantools.oadev: time and peak memory on the same 10,000,000-sample series.
+
+    .venv/bin/python benchmarks/allan.py [--samples 10000000] [--repeats 3]
+
+Both compute the overlapping Allan deviation of the same float64 rate series at the same cluster sizes
+(station.engines.allan.cluster_sizes: 10 per decade up to N/4). Times are medians of ``--repeats`` runs
+in this process; peak memory is measured in a fresh subprocess per implementation (VmHWM, with the
+input series included, and above the baseline after making the series). A last part streams 6-axis
+records of two lengths through the on-disk cumulative sums to show that memory does not grow with the
+record (the path day-long recordings take).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+RATE = 1000.0
+
+
+def series(n: int) -> np.ndarray:
+    """White noise plus a random walk, made in pieces so that making it costs no more than the series."""
+    rng = np.random.default_rng(2024)
+    y = np.empty(n)
+    walk = 0.0
+    piece = 1 << 20
+    for a in range(0, n, piece):
+        k = min(piece, n - a)
+        steps = np.cumsum(rng.standard_normal(k)) * 1e-5 + walk
+        walk = float(steps[-1])
+        y[a:a + k] = rng.standard_normal(k) * 0.05 + steps
+    return y
+
+
+def run_ours(y: np.ndarray, m: np.ndarray) -> np.ndarray:
+    from station.engines.allan import overlapping_adev
+
+    return overlapping_adev(y, RATE, m)
+
+
+def run_allantools(y: np.ndarray, m: np.ndarray) -> np.ndarray:
+    import allantools
+
+    return allantools.oadev(y, rate=RATE, data_type="freq", taus=m / RATE)[1]
+
+
+def maxrss_mb() -> float:
+    """Peak resident memory of this process (VmHWM: unlike ru_maxrss it does not inherit the parent's
+    peak across fork and exec)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def child(which: str, n: int) -> None:
+    """Run one implementation once and print 'peak baseline' in MB."""
+    from station.engines.allan import cluster_sizes
+
+    y = series(n)
+    m = cluster_sizes(n)
+    import allantools  # noqa: F401  - both children load the same modules before the baseline
+
+    import station.engines.allan  # noqa: F401
+
+    base = maxrss_mb()
+    (run_ours if which == "ours" else run_allantools)(y, m)
+    print(f"{maxrss_mb():.1f} {base:.1f}")
+
+
+def child_stream(hours: float) -> None:
+    """Stream 6 axes at 1 kHz through integrate_stream + the engine; print 'peak seconds' (MB, s)."""
+    from station.acquisition.allan_source import AXES, integrate_stream
+    from station.engines.allan import allan_curve
+
+    n = int(hours * 3600 * RATE)
+    rows = 200_000
+    rng = np.random.default_rng(1)
+
+    def chunks():
+        for a in range(0, n, rows):
+            k = min(rows, n - a)
+            t = (a + np.arange(k)) / RATE
+            data = rng.standard_normal((k, 6)) * 0.01
+            yield t, data[:, 3:] + [0.0, 0.0, 9.81], data[:, :3]
+
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        with integrate_stream(chunks(), "synthetic", workdir=tmp) as rec:
+            allan_curve(rec.phase, rec.rate_hz, AXES)
+    print(f"{maxrss_mb():.1f} {time.perf_counter() - start:.1f}")
+
+
+def measure(args: list[str]) -> list[float]:
+    out = subprocess.run([sys.executable, __file__, *args], check=True, capture_output=True, text=True)
+    return [float(v) for v in out.stdout.split()]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--samples", type=int, default=10_000_000)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--child", choices=["ours", "allantools"])
+    parser.add_argument("--stream-hours", type=float)
+    args = parser.parse_args()
+    if args.child:
+        child(args.child, args.samples)
+        return
+    if args.stream_hours:
+        child_stream(args.stream_hours)
+        return
+
+    from station.engines.allan import cluster_sizes
+
+    n = args.samples
+    y = series(n)
+    m = cluster_sizes(n)
+    print(f"series: {n:,} samples, {len(m)} cluster sizes 1..{m[-1]:,} (10 per decade up to N/4)")
+    times: dict[str, list[float]] = {"ours": [], "allantools": []}
+    cpu: dict[str, list[float]] = {"ours": [], "allantools": []}
+    results = {}
+    for _ in range(args.repeats):
+        for name, fn in (("allantools", run_allantools), ("ours", run_ours)):
+            start, start_cpu = time.perf_counter(), time.process_time()
+            results[name] = fn(y, m)
+            times[name].append(time.perf_counter() - start)
+            cpu[name].append(time.process_time() - start_cpu)
+    diff = float(np.max(np.abs(results["ours"] / results["allantools"] - 1.0)))
+    t_ref, t_ours = statistics.median(times["allantools"]), statistics.median(times["ours"])
+    c_ref, c_ours = statistics.median(cpu["allantools"]), statistics.median(cpu["ours"])
+    print(f"wall time (median of {args.repeats}): allantools.oadev {t_ref:.2f} s, "
+          f"station allan {t_ours:.2f} s, speed-up x{t_ref / t_ours:.1f}")
+    print(f"CPU time (median, all threads): allantools.oadev {c_ref:.2f} s, station allan {c_ours:.2f} s, "
+          f"ratio x{c_ref / c_ours:.1f}")
+    print(f"load average while measuring: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"largest relative difference of the deviations: {diff:.2e}")
+    peak = {name: measure(["--child", name, "--samples", str(n)]) for name in ("allantools", "ours")}
+    for name, (top, base) in peak.items():
+        print(f"peak memory {name}: {top:.0f} MB (series and modules {base:.0f} MB, "
+              f"computation +{top - base:.0f} MB)")
+    (top_ref, base_ref), (top_ours, base_ours) = peak["allantools"], peak["ours"]
+    print(f"peak memory ratio station/allantools: {top_ours / top_ref:.2f} total, "
+          f"{(top_ours - base_ours) / max(top_ref - base_ref, 1e-9):.2f} of the computation's share")
+    for hours in (0.5, 2.0):
+        top, secs = measure(["--stream-hours", str(hours)])
+        print(f"streamed 6 axes, {hours:g} h at 1 kHz ({int(hours * 3600 * RATE):,} samples, "
+              f"{hours * 3600 * RATE * 48 / 1e6:.0f} MB of sums on disk): peak memory {top:.0f} MB, "
+              f"{secs:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
