@@ -21,7 +21,8 @@ def _thermal_bias(model: ThermalModel | None, triad: ThermalBias | None, temp: n
         return np.zeros((n, 3))
     temp = np.asarray(temp, float)
     dtemp = np.zeros(n) if dtemp is None else np.asarray(dtemp, float)
-    bias = triad.evaluate(np.nan_to_num(temp, nan=model.reference_temp), np.nan_to_num(dtemp), model.reference_temp)
+    known_temp = np.nan_to_num(temp, nan=model.reference_temp)
+    bias = triad.evaluate(known_temp, np.nan_to_num(dtemp), model.reference_temp)
     # Unknown temperature: no thermal term rather than a guess.
     bias[~np.isfinite(temp)] = 0.0
     return bias

@@ -34,7 +34,8 @@ class SensorCalibration:
         self.bias = np.asarray(self.bias, dtype=float).reshape(3)
 
     @classmethod
-    def from_parts(cls, scale: np.ndarray, misalignment: np.ndarray, bias: np.ndarray, **kw: Any) -> SensorCalibration:
+    def from_parts(cls, scale: np.ndarray, misalignment: np.ndarray, bias: np.ndarray,
+                   **kw: Any) -> SensorCalibration:
         """Build from K (diagonal ``scale``), S (``misalignment``, zero diagonal) and b: M = K (I + S)."""
         matrix = np.diag(np.asarray(scale, float)) @ (np.eye(3) + np.asarray(misalignment, float))
         return cls(matrix=matrix, bias=bias, **kw)

@@ -151,7 +151,8 @@ class ParamsFile:
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             line = mark.line + 1 if mark is not None else None
-            raise InputFileError(path, f"is not valid YAML: {getattr(exc, 'problem', exc)}", line=line) from None
+            problem = getattr(exc, "problem", exc)
+            raise InputFileError(path, f"is not valid YAML: {problem}", line=line) from None
         return cls.from_dict(data, path)
 
     @classmethod
