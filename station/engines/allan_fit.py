@@ -43,6 +43,8 @@ MIN_DOMINANT_POINTS = 3
 OPTIONAL = ("Q", "B", "R")
 K_CROSSING_FRACTION = 20.0  # K needs the N and K lines to cross before T / 20
 MIN_EDF_SHOWN = 10.0  # points that count as showing a term or a floor
+HUMP_RISE = 0.1
+HUMP_FALL = -0.1
 
 
 def basis(tau: np.ndarray) -> np.ndarray:
@@ -68,6 +70,7 @@ class TermEstimate:
     value: float | None = None
     stddev: float | None = None
     reason: str | None = None
+    method: str | None = None
     slope_line_at_1s: float | None = None
     slope_value: float | None = None
     slope_tau: float | None = None
@@ -173,6 +176,29 @@ def _slope_reading(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, term: str
     est.slope_value = float(10.0 ** (b + target * math.log10(READ_TAU[term])))
 
 
+def _hump_top(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray) -> int | None:
+    """Index of the top of a hump: after the white-noise decline the curve rises (slope >= +0.1) then falls
+    again (slope <= -0.1) at well-measured points. That is a correlated (Gauss-Markov) bias, which the IEEE 952
+    terms cannot draw; its top is the bias-instability level (0.66428 B)."""
+    well = np.flatnonzero(edf >= MIN_EDF_SHOWN)
+    if len(well) < 5:
+        return None
+    slope = np.gradient(np.log10(adev), np.log10(tau))
+    # from the end of the white-noise decline on
+    flat = well[slope[well] >= -0.05]
+    if len(flat) == 0:
+        return None
+    after = well[well >= flat[0]]
+    rising = after[slope[after] >= HUMP_RISE]
+    if len(rising) == 0:
+        return None
+    falling = after[(after > rising[0]) & (slope[after] <= HUMP_FALL)]
+    if len(falling) == 0:
+        return None
+    top = rising[0] + int(np.argmax(adev[rising[0]:falling[0] + 1]))
+    return top
+
+
 def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: float,
              axis: str = "") -> AxisNoise:
     """Noise terms of one axis from its Allan deviation curve, eq. (C.1).
@@ -237,8 +263,19 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
             else:
                 est.value = math.sqrt(c)
                 est.stddev = sd_c / (2.0 * est.value)  # delta method: d sqrt(c) = dc / (2 sqrt(c))
+                est.method = "IEEE 952 fit"
         _slope_reading(tau, adev, edf, term, est)
         result.terms[term] = est
+    top = _hump_top(tau, adev, edf) if result.terms["B"].value is None else None
+    if top is not None:
+        b_est = result.terms["B"]
+        # the white noise still adds at the top: take it out (N^2 / tau, eq. C.1)
+        floor2 = adev[top] ** 2 - values.get("N", 0.0) / tau[top]
+        b_est.value = float(math.sqrt(max(floor2, 0.25 * adev[top] ** 2)) / B_FACTOR)
+        b_est.stddev = b_est.value / math.sqrt(2.0 * edf[top])  # sd of sigma_hat ~ sigma / sqrt(2 edf)
+        b_est.reason = None
+        b_est.method = (f"top of a correlated-bias hump at tau = {tau[top]:.3g} s / 0.66428 (the curve rises "
+                        "then falls again: no IEEE 952 term draws that)")
     n_val = values.get("N", 0.0)
     k_val = values.get("K", 0.0)
     if n_val > 0 and k_val > 0:

@@ -58,6 +58,8 @@ def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
     out["stddev"] = {t: _per_axis([a.terms[t].stddev for a in noise]) for t in TERMS}
     out["reasons"] = {t: [a.terms[t].reason for a in noise] for t in TERMS
                       if any(a.terms[t].reason for a in noise)}
+    out["methods"] = {t: [a.terms[t].method for a in noise] for t in TERMS
+                      if any(a.terms[t].method for a in noise)}
     out["datasheet_units"] = {
         f"{t} [{units[t][1]}]": _per_axis([None if (v := a.terms[t].value) is None else v * units[t][2]
                                            for a in noise])
