@@ -3,6 +3,7 @@ hashes."""
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import os
 import pwd
@@ -27,9 +28,10 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="session")
-def postgres_url() -> Iterator[str]:
-    """A private PostgreSQL cluster (initdb + pg_ctl in a temp dir, a free port), stopped afterwards."""
+@contextlib.contextmanager
+def private_postgres() -> Iterator[str]:
+    """A private PostgreSQL cluster (initdb + pg_ctl in a temp dir, a free port), stopped afterwards;
+    skips the test where no server binaries or no psycopg are installed."""
     bins = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb")) or ([shutil.which("initdb")]
                                                                        if shutil.which("initdb") else [])
     if not bins:
@@ -55,6 +57,12 @@ def postgres_url() -> Iterator[str]:
         subprocess.run([*prefix, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
                        capture_output=True)
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def postgres_url() -> Iterator[str]:
+    with private_postgres() as url:
+        yield url
 
 
 def make_record(serial: str, start: str, files: Path, outcome: str = "PASS", bias: float = 0.01) -> RunRecord:

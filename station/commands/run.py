@@ -158,3 +158,26 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(summary(record))
     return record.exit_code
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m station.commands.run``: the run command alone, without importing every other
+    command (run-many starts one such process per unit)."""
+    from drivers.errors import DriverError
+
+    parser = argparse.ArgumentParser(prog="imu-station run", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except (StationError, DriverError) as exc:
+        print(f"imu-station run: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("imu-station run: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

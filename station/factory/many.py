@@ -102,7 +102,7 @@ class RunMany:
         self._lock = threading.Lock()
 
     def _command(self, spec: UnitSpec) -> list[str]:
-        return [sys.executable, "-m", "station.cli", "run", "--plan", str(self.plan), "--json", "--events",
+        return [sys.executable, "-m", "station.commands.run", "--plan", str(self.plan), "--json", "--events",
                 *self.common, *spec.arguments()]
 
     def run(self) -> list[UnitProgress]:

@@ -46,6 +46,9 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float) -> Iterator[
 
     truth = dataclasses.replace(UnitTruth.random(unit.seed, unit.grade), serial=serial)
     faults = FaultSpec(disconnect_after_s=unit.unplug_after_s) if unit.unplug_after_s is not None else None
-    server = PtyServer(SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still"), faults=faults)
+    # 50 ms blocks (the server default is 20 ms): each block is one batch the runner checks, and the
+    # station runs several simulated units at once.
+    server = PtyServer(SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still"), faults=faults,
+                       block_s=0.05)
     with server, TurntableSim(server.device) as table:
         yield SimulatedPorts(server.port_path, table.port_path, server.device)
