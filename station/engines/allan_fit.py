@@ -177,9 +177,9 @@ def _slope_reading(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, term: str
 
 
 def _hump_top(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray) -> int | None:
-    """Index of the top of a hump: after the white-noise decline the curve rises (slope >= +0.1) then falls
-    again (slope <= -0.1) at well-measured points. That is a correlated (Gauss-Markov) bias, which the IEEE 952
-    terms cannot draw; its top is the bias-instability level (0.66428 B)."""
+    """Index of the top of a hump: after the white-noise decline the curve rises (slope >= +0.1) then
+    falls again (slope <= -0.1) at well-measured points. That is a correlated (Gauss-Markov) bias, which
+    the IEEE 952 terms cannot draw; its top is the bias-instability level (0.66428 B)."""
     well = np.flatnonzero(edf >= MIN_EDF_SHOWN)
     if len(well) < 5:
         return None
