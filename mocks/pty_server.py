@@ -1,13 +1,19 @@
 """Serve a simulated device on a pseudo-terminal, as a real unit on a serial port.
 
 A thread owns the master side: every ``block_s`` it produces the samples due by then on an
-absolute schedule (sample k at t0 + its device time, so no drift), encodes them in one batch,
+absolute schedule (sample k at t0 + its device time / speed, so no drift), encodes them in one batch,
 applies faults and writes them with one ``os.write``; host commands read from the master are
 answered between blocks. The host opens ``port_path`` (the slave) with pyserial or anything.
 
 While no host has the port open (reading the master gives EIO) the device streams into the
 void, as a UART with nobody listening: nothing is buffered for a later reader. A
 ``disconnect`` fault closes the master, so the port vanishes under the host.
+
+``speed`` accelerates the device clock against the wall clock, as ``sim://?speed=X`` does: at
+``speed=10`` a 200 Hz unit sends 2000 samples per wall second whose timestamps are still 5 ms
+apart, so a sequence of minutes on the device clock runs in seconds. Everything the device does
+(rate, motion, noise, the disconnect fault's time) follows its own clock; only the stall fault
+and the block period are wall-clock times.
 """
 
 from __future__ import annotations
@@ -42,14 +48,16 @@ class ServerStats:
     answers: int = 0
     host_opens: int = 0
     disconnected: bool = False
-    elapsed_s: float = 0.0
+    elapsed_s: float = 0.0  # wall clock
+    device_time_s: float = 0.0  # device clock: elapsed_s times the speed
     late_blocks: int = 0  # blocks written more than one block period after their due time
     max_lateness_s: float = 0.0
     commands: dict[str, int] = field(default_factory=dict)
 
     @property
     def rate_hz(self) -> float:
-        return self.samples / self.elapsed_s if self.elapsed_s > 0 else 0.0
+        """Samples per second of device clock (the unit's rate, whatever the speed)."""
+        return self.samples / self.device_time_s if self.device_time_s > 0 else 0.0
 
 
 class PtyServer:
@@ -62,11 +70,14 @@ class PtyServer:
     block_s : period of the output blocks.
     link : also make a symlink at this path to the port (removed on stop).
     record : keep every intact frame's bytes and every sample sent (for end-to-end tests).
+    speed : the device clock runs this many times faster than the wall clock (default 1).
     """
 
     def __init__(self, device: SimDevice | None = None, *, seed: int = 0, rate_hz: float = 200.0,
                  scenario: str | Sequence = "still", faults: FaultSpec | None = None, block_s: float = 0.02,
-                 link: str | os.PathLike[str] | None = None, record: bool = False):
+                 link: str | os.PathLike[str] | None = None, record: bool = False, speed: float = 1.0):
+        if not speed > 0:
+            raise ValueError(f"speed must be positive, not {speed}")
         if device is None:
             device = SimDevice(seed=seed, rate_hz=rate_hz, scenario=scenario)
         self.device = device
@@ -75,6 +86,7 @@ class PtyServer:
         self.block_s = block_s
         self.link = Path(link) if link is not None else None
         self.record = record
+        self.speed = float(speed)
         self.stats = ServerStats()
         self.sent_samples: list[np.ndarray] = []
         self.port_path = ""
@@ -139,7 +151,16 @@ class PtyServer:
         return self._closed.wait(timeout)
 
     def elapsed_s(self) -> float:
+        """Wall-clock seconds since start."""
         return time.monotonic() - self._t0
+
+    def device_time_s(self) -> float:
+        """Device-clock seconds since power-up (start)."""
+        return self.elapsed_s() * self.speed
+
+    def _update_times(self, now: float) -> None:
+        self.stats.elapsed_s = now - self._t0
+        self.stats.device_time_s = self.stats.elapsed_s * self.speed
 
     def _close_master(self) -> None:
         if self._master >= 0:
@@ -157,7 +178,8 @@ class PtyServer:
         except BaseException as exc:  # surfaced by stop(): a test must see a crashed server
             self._error = exc
         finally:
-            self.stats.elapsed_s = self.elapsed_s()
+            if self.stats.elapsed_s == 0.0:  # stopped before the first block
+                self._update_times(time.monotonic())
             self.stats.commands = dict(self.device.commands)
 
     def _serve(self) -> None:
@@ -175,17 +197,18 @@ class PtyServer:
                 self.stats.late_blocks += 1
             self.stats.max_lateness_s = max(self.stats.max_lateness_s, lateness)
             self._probe_host()
-            self._emit(now - self._t0)
+            device_time = (now - self._t0) * self.speed
+            self._emit(device_time)
             if faults is not None and faults.disconnect_after_s is not None \
-                    and now - self._t0 >= faults.disconnect_after_s:
+                    and device_time >= faults.disconnect_after_s:
                 self.injector.end_link()
             self._flush(now)
             if self.injector is not None and self.injector.disconnected and not self._pending:
                 self.stats.disconnected = True
-                self.stats.elapsed_s = self.elapsed_s()
+                self._update_times(time.monotonic())
                 self._close_master()
                 return
-            self.stats.elapsed_s = now - self._t0
+            self._update_times(now)
 
     def _wait(self, until: float) -> None:
         """Sleep until ``until`` while answering host commands and draining pending output."""
@@ -228,7 +251,7 @@ class PtyServer:
 
     def _answer(self, data: bytes) -> None:
         # Samples due before the command go out before its answer, as on a real link.
-        self._emit(time.monotonic() - self._t0)
+        self._emit(self.device_time_s())
         answer = self.device.feed(data)
         # Answers bypass the per-frame faults (the injector numbers sample frames only) but not
         # the end of the link.

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 
 import numpy as np
@@ -193,6 +194,59 @@ def test_pty_serves_a_device_driven_live() -> None:
     acc = host.all_samples()["acc"]
     np.testing.assert_allclose(acc[0], [0, 0, 9.80665], atol=1e-5)
     np.testing.assert_allclose(acc[-1], [0, -9.80665, 0], atol=1e-5)
+
+
+def test_pty_speed_keeps_the_device_rate_and_shrinks_the_wall_time() -> None:
+    # x10: 200 Hz on the device clock is 2000 samples per wall second, timestamps still 5 ms apart.
+    with PtyServer(seed=8, rate_hz=200, speed=10.0) as srv, \
+            serial.Serial(srv.port_path, timeout=0.05) as port:
+        host = Host(port)
+        host.pump(0.3)
+        before = len(host.all_samples())
+        t0 = time.monotonic()
+        host.pump(1.5)
+        wall = time.monotonic() - t0
+        got = host.all_samples()
+        info = json.loads(host.ask(encode_frame(native.GET_INFO), native.DEVICE_INFO).payload)
+    assert info["rate_hz"] == 200  # the unit states its own rate, not the wall-clock one
+    assert np.all(np.diff(got["t_us"].astype(np.int64)) == 5000)
+    assert np.all(np.diff(got["seq"].astype(np.int64)) == 1)
+    # 20 ms blocks at each end bound the count error to ~80 samples of 3000 (3 %).
+    assert (len(got) - before) / wall == pytest.approx(2000.0, rel=0.04)
+    assert srv.stats.rate_hz == pytest.approx(200.0, rel=0.01)
+    assert srv.stats.device_time_s == pytest.approx(10.0 * srv.stats.elapsed_s)
+    # The same bytes as at speed 1: speed changes when samples are sent, never what they are.
+    np.testing.assert_array_equal(got, still_recording(8, int(got["seq"][-1]) + 1, 200.0)[got["seq"]])
+
+
+def test_pty_speed_runs_the_disconnect_fault_on_the_device_clock() -> None:
+    with PtyServer(seed=1, rate_hz=200, speed=20.0, faults=FaultSpec(disconnect_after_s=10.0)) as srv, \
+            serial.Serial(srv.port_path, timeout=0.05) as port:
+        host = Host(port)
+        t0 = time.monotonic()
+        with pytest.raises(serial.SerialException):
+            host.pump(5.0)
+        wall = time.monotonic() - t0
+    assert wall < 1.5  # 10 s of device clock at x20
+    assert 9.5 < host.end()["t_us"][-1] * 1e-6 <= 10.1
+
+
+def test_simulate_speed_option(capsys) -> None:
+    from station.cli import main
+
+    assert main(["simulate", "--duration", "1", "--speed", "10", "--seed", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].endswith("speed x10")
+    ran = next(line for line in lines if line.startswith("ran "))
+    pattern = (r"ran ([0-9.]+) s \(([0-9.]+) s of device clock, x10\): ([0-9]+) samples "
+               r"\(([0-9.]+)/s of device clock\)")
+    wall, device, samples, rate = (float(x) for x in re.match(pattern, ran).groups())
+    assert device == pytest.approx(10 * wall, abs=0.11) and samples == pytest.approx(200 * device, rel=0.02)
+    assert rate == pytest.approx(200.0, rel=0.02)
+    assert main(["simulate", "--speed", "0"]) == 4
+    assert "--speed 0: give a factor above 0" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="speed"):
+        PtyServer(speed=-1.0)
 
 
 # --- sim:// ---------------------------------------------------------------------------------------

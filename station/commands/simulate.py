@@ -22,8 +22,9 @@ Serve a simulated IMU on a pseudo-terminal, as a real unit on a serial port: it 
 protocol, streams from power-up on an absolute schedule (no drift), and answers GET_INFO, SET_RATE,
 START_STREAM and STOP_STREAM. The unit's intrinsics, noise and motion come from --seed and
 --scenario; the same seed gives the same unit and the same bytes. Faults can be injected on the
-link. It prints the port path and runs until Ctrl-C (exit 0), --duration, or a disconnect fault,
-then prints a summary.
+link. --speed X runs the device clock X times faster than the wall clock (the timestamps keep the
+unit's rate; a long sequence takes 1/X of the time). It prints the port path and runs until Ctrl-C
+(exit 0), --duration, or a disconnect fault, then prints a summary.
 
 scenarios: still (lying flat, +z up), six-position, twelve-position (the capture-csv sequences
 with their rotations, looped), six-position-static (no rotations), handheld (imu_tk-style random
@@ -35,7 +36,11 @@ EPILOG = """\
 examples:
   imu-station simulate --seed 3 --rate 400 --link /tmp/imu
   imu-station simulate --scenario six-position --faults garbage=0.01,drop=0.001
+  imu-station simulate --scenario twelve-position --speed 10
   imu-station capture --port /tmp/imu --duration 10 -o still.csv   (in another terminal)"""
+
+# Beyond this the pty and the host's decoding, not the simulated unit, would set the pace.
+MAX_SPEED = 100.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,8 +63,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="link faults, e.g. garbage=0.01,drop=0.001 (default: none)")
     parser.add_argument("--link", type=Path, metavar="PATH",
                         help="also make a symlink at PATH to the port (removed at exit)")
+    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
+                        help="device clock runs X times faster than the wall clock (default: 1)")
     parser.add_argument("--duration", type=float, metavar="S",
-                        help="stop after S seconds (default: until Ctrl-C)")
+                        help="stop after S seconds of wall clock (default: until Ctrl-C)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,19 +81,22 @@ def run(args: argparse.Namespace) -> int:
         raise StationError(f"--faults {args.faults!r}: {exc}") from None
     if not MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:
         raise StationError(f"--rate {args.rate}: the simulated unit runs at {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
+    if not 0 < args.speed <= MAX_SPEED:
+        raise StationError(f"--speed {args.speed:g}: give a factor above 0 and at most {MAX_SPEED:g}")
     if args.link is not None and os.path.lexists(args.link) and not args.link.is_symlink():
         raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
     device = SimDevice(truth, seed=args.seed, rate_hz=args.rate, scenario=args.scenario,
                        loop=False if args.hold else None, encoder=args.protocol)
-    server = PtyServer(device, faults=faults, link=args.link)
+    server = PtyServer(device, faults=faults, link=args.link, speed=args.speed)
 
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         server.start()
+        speed = f", speed x{args.speed:g}" if args.speed != 1 else ""
         print(f"simulated unit {truth.serial} ({truth.model}), {args.rate} Hz, scenario {args.scenario}, "
-              f"faults {faults.describe()}")
+              f"faults {faults.describe()}{speed}")
         print(f"port: {server.port_path}")
         if args.link is not None:
             print(f"link: {args.link} -> {server.port_path}")
@@ -121,7 +131,9 @@ def _wait(server: PtyServer, stop: threading.Event, duration: float | None) -> N
 
 def _summary(server: PtyServer) -> None:
     s = server.stats
-    print(f"ran {s.elapsed_s:.1f} s: {s.samples} samples ({s.rate_hz:.1f}/s), "
+    clock = f" ({s.device_time_s:.1f} s of device clock, x{server.speed:g})" if server.speed != 1 else ""
+    per = "/s of device clock" if server.speed != 1 else "/s"
+    print(f"ran {s.elapsed_s:.1f} s{clock}: {s.samples} samples ({s.rate_hz:.1f}{per}), "
           f"{s.samples_sent} sent to a host, {s.samples_unheard} with no host, "
           f"{s.samples_overrun} dropped (host not reading), "
           f"{s.bytes_written} bytes written")
