@@ -173,3 +173,12 @@ def test_curve_and_refusals():
         allan.allan_curve(allan.integrate_rates(y[:10], 50.0), 50.0, ["gx"] * 6)
     with pytest.raises(ValueError, match="alpha"):
         allan.greenhall_edf(-3, 10, 1000)
+
+
+def test_non_finite_samples_are_refused_with_their_time(tmp_path):
+    t = np.arange(2000) / 100.0
+    gyro = np.zeros((2000, 3))
+    gyro[1500, 1] = np.nan
+    with pytest.raises(EngineInputError, match=r"t = 15\.000000 s has a non-finite gy"):
+        integrate_stream(iter([(t, np.zeros((2000, 3)), gyro)]), "x.bag", workdir=tmp_path)
+    assert list(tmp_path.iterdir()) == []

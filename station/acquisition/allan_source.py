@@ -184,6 +184,11 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
                 t = np.asarray(t, dtype=np.float64)
                 keep = checker.check(t)
                 block = np.column_stack([np.asarray(gyro, np.float64), np.asarray(acc, np.float64)])[keep]
+                bad = np.argwhere(~np.isfinite(block))
+                if len(bad):
+                    i, j = (int(v) for v in bad[0])
+                    raise EngineInputError(f"{source}: the sample at t = {t[keep][i]:.6f} s has a non-finite "
+                                           f"{AXES[j]} ({block[i, j]}); cut the record before it or repair")
                 sums += block.sum(axis=0)
                 for j, f in enumerate(files):
                     f.write(np.ascontiguousarray(block[:, j]).tobytes())
