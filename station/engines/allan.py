@@ -10,9 +10,12 @@ in float64, and the overlapping Allan variance at ``tau = m tau0`` is (NIST SP 1
     sigma^2(tau) = 1 / (2 tau^2 (P - 2m)) * sum_{i=0}^{P-2m-1} (x_{i+2m} - 2 x_{i+m} + x_i)^2   (2)
 
 with ``P = N + 1`` phase points. The second differences are formed block by block in buffers that stay in
-the CPU cache, and the (axis, cluster size) tasks run on a thread pool (numpy releases the GIL in its
-ufuncs); BLAS is pinned to one thread meanwhile so the dot products of the threads do not oversubscribe
-the cores.
+the CPU cache: every cluster size up to the block length reuses the same window of ``x`` (with
+``d_i = x_{i+m} - x_i``, ``v_i = d_{i+m} - d_i``), larger ones read three windows. Block ranges and large
+cluster sizes run on a thread pool (numpy releases the GIL in its ufuncs and BLAS calls); BLAS is pinned
+to one thread meanwhile so the threads' dot products do not oversubscribe the cores. Rows that are
+read-only file maps (``np.memmap``) have their pages released once read, so a day-long record held on
+disk never becomes resident as a whole.
 
 Uncertainty: the equivalent degrees of freedom of each point follow C. A. Greenhall and W. J. Riley,
 "Uncertainty of stability variances based on finite differences", Proc. 35th PTTI Meeting (2003),
@@ -47,7 +50,7 @@ def cluster_sizes(n_samples: int, per_decade: int = 10, max_fraction: float = 0.
     """Unique integer cluster sizes ``m``, log-spaced with at least ``per_decade`` per decade, up to N/4.
 
     Every integer 1..10 is kept (rounding a log grid would merge the first decade's points); above that
-    the grid is ``round(10^(k / per_decade))``, whose spacing exceeds one so no point is lost.
+    the grid is ``round(10^(k / per_decade))`` with duplicates merged (none for 10 per decade).
     """
     m_max = int(math.floor(n_samples * max_fraction))
     if m_max < 1:
