@@ -46,17 +46,21 @@ class TurntableSim:
     slew_dps : speed of positioning moves; a move takes the angle between poses at this speed.
     settle_s : still time the table adds after a turn before it reports IDLE.
     serial : the table's own serial number (``ID?``).
+    turn_error : fault injection: the table turns (1 + turn_error) times the asked angle (a wrong
+        gear ratio, a slipping belt) and still reports the asked one, as a table whose encoder sits
+        on the motor would.
     """
 
     model = "imu-sim-table"
     firmware = "1.0.0"
 
     def __init__(self, device: SimDevice, slew_dps: float = 180.0, settle_s: float = 0.2,
-                 serial: str = "TT-SIM-0001"):
+                 serial: str = "TT-SIM-0001", turn_error: float = 0.0):
         self.device = device
         self.slew_dps = slew_dps
         self.settle_s = settle_s
         self.serial = serial
+        self.turn_error = turn_error
         self.up = "+z"
         self.commands: list[str] = []
         self.port_path = ""
@@ -191,6 +195,7 @@ class TurntableSim:
             return f"ERR 2 ROT: the rate must be within 0..{MAX_RATE_DPS:g} deg/s"
         sign = args[0][0] if angle > 0 else ("-" if args[0][0] == "+" else "+")
         self._move_start = self._now()
-        self._move_end = self.device.rotate(sign + args[0][1], abs(angle), rate, self.settle_s)
+        kept = 1.0 + self.turn_error
+        self._move_end = self.device.rotate(sign + args[0][1], abs(angle) * kept, rate * kept, self.settle_s)
         self.up, self._turn_deg = "+" + args[0][1], angle if args[0][0] == "+" else -angle
         return "OK"

@@ -20,7 +20,6 @@ import contextlib
 import datetime as _dt
 import logging
 import re
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -320,6 +319,7 @@ class UnitRun:
             if not reported:
                 raise StationError(f"{port}: the unit did not report a serial number; give --serial SN")
             self.record.serial = reported
+            _log_serial(reported)
         self.record.device = {"port": port, **{k: info.get(k) for k in ("serial", "model", "firmware")},
                               "rate_hz": plan.rate_hz}
         expected = self.record.serial
@@ -445,17 +445,32 @@ def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord
     return record
 
 
-_LOG_LOCK = threading.Lock()
+class _UnitField(logging.Filter):
+    """Puts the unit's serial in every log line; the serial may only be known once the unit answered."""
+
+    def __init__(self, serial: str):
+        super().__init__()
+        self.serial = serial
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.unit = self.serial
+        return True
 
 
 def configure_logging(serial: str, stream: Any = None) -> None:
     """Log lines on stderr, each naming the unit (several units' logs interleave on a line)."""
     import sys
 
-    with _LOG_LOCK:
-        handler = logging.StreamHandler(stream or sys.stderr)
-        handler.setFormatter(logging.Formatter(f"%(asctime)s {serial} %(levelname)s %(message)s",
-                                               "%H:%M:%S"))
-        log.handlers[:] = [handler]
-        log.setLevel(logging.INFO)
-        log.propagate = False
+    handler = logging.StreamHandler(stream or sys.stderr)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(unit)s %(levelname)s %(message)s", "%H:%M:%S"))
+    handler.addFilter(_UnitField(serial))
+    log.handlers[:] = [handler]
+    log.setLevel(logging.INFO)
+    log.propagate = False
+
+
+def _log_serial(serial: str) -> None:
+    for handler in log.handlers:
+        for f in handler.filters:
+            if isinstance(f, _UnitField):
+                f.serial = serial

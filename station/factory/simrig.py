@@ -19,11 +19,13 @@ class SimulatedUnit:
     """What to simulate: the unit's intrinsics come from ``UnitTruth.random(seed, grade)``.
 
     ``unplug_after_s``: the unit's link ends after this many seconds (a cable pulled mid-run).
+    ``table_turn_error``: the simulated table turns (1 + this) times the asked angle (a wrong gear).
     """
 
     seed: int = 0
     grade: str = "mems"
     unplug_after_s: float | None = None
+    table_turn_error: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -50,5 +52,5 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float) -> Iterator[
     # station runs several simulated units at once.
     server = PtyServer(SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still"), faults=faults,
                        block_s=0.05)
-    with server, TurntableSim(server.device) as table:
+    with server, TurntableSim(server.device, turn_error=unit.table_turn_error) as table:
         yield SimulatedPorts(server.port_path, table.port_path, server.device)
