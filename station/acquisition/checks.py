@@ -83,21 +83,20 @@ def angle_between_deg(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(np.dot(a, b))))
 
 
+def _candidate_poses() -> tuple[np.ndarray, list[str]]:
+    signs = [np.array([sx, sy, sz], float) for sx in (-1, 0, 1) for sy in (-1, 0, 1) for sz in (-1, 0, 1)]
+    signs = [v for v in signs if v.any()]
+    labels = ["".join(("+" if c > 0 else "-") + a for c, a in zip(v, "xyz", strict=True) if c) for v in signs]
+    return np.array([v / np.linalg.norm(v) for v in signs]), labels
+
+
+_POSES, _POSE_LABELS = _candidate_poses()
+
+
 def nearest_pose(up: np.ndarray) -> str:
     """The label nearest to ``up`` among the 26 poses of +-x, +-y, +-z and their diagonals."""
     up = np.asarray(up, float)
-    best, best_angle = "", math.inf
-    for sx in (-1, 0, 1):
-        for sy in (-1, 0, 1):
-            for sz in (-1, 0, 1):
-                v = np.array([sx, sy, sz], float)
-                if not v.any():
-                    continue
-                angle = angle_between_deg(up, v)
-                if angle < best_angle:
-                    best_angle = angle
-                    best = "".join(("+" if s > 0 else "-") + a for s, a in zip(v, "xyz", strict=True) if s)
-    return best
+    return _POSE_LABELS[int(np.argmax(_POSES @ up))]
 
 
 def pose_check(acc: np.ndarray, up: np.ndarray, tolerance_deg: float) -> PoseCheck:

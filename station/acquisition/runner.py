@@ -24,7 +24,6 @@ from __future__ import annotations
 import enum
 import math
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -194,21 +193,17 @@ class _Window:
 
     def __init__(self, span_s: float):
         self.span_us = int(span_s * 1e6)
-        self._batches: deque[np.ndarray] = deque()
         self.samples = np.zeros(0, SAMPLE_DTYPE)
 
     def add(self, batch: np.ndarray) -> None:
         if not len(batch):
             return
-        self._batches.append(batch)
+        joined = np.concatenate([self.samples, batch]) if len(self.samples) else batch
         newest = int(batch["t_us"][-1])
-        while len(self._batches) > 1 and newest - int(self._batches[0]["t_us"][-1]) > self.span_us:
-            self._batches.popleft()
-        joined = np.concatenate(self._batches)
-        self.samples = joined[joined["t_us"] >= newest - self.span_us]
+        first = int(np.searchsorted(joined["t_us"], newest - self.span_us, side="left"))
+        self.samples = joined[first:]
 
     def clear(self) -> None:
-        self._batches.clear()
         self.samples = np.zeros(0, SAMPLE_DTYPE)
 
     @property
