@@ -8,6 +8,7 @@ with struct, not with ``protocols/``) knows which frames it sent whole.
 from __future__ import annotations
 
 import os
+import re
 import select
 import signal
 import struct
@@ -255,19 +256,24 @@ def test_demo_steps_capture_verify_and_report(tmp_path: Path) -> None:
 
     from station.commands import demo
 
-    # The acquisition steps only: later steps (calibration, ...) are tested by their owners.
+    # The acquisition steps only: the whole demo runs in tests/test_demo.py.
     mine = (demo.start_simulated_unit, demo.capture_samples, demo.verify_capture, demo.report_link)
     steps = [(title, step) for title, step in demo.STEPS if step in mine]
     assert len(steps) == 4
     out = io.StringIO()
-    ctx = demo.DemoContext(out_dir=tmp_path / "demo", seconds=1.0, rate_hz=400, out=out, err=io.StringIO())
+    # 4 s of device clock at x20: the capture takes a fifth of a second of wall clock.
+    ctx = demo.DemoContext(out_dir=tmp_path / "demo", seconds=4.0, rate_hz=400, speed=20.0, out=out,
+                           err=io.StringIO())
     demo.run_demo(ctx, steps)
     assert ctx.results["verified"] is True
     assert ctx.results["link"]["lost"] == 0 and ctx.results["link"]["errors"] == 0
-    assert len(read_capture(tmp_path / "demo" / "capture.h5")) == 400
+    capture = read_capture(tmp_path / "demo" / "capture.h5")
+    assert len(capture) == 1600 and np.all(np.round(np.diff(capture.t) * 1e6) == 2500)
+    assert ctx.results["step_s"]["capture from it"] < 4.0
     assert not ctx.server.running  # the simulated unit was stopped at the end
     text = out.getvalue()
-    assert "[4/4] report the link" in text and "all 400 samples equal, bit for bit" in text
+    assert "[4/4] report the link" in text and "all 1600 samples equal, bit for bit" in text
+    assert re.search(r"^\s+capture\.h5\s*$", text, flags=re.M) and "device clock x20" in text
 
 
 def test_capture_sets_the_rate_it_is_given(tmp_path: Path) -> None:

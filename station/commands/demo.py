@@ -3,36 +3,69 @@
 The demo is a list of steps (:data:`STEPS`) run in order over one :class:`DemoContext`. Each step
 reads what earlier steps left in the context and adds its own results; resources (the simulated
 unit, open ports) go on the context's exit stack and are released at the end, whatever happens.
-A later capability extends the demo by appending its step, e.g. a calibration step that reads
-``ctx.capture_path`` and writes the parameter file into ``ctx.out_dir``.
+
+Everything goes through the path a real unit takes: the simulated unit is served on a
+pseudo-terminal (its device clock sped up, so minutes of sequence take seconds), the serial
+driver reads it, the sequence runner walks the twelve-position + rotation sequence with a
+simulated operator moving the unit, the recorder writes the labelled capture file, and the
+calibration, the parameter file and the firmware export are the ones ``calibrate`` and
+``export`` use. Only the last comparison looks at the simulator's truth.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import shutil
+import subprocess
 import sys
+import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
+from station.acquisition.operator import ScriptedOperator
 from station.acquisition.recorder import CaptureResult
 from station.errors import StationError
+
+if TYPE_CHECKING:
+    from rich.progress import Progress, TaskID
+
+    from drivers.link_stats import LinkStats
+    from station.acquisition.runner import LiveStatus, RunResult
+    from station.engines.calibration_common import CalibrationReport
 
 NAME = "demo"
 HELP = "run the station on a simulated unit: no hardware, no arguments needed"
 DESCRIPTION = """\
-Run the station's main job on a simulated unit, with no hardware: start the simulated IMU on a
-pseudo-terminal (a real serial port path, the native protocol on the wire), capture a few
-seconds from it through the same driver a real unit uses, check every captured sample against
-what the simulator sent, and report the link statistics. Files go to --out (default ./demo-out)."""
+Run the station's main job on a simulated unit, with no hardware. The simulated IMU (a random
+MEMS unit, seeded) is served on a pseudo-terminal: a real serial port path, the native protocol
+on the wire, its device clock running --speed times faster than the wall clock. The demo
+captures a few seconds from it and checks every sample against what the simulator sent; then
+runs the twelve-position + rotation sequence with the sequence runner, a simulated operator
+moving the unit as each step asks, into a labelled capture file; calibrates it (turntable
+method), writes the parameter file, exports it for firmware (imu_calib.h/.c/.bin, compiled with
+gcc as a check when gcc is there), and prints the recovered intrinsics against the simulator's
+true ones, with the link statistics. Files go to --out (default ./demo-out)."""
 EPILOG = """\
 examples:
   imu-station demo
-  imu-station demo --seconds 10 --rate 1000 --out /tmp/demo"""
+  imu-station demo --seed 7 --hold 20 --speed 10 --out /tmp/demo"""
+
+MAX_SPEED = 100.0
+# The sequence, as a careful operator runs it: 10 s per pose, 360 deg turns at 90 deg/s with 1 s
+# still before and after. At x20 it takes about 10 s of wall clock.
+HOLD_S = 10.0
+ROTATION_RATE_DPS = 90.0
+SETTLE_S = 1.0
+SPEED = 20.0
+# Wall-clock seconds a step may wait for the unit before the run gives up (a stalled simulator).
+STEP_TIMEOUT_S = 30.0
+STATION_ID = "demo-station"
 
 
 @dataclass
@@ -44,6 +77,10 @@ class DemoContext:
     rate_hz: int = 200
     seconds: float = 5.0
     scenario: str = "still"
+    speed: float = SPEED
+    hold_s: float = HOLD_S
+    rotation_rate_dps: float = ROTATION_RATE_DPS
+    settle_s: float = SETTLE_S
     out: IO[str] = field(default_factory=lambda: sys.stdout)
     err: IO[str] = field(default_factory=lambda: sys.stderr)
     stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)
@@ -51,25 +88,40 @@ class DemoContext:
     port: str = ""
     capture_path: Path | None = None
     capture: CaptureResult | None = None
+    sequence_path: Path | None = None
+    sequence_run: RunResult | None = None
+    report: CalibrationReport | None = None
+    params_path: Path | None = None
+    links: dict[str, tuple[LinkStats, int]] = field(default_factory=dict)  # file name -> (stats, sent)
+    files: list[tuple[Path, str]] = field(default_factory=list)  # every file written, with what it is
     results: dict[str, Any] = field(default_factory=dict)  # figures each step reports
 
     def say(self, text: str) -> None:
         print(text, file=self.out, flush=True)
 
+    def wrote(self, path: Path, what: str) -> None:
+        self.files.append((path, what))
+
 
 Step = Callable[[DemoContext], None]
 
+
+class DemoFailed(StationError):
+    """A demo check did not hold (a bug: the demo runs on a clean simulated link)."""
+
+
+# --- the simulated unit and a first capture ---------------------------------------------------------
 
 def start_simulated_unit(ctx: DemoContext) -> None:
     """A random MEMS unit (seeded) on a pseudo-terminal, streaming the native protocol."""
     from mocks.pty_server import PtyServer
 
-    ctx.server = ctx.stack.enter_context(
-        PtyServer(seed=ctx.seed, rate_hz=ctx.rate_hz, scenario=ctx.scenario, record=True))
+    ctx.server = ctx.stack.enter_context(PtyServer(seed=ctx.seed, rate_hz=ctx.rate_hz, scenario=ctx.scenario,
+                                                   record=True, speed=ctx.speed))
     ctx.port = ctx.server.port_path
     info = ctx.server.device.info()
     ctx.say(f"    simulated unit {info['serial']} ({info['model']}) on {ctx.port}, {ctx.rate_hz} Hz, "
-            f"scenario '{ctx.scenario}'")
+            f"scenario '{ctx.scenario}', device clock x{ctx.speed:g}")
 
 
 def capture_samples(ctx: DemoContext) -> None:
@@ -78,10 +130,13 @@ def capture_samples(ctx: DemoContext) -> None:
 
     ctx.out_dir.mkdir(parents=True, exist_ok=True)
     ctx.capture_path = ctx.out_dir / "capture.h5"
+    sent_before = ctx.server.stats.samples_sent
     ctx.capture = capture_to_file(ctx.port, ctx.capture_path, duration_s=ctx.seconds, rate_hz=ctx.rate_hz,
                                   err=ctx.err)
     if ctx.capture.error is not None:
         raise ctx.capture.error
+    ctx.links[ctx.capture_path.name] = (ctx.capture.link, ctx.server.stats.samples_sent - sent_before)
+    ctx.wrote(ctx.capture_path, f"{ctx.seconds:g} s still, as `imu-station capture` records it")
     ctx.say(f"    wrote {ctx.capture.rows} samples ({ctx.capture.device_time_s:.2f} s of device clock) to "
             f"{ctx.capture_path}")
 
@@ -101,105 +156,361 @@ def verify_capture(ctx: DemoContext) -> None:
     ctx.say(f"    all {len(got)} samples equal, bit for bit, those the simulator sent (from its sample {k})")
 
 
+# --- the main job: the sequence, the calibration, the parameter file, the firmware export -------------
+
+def run_sequence(ctx: DemoContext) -> None:
+    """The twelve-position + rotation sequence through the driver, the runner and the recorder.
+
+    A simulated operator moves the unit as each step asks (as ``tui --simulate`` and the factory
+    do); the runner decides when the unit is in pose and still, captures each step and checks
+    it; the recorder streams the labelled samples to ``out_dir/sequence.h5``.
+    """
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from drivers import open_device
+    from station.acquisition.operator import FACTORY_ANSWERS, SimulatedOperator
+    from station.acquisition.recorder import Recorder
+    from station.acquisition.runner import RecorderSink, RunOptions, SequenceRunner
+    from station.acquisition.sequences import builtin
+
+    sequence = builtin("twelve-position", rotations=True, hold_s=ctx.hold_s,
+                       rotation_rate_dps=ctx.rotation_rate_dps, settle_s=ctx.settle_s)
+    ctx.out_dir.mkdir(parents=True, exist_ok=True)
+    ctx.sequence_path = ctx.out_dir / "sequence.h5"
+    ctx.say(f"    {sequence.name}: {len(sequence)} steps (poses of {ctx.hold_s:g} s, 360 deg turns at "
+            f"{ctx.rotation_rate_dps:g} deg/s with {ctx.settle_s:g} s still before and after), "
+            f"{sequence.nominal_duration_s:.0f} s of capture")
+    sent_before = ctx.server.stats.samples_sent
+    started = time.monotonic()
+    progress = Progress(TextColumn("sequence"), BarColumn(), MofNCompleteColumn(),
+                        TextColumn("{task.fields[status]}"), TimeElapsedColumn(),
+                        console=Console(file=ctx.err), transient=False)
+    with open_device(ctx.port) as device, progress:
+        device.get_info()
+        task = progress.add_task("sequence", total=len(sequence), status="starting")
+        inner = _ProgressOperator(answers=FACTORY_ANSWERS, progress=progress, task=task)
+        operator = SimulatedOperator(ctx.server.device, inner, move_s=1.0)
+        recorder = Recorder(ctx.sequence_path, device=device.info, with_step=True, port=device.port,
+                            protocol=device.protocol)
+        try:
+            result = SequenceRunner(device, sequence, operator, RunOptions(step_timeout_s=STEP_TIMEOUT_S),
+                                    sink=RecorderSink(recorder, device)).run()
+        finally:
+            recorder.close(device.stats.as_dict())
+        link = device.stats
+        progress.update(task, completed=len(sequence), status=result.outcome)
+    wall_s = time.monotonic() - started
+    ctx.sequence_run = result
+    ctx.links[ctx.sequence_path.name] = (link, ctx.server.stats.samples_sent - sent_before)
+    ctx.wrote(ctx.sequence_path, "the labelled twelve-position + rotation capture")
+    redone = [f"{s.label} x{s.attempts}" for s in result.steps if s.attempts > 1]
+    if result.outcome != "completed" or result.accepted != sequence.labels:
+        failed = [f"{s.label}: {s.status} ({'; '.join(s.problems)})" for s in result.steps if not s.ok]
+        raise DemoFailed(f"the sequence ended '{result.outcome}' ({result.reason}); "
+                         + ("; ".join(failed) or "no step failed"))
+    ctx.results["sequence"] = {"device_s": link.device_time_s, "wall_s": wall_s, "samples": recorder.rows,
+                               "redone": redone}
+    ctx.say(f"    all {len(sequence)} steps accepted"
+            + (f" (redone: {', '.join(redone)})" if redone else ", each at the first attempt")
+            + f": {link.device_time_s:.1f} s of device clock in {wall_s:.1f} s of wall clock; "
+            f"{recorder.rows} samples to {ctx.sequence_path}")
+
+
+@dataclass
+class _ProgressOperator(ScriptedOperator):
+    """The factory's answers (go on, redo a failed step while offered), with the live state on a bar."""
+
+    progress: Progress | None = None
+    task: TaskID | None = None
+
+    def status(self, status: LiveStatus) -> None:
+        super().status(status)
+        capturing = status.state.value in ("capturing", "settling")
+        done = status.index + (status.progress if capturing else 0.0)
+        label = f"{status.step.label:<5} {status.state.value}"
+        if status.angle_deg is not None:
+            label += f" {status.angle_deg:+4.0f} deg"
+        self.progress.update(self.task, completed=done, status=label)
+
+
 def report_link(ctx: DemoContext) -> None:
-    """The link statistics of the capture, and the simulator's own count."""
-    assert ctx.capture is not None
-    link = ctx.capture.link
-    ctx.results["link"] = link.as_dict()
-    rows = [
-        ("samples received", f"{link.samples}"),
-        ("rate (device clock)", f"{link.rate_hz:.2f} Hz"),
-        ("bytes", f"{link.bytes}"),
-        ("damaged frames", f"{link.errors} ({link.crc_errors} CRC, {link.truncated} truncated, "
-                           f"{link.length_errors} length)"),
-        ("resyncs / garbage bytes", f"{link.resyncs} / {link.garbage_bytes}"),
-        ("lost (seq gaps)", f"{link.lost}"),
-        ("dropped (slow consumer)", f"{link.overflow_drops}"),
-        ("samples the simulator sent", f"{ctx.server.stats.samples_sent}"),
-    ]
-    width = max(len(name) for name, _ in rows)
-    for name, value in rows:
-        ctx.say(f"    {name:<{width}}  {value}")
+    """The link statistics of every capture, and the simulator's own count of what it sent."""
+    ctx.results["link"] = ctx.links[ctx.capture_path.name][0].as_dict() if ctx.capture_path else {}
+    if ctx.sequence_path is not None and ctx.sequence_path.name in ctx.links:
+        ctx.results["sequence_link"] = ctx.links[ctx.sequence_path.name][0].as_dict()
 
+    def rows(link: LinkStats, sent: int) -> list[tuple[str, str]]:
+        return [
+            ("samples received", f"{link.samples}"),
+            ("rate (device clock)", f"{link.rate_hz:.2f} Hz"),
+            ("device clock span", f"{link.device_time_s:.2f} s"),
+            ("bytes", f"{link.bytes}"),
+            ("damaged frames", f"{link.errors} ({link.crc_errors} CRC, {link.truncated} truncated, "
+                               f"{link.length_errors} length)"),
+            ("resyncs / garbage bytes", f"{link.resyncs} / {link.garbage_bytes}"),
+            ("lost (seq gaps)", f"{link.lost}"),
+            ("dropped (slow consumer)", f"{link.overflow_drops}"),
+            ("sent by the simulator", f"{sent} (while the port was open)"),
+        ]
 
-# --- calibration step (issue 3) -----------------------------------------------------------------
+    columns = {name: rows(link, sent) for name, (link, sent) in ctx.links.items()}
+    names = [name for name, _ in next(iter(columns.values()))]
+    width = max(len(name) for name in names)
+    cells = {name: [value for _, value in col] for name, col in columns.items()}
+    widths = {name: max(len(name), *(len(v) for v in values)) for name, values in cells.items()}
+    ctx.say(f"    {'':<{width}}  " + "  ".join(f"{name:<{widths[name]}}" for name in cells).rstrip())
+    for i, row in enumerate(names):
+        ctx.say(f"    {row:<{width}}  " + "  ".join(f"{cells[n][i]:<{widths[n]}}" for n in cells).rstrip())
+
 
 def calibrate_unit(ctx: DemoContext) -> None:
-    """A twelve-position + rotation calibration of the same simulated unit, recovered against true.
-
-    The labelled sequence (about 4 minutes of device time) is generated with ``mocks.rig.simulate``
-    rather than captured over the pty in real time, so the demo stays short.
-    """
-    from mocks.rig import sequence_segments, simulate
-    from station.acquisition.capture_csv import write_csv
+    """The turntable method on the labelled capture read back from its file, as `calibrate` does;
+    the accel and gyro sections, with the unit's info, go to ``out_dir/params.yaml``."""
+    from station.acquisition.capture import read_capture
     from station.engines.calibration_turntable import calibrate_turntable
     from station.export.params_file import ParamsFile
 
-    truth = ctx.server.device.truth
-    segments = sequence_segments("twelve-position", True, hold_s=10.0)
-    rec = simulate(truth, segments, rate_hz=100.0, seed=ctx.seed)
-    capture = rec.to_capture()
-    csv_path = ctx.out_dir / "twelve-position.csv"
-    write_csv(csv_path, capture)
-    ctx.say(f"    twelve poses of 10 s + six 360 deg turns, {len(rec.t)} samples at 100 Hz generated by the "
-            f"simulator (not over the pty: it would take {rec.t[-1]:.0f} s in real time) -> {csv_path}")
-    report = calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, truth.gravity)
+    assert ctx.sequence_path is not None
+    capture = read_capture(ctx.sequence_path)
+    # The simulated site's gravity; on a real station it comes from --gravity or --latitude.
+    gravity = ctx.server.device.truth.gravity
+    rate = capture.device.get("rate_hz")
+    ctx.report = calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
+                                     rate_hz=float(rate) if rate is not None else None)
+    report = ctx.report
+    labels = [label for label, _ in capture.segments()]
+    ctx.say(f"    {len(capture)} samples read back, {len(labels)} labelled steps; g = {gravity:.5f} m/s^2")
+    ctx.say(f"    accel: {report.accel.method}, residual RMS {report.accel.residual_rms:.2e} m/s^2")
+    ctx.say(f"    gyro:  {report.gyro.method}, angle residual RMS "
+            f"{np.degrees(report.gyro.residual_rms):.4f} deg")
+    for warning in report.warnings:
+        ctx.say(f"    warning: {warning}")
     params = ParamsFile()
     params.update_device(capture.device)
     params.accel, params.gyro = report.accel, report.gyro
-    params_path = ctx.out_dir / "params.yaml"
-    params.save(params_path)
-    ctx.say(f"    {'':22s} {'recovered':>36s}   {'true':>36s}   max |error|")
-    errors = {}
-    for name, cal, tr in (("accel", report.accel, truth.accel), ("gyro", report.gyro, truth.gyro)):
-        for what, got, true in (("scale", cal.scale, tr.scale), ("bias", cal.bias, tr.bias),
-                                ("misalignment S_yx S_zx S_zy", cal.misalignment[[1, 2, 2], [0, 0, 1]],
-                                 tr.misalignment[[1, 2, 2], [0, 0, 1]])):
-            err = float(np.abs(got - true).max())
-            errors[f"{name} {what}"] = err
-            row = f"{name} {what.split()[0]}"
-            ctx.say(f"    {row:22s} {_vec(got):>36s}   {_vec(true):>36s}   {err:.1e}")
-    ctx.results["calibration"] = errors
-    ctx.say(f"    parameter file: {params_path}")
+    ctx.params_path = ctx.out_dir / "params.yaml"
+    params.save(ctx.params_path)
+    ctx.wrote(ctx.params_path, "the parameter file (device, accel, gyro)")
+    ctx.say(f"    parameter file for {params.device.get('serial')}: {ctx.params_path}")
 
 
-def _vec(v: np.ndarray) -> str:
-    return " ".join(f"{x:+.6f}" for x in v)
+# The check the demo compiles with the export: load the blob, correct one raw sample with it and
+# with the parameters linked in from the header; both must give the same numbers.
+_C_CHECK = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "imu_calib.h"
+
+static unsigned char blob[65536];
+
+int main(int argc, char **argv) {
+    imu_calib_t cal;
+    float raw_acc[3], raw_gyro[3], acc[3], gyro[3], acc2[3], gyro2[3];
+    size_t n;
+    int i, code;
+    FILE *f;
+    if (argc != 8) return 2;
+    f = fopen(argv[1], "rb");
+    if (f == NULL) return 2;
+    n = fread(blob, 1, sizeof blob, f);
+    fclose(f);
+    code = imu_calib_load(&cal, blob, n);
+    printf("%d %s\n", code, imu_calib_strerror(code));
+    if (code != IMU_CALIB_OK) return 1;
+    for (i = 0; i < 3; i++) {
+        raw_acc[i] = strtof(argv[2 + i], NULL);
+        raw_gyro[i] = strtof(argv[5 + i], NULL);
+    }
+    imu_calib_apply(&cal, 25.0f, 0.0f, raw_acc, raw_gyro, acc, gyro);
+    imu_calib_apply(&imu_calib_unit, 25.0f, 0.0f, raw_acc, raw_gyro, acc2, gyro2);
+    for (i = 0; i < 3; i++) {
+        if (acc[i] != acc2[i] || gyro[i] != gyro2[i]) return 3;
+    }
+    printf("%.9g %.9g %.9g %.9g %.9g %.9g\n", acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2]);
+    return 0;
+}
+"""
+C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+
+
+def export_firmware(ctx: DemoContext) -> None:
+    """imu_calib.h/.c/.bin into ``out_dir/firmware`` as `export --format c` writes them; with gcc,
+    compile them and check that the blob corrects a raw sample as the station does."""
+    from station.export.c_export import BLOB_NAME, write_c_export
+    from station.export.params_file import ParamsFile
+
+    assert ctx.params_path is not None
+    params = ParamsFile.load(ctx.params_path)
+    fw_dir = ctx.out_dir / "firmware"
+    fw_dir.mkdir(parents=True, exist_ok=True)
+    for path in write_c_export(params, fw_dir, STATION_ID, int(time.time())):
+        ctx.wrote(path, "firmware export (C99 header, source, parameter blob)")
+    ctx.say(f"    wrote imu_calib.h, imu_calib.c, imu_calib.bin to {fw_dir}/ (station id '{STATION_ID}')")
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        ctx.results["firmware_check"] = None
+        ctx.say("    gcc not found: the compile check is skipped")
+        return
+    # The unit lying +z up, turning at 90 deg/s about z: its raw reading from the simulator's truth.
+    truth = ctx.server.device.truth
+    true_acc = np.array([0.0, 0.0, truth.gravity])
+    true_gyro = np.array([0.0, 0.0, np.radians(90.0)])
+    raw_acc = (truth.accel.matrix @ true_acc + truth.accel.bias).astype(np.float32)
+    raw_gyro = (truth.gyro.matrix @ true_gyro + truth.gyro.bias).astype(np.float32)
+    with tempfile.TemporaryDirectory(prefix="imu-demo-cc-") as tmp:
+        check_c = Path(tmp) / "check.c"
+        check_c.write_text(_C_CHECK, encoding="ascii")
+        exe = Path(tmp) / "check"
+        build = subprocess.run([gcc, *C_FLAGS, f"-I{fw_dir}", str(fw_dir / "imu_calib.c"), str(check_c),
+                                "-lm", "-o", str(exe)], capture_output=True, text=True)
+        if build.returncode != 0:
+            raise DemoFailed(f"gcc could not compile the export in {fw_dir}: {build.stderr.strip()}")
+        numbers = [f"{v:.9g}" for v in (*raw_acc, *raw_gyro)]
+        ran = subprocess.run([str(exe), str(fw_dir / BLOB_NAME), *numbers], capture_output=True, text=True)
+    lines = ran.stdout.splitlines()
+    if ran.returncode != 0 or len(lines) != 2:
+        raise DemoFailed(f"the compiled check failed on {fw_dir / BLOB_NAME} (exit {ran.returncode}): "
+                         f"{ran.stdout.strip()} {ran.stderr.strip()}")
+    c_out = np.array([float(x) for x in lines[1].split()])
+    station = np.concatenate([params.accel.correct(raw_acc[None, :].astype(float))[0],
+                              params.gyro.correct(raw_gyro[None, :].astype(float))[0]])
+    agreement = float(np.max(np.abs(c_out - station) / np.maximum(1.0, np.abs(station))))
+    ctx.results["firmware_check"] = {"load": lines[0], "c": c_out.tolist(), "station": station.tolist(),
+                                     "agreement": agreement}
+    if agreement > 1e-5:
+        raise DemoFailed(f"the compiled C and the station disagree by {agreement:.1e} (relative) on a sample")
+    ctx.say(f"    compiled with gcc {' '.join(C_FLAGS)}; a check program loads imu_calib.bin "
+            f"(imu_calib_load: {lines[0]})")
+    ctx.say("    and corrects the raw reading of the unit lying +z up, turning at 90 deg/s about z:")
+    ctx.say(f"      acc  ({_vec(c_out[:3], 5)}) m/s^2, true (0, 0, {truth.gravity:.5f})")
+    ctx.say(f"      gyro ({_vec(c_out[3:], 5)}) rad/s, true (0, 0, {np.radians(90.0):.5f})")
+    ctx.say(f"    the blob and the linked-in parameters give the same numbers; the station's own correction "
+            f"agrees to {agreement:.0e}")
+
+
+# --- the comparison with the simulator's truth ------------------------------------------------------
+
+_OFF_DIAGONAL = ((1, 0), (2, 0), (2, 1), (0, 1), (0, 2), (1, 2))
+
+
+def compare_with_truth(ctx: DemoContext) -> None:
+    """Recovered scale, misalignment and bias of both triads against the simulator's true ones,
+    with each error and the 1-sigma the calibration reported."""
+    from rich import box
+    from rich.console import Console
+    from rich.padding import Padding
+    from rich.table import Table
+
+    assert ctx.report is not None
+    truth = ctx.server.device.truth
+    table = Table(box=box.SIMPLE_HEAD)
+    for name in ("triad", "parameter", "recovered", "true", "error", "1-sigma", "|error|/sigma"):
+        table.add_column(name, justify="left" if name in ("triad", "parameter") else "right")
+    worst: dict[str, float] = {}
+    ratios: list[float] = []
+    for triad, cal, tr in (("accel", ctx.report.accel, truth.accel), ("gyro", ctx.report.gyro, truth.gyro)):
+        sd = cal.stddev
+        entries = [(f"scale {'xyz'[i]}", "scale", cal.scale[i], tr.scale[i], sd["scale"][i])
+                   for i in range(3)]
+        entries += [(f"S {'xyz'[i]}{'xyz'[j]}", "misalignment", cal.misalignment[i, j], tr.misalignment[i, j],
+                     np.asarray(sd["misalignment"])[i, j]) for i, j in _OFF_DIAGONAL]
+        entries += [(f"bias {'xyz'[i]}", "bias", cal.bias[i], tr.bias[i], sd["bias"][i]) for i in range(3)]
+        for row, (label, group, got, true, sigma) in enumerate(entries):
+            error = float(got - true)
+            ratio = abs(error) / float(sigma)
+            ratios.append(ratio)
+            key = f"{triad} {group}"
+            worst[key] = max(worst.get(key, 0.0), abs(error))
+            table.add_row(triad if row == 0 else "", label, f"{got:+.6f}", f"{true:+.6f}", f"{error:+.1e}",
+                          f"{sigma:.1e}", f"{ratio:.1f}")
+        table.add_section()
+    ctx.say("    scale: raw per true; misalignment S (row, column): rad; bias: m/s^2 (accel), rad/s (gyro)")
+    Console(file=ctx.out, width=120).print(Padding(table, (0, 0, 0, 4), expand=False))
+    within = sum(r <= 3.0 for r in ratios)
+    ctx.results["calibration"] = worst
+    ctx.results["sigma_ratios"] = ratios
+    g = 9.80665
+    ctx.say(f"    largest errors: accel scale {worst['accel scale'] * 1e6:.0f} ppm, misalignment "
+            f"{worst['accel misalignment'] * 1e6:.0f} urad, bias {worst['accel bias'] / g * 1e6:.0f} ug; "
+            f"gyro scale {worst['gyro scale'] * 1e6:.0f} ppm,")
+    ctx.say(f"    misalignment {worst['gyro misalignment'] * 1e6:.0f} urad, bias "
+            f"{np.degrees(worst['gyro bias']) * 3600:.1f} deg/h; {within} of {len(ratios)} errors within "
+            f"3 sigma (largest {max(ratios):.1f} sigma)")
+
+
+def list_files(ctx: DemoContext) -> None:
+    """Every file the demo wrote, with its size."""
+    width = max(len(str(path)) for path, _ in ctx.files)
+    for path, what in ctx.files:
+        ctx.say(f"    {str(path):<{width}}  {_size(path.stat().st_size):>9}  {what}")
+
+
+def _size(n: int) -> str:
+    return f"{n} B" if n < 1024 else f"{n / 1024:.1f} KiB" if n < 1024**2 else f"{n / 1024**2:.1f} MiB"
+
+
+def _vec(v: np.ndarray, digits: int) -> str:
+    return ", ".join(f"{x:+.{digits}f}" for x in v)
 
 
 STEPS: list[tuple[str, Step]] = [
     ("start the simulated unit", start_simulated_unit),
     ("capture from it", capture_samples),
     ("verify the capture", verify_capture),
+    ("run the twelve-position + rotation sequence", run_sequence),
     ("report the link", report_link),
-    ("calibrate the unit (twelve positions + rotations)", calibrate_unit),
+    ("calibrate (turntable method) and write the parameter file", calibrate_unit),
+    ("export for firmware (C) and compile it", export_firmware),
+    ("compare recovered against true", compare_with_truth),
+    ("files written", list_files),
 ]
 
 
-class DemoFailed(StationError):
-    """A demo check did not hold (a bug: the demo runs on a clean simulated link)."""
-
-
 def run_demo(ctx: DemoContext, steps: list[tuple[str, Step]] | None = None) -> DemoContext:
-    """Run ``steps`` (default :data:`STEPS`) in order; resources are released at the end."""
+    """Run ``steps`` (default :data:`STEPS`) in order; resources are released at the end.
+
+    ``ctx.results["step_s"]`` gets the wall-clock seconds of each step, by title.
+    """
     steps = STEPS if steps is None else steps
+    timings = ctx.results.setdefault("step_s", {})
     with ctx.stack:
         for number, (title, step) in enumerate(steps, 1):
             ctx.say(f"[{number}/{len(steps)}] {title}")
+            started = time.monotonic()
             step(ctx)
+            timings[title] = time.monotonic() - started
     return ctx
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("demo-out"), metavar="DIR",
                         help="folder for the demo's files (default: ./demo-out)")
-    parser.add_argument("--seconds", type=float, default=5.0, help="seconds to capture (default: 5)")
+    parser.add_argument("--seconds", type=float, default=5.0,
+                        help="seconds of device clock in the first capture (default: 5)")
     parser.add_argument("--rate", type=int, default=200, metavar="HZ", help="sample rate (default: 200)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default: 1)")
+    parser.add_argument("--hold", type=float, default=HOLD_S, metavar="S",
+                        help=f"seconds of each pose of the sequence (default: {HOLD_S:g})")
+    parser.add_argument("--speed", type=float, default=SPEED, metavar="X",
+                        help=f"the simulated unit's clock runs X times faster than the wall clock "
+                             f"(default: {SPEED:g})")
 
 
 def run(args: argparse.Namespace) -> int:
-    ctx = DemoContext(out_dir=args.out, seed=args.seed, rate_hz=args.rate, seconds=args.seconds)
+    from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ
+
+    if not MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:
+        raise StationError(f"--rate {args.rate}: the simulated unit runs at {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
+    if not 0 < args.speed <= MAX_SPEED:
+        raise StationError(f"--speed {args.speed:g}: give a factor above 0 and at most {MAX_SPEED:g}")
+    if not 0 < args.hold <= 600:
+        raise StationError(f"--hold {args.hold:g}: give the seconds of each pose, above 0 and at most 600")
+    if not 0 < args.seconds <= 600:
+        raise StationError(f"--seconds {args.seconds:g}: give a capture length above 0 and at most 600 s")
+    started = time.monotonic()
+    ctx = DemoContext(out_dir=args.out, seed=args.seed, rate_hz=args.rate, seconds=args.seconds,
+                      speed=args.speed, hold_s=args.hold)
     run_demo(ctx)
-    ctx.say(f"demo done: files in {ctx.out_dir}/")
+    ctx.say(f"demo done in {time.monotonic() - started:.1f} s: files in {ctx.out_dir}/")
     return 0
