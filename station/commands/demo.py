@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import shutil
 import subprocess
 import sys
@@ -399,12 +400,11 @@ def compare_with_truth(ctx: DemoContext) -> None:
     with each error and the 1-sigma the calibration reported."""
     from rich import box
     from rich.console import Console
-    from rich.padding import Padding
     from rich.table import Table
 
     assert ctx.report is not None
     truth = ctx.server.device.truth
-    table = Table(box=box.SIMPLE_HEAD)
+    table = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
     for name in ("triad", "parameter", "recovered", "true", "error", "1-sigma", "|error|/sigma"):
         table.add_column(name, justify="left" if name in ("triad", "parameter") else "right")
     worst: dict[str, float] = {}
@@ -426,7 +426,10 @@ def compare_with_truth(ctx: DemoContext) -> None:
                           f"{sigma:.1e}", f"{ratio:.1f}")
         table.add_section()
     ctx.say("    scale: raw per true; misalignment S (row, column): rad; bias: m/s^2 (accel), rad/s (gyro)")
-    Console(file=ctx.out, width=120).print(Padding(table, (0, 0, 0, 4), expand=False))
+    rendered = io.StringIO()
+    Console(file=rendered, width=120).print(table)
+    for line in rendered.getvalue().splitlines():
+        ctx.say(f"    {line}".rstrip())
     within = sum(r <= 3.0 for r in ratios)
     ctx.results["calibration"] = worst
     ctx.results["sigma_ratios"] = ratios
