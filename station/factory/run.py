@@ -16,8 +16,11 @@ time was exceeded). Whatever happens, the record is saved with every file writte
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import datetime as _dt
+import io
+import json
 import logging
 import re
 import time
@@ -34,9 +37,11 @@ from station.acquisition.operator import Action, BaseOperator, Operator, Prompt,
 from station.acquisition.recorder import Recorder
 from station.acquisition.runner import RecorderSink, RunOptions, RunResult, SequenceRunner
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
+from station.commands import export
 from station.engines.calibration_turntable import calibrate_turntable
 from station.engines.earth import STANDARD_GRAVITY, normal_gravity
 from station.errors import StationError
+from station.export.params_file import ParamsFile
 from station.factory.measure import measure
 from station.factory.plan import Plan
 from station.factory.records import (
@@ -248,8 +253,6 @@ class UnitRun:
             self.record.finish(outcome, reason)
             self._close()
             if self.files is not None:
-                import json
-
                 atomic_write_text(self.files / "record.json",
                                   json.dumps(self.record.to_dict(), indent=1, allow_nan=False) + "\n")
         log.info("outcome %s%s", outcome, f": {reason}" if reason else "")
@@ -409,13 +412,6 @@ class UnitRun:
         return report
 
     def _export(self, phase: Phase, report: Any, plan: Plan) -> None:
-        import argparse
-        import contextlib as _cl
-        import io
-
-        from station.commands import export
-        from station.export.params_file import ParamsFile
-
         assert self.files is not None
         params_path = self.files / "params.yaml"
         params = ParamsFile()
@@ -430,7 +426,7 @@ class UnitRun:
             export.add_arguments(parser)
             args = parser.parse_args([str(params_path), "-f", fmt, "-o", str(target), "--json",
                                       "--station-id", self.record.station])
-            with _cl.redirect_stdout(io.StringIO()):
+            with contextlib.redirect_stdout(io.StringIO()):
                 export.run(args)
             paths = sorted(p for p in target.rglob("*") if p.is_file()) if target.is_dir() else [target]
             for path in paths:
