@@ -392,12 +392,12 @@ class SequenceRunner:
         tolerance = self.options.limits.pose_tolerance_deg
         if isinstance(step, PoseStep):
             self._wait_ready(step, lambda acc: checks.pose_check(acc, step.up, tolerance))
-            started = self._capture_still(step, step.hold_s, State.CAPTURING, restart_on_motion=True)
-            return self._check_pose_step(step, started)
+            self._capture_still(step, step.hold_s, State.CAPTURING)
+            return self._check_pose_step(step)
         axis = step.axis
         self._wait_ready(step, lambda acc: checks.vertical_axis_check(acc, axis, tolerance))
-        started = self._capture_still(step, step.settle_s, State.SETTLING, restart_on_motion=True)
-        return self._rotate(step, started)
+        self._capture_still(step, step.settle_s, State.SETTLING)
+        return self._rotate(step)
 
     def _timed_out(self, since: float, step: Step, what: str) -> bool:
         """Ask what to do when the wait is over its time; True when the wait starts again."""
@@ -451,9 +451,9 @@ class SequenceRunner:
             if self._timed_out(since, step, f"not in pose and still ({message})"):
                 since = self.clock()
 
-    def _capture_still(self, step: Step, duration_s: float, state: State, restart_on_motion: bool) -> int:
-        """Keep ``duration_s`` of samples in the attempt while the unit stays still; returns first t_us."""
-        self._state = State.CAPTURING if state is State.CAPTURING else State.SETTLING
+    def _capture_still(self, step: Step, duration_s: float, state: State) -> None:
+        """Keep ``duration_s`` of samples in the attempt while the unit stays still (motion restarts)."""
+        self._state = state
         limits = self.options.limits
         start_us: int | None = None
         while True:
@@ -466,7 +466,7 @@ class SequenceRunner:
                 start_us = int(batch["t_us"][0])
             w = self.window.samples
             still = checks.stillness(w["acc"], w["gyro"], limits)
-            if restart_on_motion and not still.still and self.window.span_s >= 0.5 * limits.still_window_s:
+            if not still.still and self.window.span_s >= 0.5 * limits.still_window_s:
                 self._status("moved during the capture: hold still, starting the step again",
                              force=True, stillness=still)
                 raise _Restart
@@ -474,7 +474,7 @@ class SequenceRunner:
             self._status(f"capturing {step.label}: keep still", stillness=still,
                          progress=min(1.0, elapsed / duration_s))
             if elapsed >= duration_s:
-                return start_us
+                return
 
     def _attempt_samples(self) -> np.ndarray:
         return np.concatenate(self._pending) if self._pending else np.zeros(0, SAMPLE_DTYPE)
@@ -491,7 +491,7 @@ class SequenceRunner:
         if record.dropouts.lost_fraction > limits.max_lost_fraction:
             record.problems.append(f"{record.dropouts.lost} samples lost in {record.dropouts.gaps} gaps")
 
-    def _check_pose_step(self, step: PoseStep, start_us: int) -> StepRecord:
+    def _check_pose_step(self, step: PoseStep) -> StepRecord:
         s = self._attempt_samples()
         record = StepRecord(step.label, step.kind, "accepted", self._attempt)
         self._common_checks(record, s)
@@ -501,7 +501,7 @@ class SequenceRunner:
                                    f"(measured {record.pose.nearest} up)")
         return record
 
-    def _rotate(self, step: RotationStep, start_us: int) -> StepRecord:
+    def _rotate(self, step: RotationStep) -> StepRecord:
         """Ask for the turn, follow the integrated angle, then keep the still settle after it."""
         limits = self.options.limits
         before = self._attempt_samples()

@@ -78,9 +78,14 @@ class StationApp(App[int]):
         self.exit(self.exit_code_for_run())
 
     def exit_code_for_run(self) -> int:
-        """1 when the last run did not complete or its results are outside their limits, else 0."""
+        """1 when the last run did not complete (or is cut short by quitting) or its results are
+        outside their limits, else 0."""
+        from station.tui.screens.wizard import WizardScreen
+
         run = self.last_run
-        failed = (run is not None and run.outcome != "completed") or self.results_failed
+        screen = self.screen
+        cut_short = isinstance(screen, WizardScreen) and screen.result is None and screen.current >= 0
+        failed = (run is not None and run.outcome != "completed") or self.results_failed or cut_short
         return 1 if failed else 0
 
     def close_session(self) -> None:
