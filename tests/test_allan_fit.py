@@ -138,14 +138,15 @@ def test_fit_is_exact_on_an_exact_model_curve():
     assert B_FACTOR == pytest.approx(0.66428, abs=1e-5)
 
 
-def test_gauss_markov_hump_gives_bias_instability_from_its_top():
+def test_gauss_markov_hump_gives_bias_instability_from_its_peak():
     """The mocks' default bias model: a Gauss-Markov process whose curve peaks at 0.664 B near 1.89 T_c
-    and falls again. No IEEE 952 term draws a fall; B is read at the top (white noise taken out)."""
+    and falls again. No IEEE 952 term draws a fall: a Gauss-Markov term is fitted, B is its peak / 0.664."""
     b = 3e-4
     gyro = NoiseSpec(N=[2e-4] * 3, B=[b] * 3, b_corr_time_s=20.0)
     rec = simulate(_sim_truth(gyro, NoiseSpec()), [Static("+z", 3600.0)], rate_hz=20.0, seed=5)
     _, noise = analyse(rec.gyro, 20.0, ("gx", "gy", "gz"))
     for axis in noise:
         assert axis.value("B") == pytest.approx(b, rel=0.3)
-        assert "hump" in axis.terms["B"].method
+        assert "Gauss-Markov" in axis.terms["B"].method
+        assert axis.gauss_markov[1] == pytest.approx(20.0, rel=0.5)  # the correlation time
         assert axis.value("N") == pytest.approx(2e-4, rel=0.05)

@@ -92,13 +92,36 @@ class AxisNoise:
     coeffs: dict[str, float] = field(default_factory=dict)  # all fitted terms, shown or not
     reduced_chi2: float = float("nan")
     crossing_tau_nk: float | None = None
+    gauss_markov: tuple[float, float] | None = None  # (sigma, correlation time s) where a hump was fitted
 
     def value(self, term: str) -> float | None:
         return self.terms[term].value
 
     def model(self, tau: np.ndarray) -> np.ndarray:
-        """Allan deviation of the fitted model (every fitted term)."""
-        return np.sqrt(model_avar(tau, self.coeffs))
+        """Allan deviation of the fitted model (every fitted term, and the Gauss-Markov bias if any)."""
+        avar = model_avar(tau, self.coeffs)
+        if self.gauss_markov is not None:
+            sigma, tau_c = self.gauss_markov
+            avar = avar + sigma**2 * gauss_markov_avar(tau, tau_c)
+        return np.sqrt(avar)
+
+
+def gauss_markov_avar(tau: np.ndarray, tau_c: float) -> np.ndarray:
+    """Allan variance of a first-order Gauss-Markov process of unit variance and correlation time T_c.
+
+    sigma^2(tau) = 2 (T_c / tau) [1 - (T_c / 2 tau) (3 - 4 e^(-x) + e^(-2x))], x = tau / T_c (e.g. El-Sheimy
+    et al. 2008, eq. 21 with q_c = 2 / T_c); the bracket is 2u + u^2 over 2x with u = 1 - e^(-x), and its
+    series x^2/3 - x^3/4 below x = 1e-3 where the difference would cancel.
+    """
+    x = np.asarray(tau, dtype=np.float64) / tau_c
+    u = -np.expm1(-x)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bracket = np.where(x < 1e-3, x**2 / 3.0 - x**3 / 4.0, 1.0 - (2.0 * u + u * u) / (2.0 * x))
+    return 2.0 * bracket / x
+
+
+_X = np.geomspace(1e-2, 1e2, 4001)
+GM_ADEV_PEAK = float(np.sqrt(gauss_markov_avar(_X, 1.0).max()))  # peak Allan deviation / sigma, ~0.62
 
 
 def _irls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: int = 6
@@ -273,14 +296,7 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
         result.terms[term] = est
     top = _hump_top(tau, adev, edf) if result.terms["B"].value is None else None
     if top is not None:
-        b_est = result.terms["B"]
-        # the white noise still adds at the top: take it out (N^2 / tau, eq. C.1)
-        floor2 = adev[top] ** 2 - values.get("N", 0.0) / tau[top]
-        b_est.value = float(math.sqrt(max(floor2, 0.25 * adev[top] ** 2)) / B_FACTOR)
-        b_est.stddev = b_est.value / math.sqrt(2.0 * edf[top])  # sd of sigma_hat ~ sigma / sqrt(2 edf)
-        b_est.reason = None
-        b_est.method = (f"top of a correlated-bias hump at tau = {tau[top]:.3g} s / 0.66428 (the curve rises "
-                        "then falls again: no IEEE 952 term draws that)")
+        values = _fit_with_gauss_markov(tau, adev, edf, result, values, chi2)
     n_val = values.get("N", 0.0)
     k_val = values.get("K", 0.0)
     if n_val > 0 and k_val > 0:
@@ -297,13 +313,58 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
     return result
 
 
+def _fit_with_gauss_markov(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, result: AxisNoise,
+                           values: dict[str, float], chi2_ieee: float) -> dict[str, float]:
+    """N, K and a first-order Gauss-Markov bias (sigma, T_c on a log grid), EDF-weighted. Where it beats
+    the IEEE fit by CHI2_GAIN or more, writes N, K and B (the Gauss-Markov peak / 0.66428) into
+    ``result`` and returns its variance coefficients; else returns ``values`` unchanged."""
+    avar = adev**2
+    best = None
+    for tau_c in np.geomspace(tau[0], tau[-1], 64):
+        a = np.column_stack([basis(tau)[:, [1, 3]], gauss_markov_avar(tau, tau_c)])
+        c, cov, chi2 = _irls(a, avar, edf)
+        if best is None or chi2 < best[0]:
+            best = (chi2, tau_c, c, cov)
+    chi2, tau_c, c, cov = best
+    if c[2] <= 0 or chi2_ieee - chi2 < CHI2_GAIN:  # a hump in the noise, not a correlated bias
+        return values
+    inflate = max(chi2 / max(len(tau) - 4, 1), 1.0)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0) * inflate)
+    sigma = math.sqrt(c[2])
+    result.gauss_markov = (sigma, float(tau_c))
+    result.reduced_chi2 = chi2 / max(len(tau) - 4, 1)
+    how = (f"fit with a Gauss-Markov bias (sigma {sigma:.3g}, T_c {tau_c:.3g} s): the curve rises then "
+           "falls again")
+    b_est = result.terms["B"]
+    b_est.value = GM_ADEV_PEAK * sigma / B_FACTOR  # its Allan deviation peaks at 0.66428 B
+    b_est.stddev = b_est.value * sd[2] / (2.0 * c[2])
+    b_est.reason = None
+    b_est.method = "peak of the " + how
+    for i, term in ((0, "N"), (1, "K")):
+        est = result.terms[term]
+        est.method = how
+        if c[i] > 0 and c[i] >= SIGNIFICANCE * sd[i]:
+            est.value, est.stddev, est.reason = math.sqrt(c[i]), sd[i] / (2.0 * math.sqrt(c[i])), None
+        else:
+            est.value = est.stddev = None
+            est.reason = ("hidden by the correlated (Gauss-Markov) bias: record longer, until the curve "
+                          "rises again after its hump")
+    result.coeffs = {t: math.sqrt(v) for t, v in (("N", c[0]), ("K", c[1])) if v > 0}
+    result.fitted = ("N", "K")
+    return {"N": float(c[0]), "K": float(c[1])}
+
+
 def dominant_alpha(tau: np.ndarray, noise: AxisNoise) -> np.ndarray:
     """Power-law noise type of the model term that dominates at each tau (for Greenhall's EDF)."""
     if not noise.coeffs:
         return np.zeros(len(tau), dtype=np.int64)
     names = list(noise.coeffs)
-    parts = np.column_stack([basis(tau)[:, TERMS.index(t)] * noise.coeffs[t] ** 2 for t in names])
-    return np.array([ALPHA_OF_TERM[names[i]] for i in np.argmax(parts, axis=1)], dtype=np.int64)
+    parts = [basis(tau)[:, TERMS.index(t)] * noise.coeffs[t] ** 2 for t in names]
+    alphas = [ALPHA_OF_TERM[t] for t in names]
+    if noise.gauss_markov is not None:  # flat-topped like flicker where it dominates
+        parts.append(noise.gauss_markov[0] ** 2 * gauss_markov_avar(tau, noise.gauss_markov[1]))
+        alphas.append(-1)
+    return np.array([alphas[i] for i in np.argmax(np.column_stack(parts), axis=1)], dtype=np.int64)
 
 
 def identify_noise(curve: AllanCurve) -> tuple[AllanCurve, list[AxisNoise]]:

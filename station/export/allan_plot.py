@@ -19,7 +19,9 @@ MARKERS = {"Q": "v", "N": "o", "B": "s", "K": "^", "R": "D"}
 
 def _term_point(term: str, value: float, noise: AxisNoise, tau: np.ndarray) -> tuple[float, float]:
     """Where a term is marked on its own line: N at 1 s, Q at the shortest tau, K and R at the longest,
-    B at the minimum of the fitted model (its floor 0.66428 B)."""
+    B at the minimum of the fitted model (its floor 0.66428 B) or at the top of a Gauss-Markov hump."""
+    if term == "B" and noise.gauss_markov is not None:  # the peak of the correlated bias's hump
+        return 1.89 * noise.gauss_markov[1], value * math.sqrt(2.0 * math.log(2.0) / math.pi)
     if term == "B":
         fine = np.geomspace(tau[0], tau[-1], 400)
         return float(fine[np.argmin(noise.model(fine))]), value * math.sqrt(2.0 * math.log(2.0) / math.pi)
@@ -70,7 +72,7 @@ def render_png(curve: AllanCurve, noise: list[AxisNoise], title: str = "") -> by
                 handles.append(ax.plot([], [], marker, color="gray", mfc="white", ls="")[0])
                 labels.append(f"{term} [{UNITS[sensor][term][0]}]")
         handles.append(ax.plot([], [], "--", color="gray")[0])
-        labels.append("fitted IEEE 952 model")
+        labels.append("fitted model (IEEE 952, Gauss-Markov bias where shown)")
         handles.append(ax.plot([], [], ":", color="gray")[0])
         labels.append("identified terms")
         ax.legend(handles, labels, fontsize=8, loc="best")

@@ -70,6 +70,10 @@ def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
             "tau_s": [a.terms[t].slope_tau for a in noise],
             "reason": [a.terms[t].slope_reason for a in noise]}
         for t in TERMS}
+    if any(a.gauss_markov for a in noise):
+        out["gauss_markov"] = {"sigma": [a.gauss_markov[0] if a.gauss_markov else None for a in noise],
+                               "correlation_time_s": [a.gauss_markov[1] if a.gauss_markov else None
+                                                      for a in noise]}
     out["crossing_tau_N_K_s"] = [a.crossing_tau_nk for a in noise]
     out["reduced_chi2"] = [a.reduced_chi2 for a in noise]
     return out
