@@ -13,10 +13,12 @@ only where the record shows them: significant (> 3 standard deviations), improvi
 chi-square by more than 9, and dominating the model at three or more well-measured points (backward
 elimination from the full model). K is null when its line crosses the white-noise line beyond T/20.
 
-A correlated (first-order Gauss-Markov) bias draws a hump: the curve rises, peaks at about 0.664 B near
-1.9 correlation times and falls again, which no term of (C.1) can draw. Where the curve visibly falls
-again after rising at well-measured points, B is read at the top of the hump (white noise N^2/tau
-taken out) and divided by 0.66428, and the report says so.
+A correlated (first-order Gauss-Markov) bias draws a hump: the curve rises, peaks near 1.9 correlation
+times and falls again, which no term of (C.1) can draw. Where the curve visibly falls again after rising
+at well-measured points, N, K and a Gauss-Markov term (sigma, T_c) are fitted instead; when that beats
+the IEEE fit by the same chi-square margin, B is the peak of the Gauss-Markov curve divided by 0.66428
+(the convention that makes a flicker floor and a Gauss-Markov peak the same B), K is kept only if still
+significant, and the report says which method gave each term.
 
 Beside the fit, the classic slope-line reading (IEEE 952 Annex C; e.g. El-Sheimy, Hou and Niu, "Analysis
 and modeling of inertial sensors using Allan variance", IEEE TIM 57(1), 2008): where the curve's
