@@ -255,6 +255,9 @@ def report_link(ctx: DemoContext) -> None:
             ("sent by the simulator", f"{sent} (while the port was open)"),
         ]
 
+    if not ctx.links:
+        ctx.say("    no capture yet: nothing to report")
+        return
     columns = {name: rows(link, sent) for name, (link, sent) in ctx.links.items()}
     names = [name for name, _ in next(iter(columns.values()))]
     width = max(len(name) for name in names)
