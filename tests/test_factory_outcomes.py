@@ -107,3 +107,45 @@ def test_no_port_is_a_usage_error(tmp_path: Path) -> None:
     with FactoryStation(plan, db=str(tmp_path / "r.sqlite")) as line:
         with pytest.raises(StationError, match="--port"):
             line.run("X")
+
+
+def test_table_turning_short_times_out_exit_5(tmp_path: Path) -> None:
+    """A table that turns half of what it is asked never completes rot+z: step timeout, exit 5."""
+    (tmp_path / "seq.yaml").write_text("name: one-turn\nsettle_s: 0.4\nrotation_rate_dps: 360\n"
+                                       "steps: [rot+z]\n")
+    plan = load_plan(write_plan(tmp_path, "sequence: {file: seq.yaml}\ndevice: {rate_hz: 50}\n"
+                                          "run: {step_timeout_s: 4}\n"))
+    with FactoryStation(plan, db=str(tmp_path / "r.sqlite"), station="t") as line:
+        record = line.run("SHORT-1", simulate=SimulatedUnit(seed=4, table_turn_error=-0.5))
+    assert (record.outcome, record.exit_code) == ("TIMEOUT", 5)
+    assert "rot+z" in record.reason and "turn not completed" in record.reason and "after 4 s" in record.reason
+
+
+def test_real_ports_and_a_unit_reporting_another_serial_fails(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """``run --port --table-port`` on ports served here; the unit on the fixture is not the one named."""
+    import dataclasses
+    import json
+
+    from mocks.pty_server import PtyServer
+    from mocks.truth import UnitTruth
+    from station import cli
+
+    path = write_plan(tmp_path, "sequence: {name: six-position, rotations: false, hold_s: 0.5}\n"
+                                "device: {rate_hz: 50}\nlimits:\n  accel.bias: {max_abs: 100, unit: mg}\n")
+    truth = dataclasses.replace(UnitTruth.random(3), serial="OTHER-9")
+    with PtyServer(SimDevice(truth, seed=3, rate_hz=50), block_s=0.05) as server, \
+            TurntableSim(server.device) as table:
+        db = str(tmp_path / "r.sqlite")
+        code = cli.main(["run", "--plan", str(path), "--port", server.port_path, "--table-port",
+                         table.port_path, "--serial", "WANTED-1", "--db", db, "--json"])
+    record = json.loads(capsys.readouterr().out)
+    assert code == 1 and record["outcome"] == "FAIL"
+    connect = record["phases"][0]
+    serial = next(m for m in connect["measurements"] if m["name"] == "device.serial")
+    assert (serial["value"], serial["outcome"]) == ("OTHER-9", "FAIL")
+    assert "expected WANTED-1" in serial["doc"]
+    calibrate = next(p for p in record["phases"] if p["name"] == "calibrate")
+    assert all(m["outcome"] == "PASS" for m in calibrate["measurements"] if m["outcome"] != "UNSET")
+    assert record["device"]["port"] == server.port_path
+    assert record["reason"] == "outside limits: device.serial"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import socket
 import sys
@@ -140,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     plan = load_plan(args.plan)
     station = args.station or os.environ.get("IMU_STATION_ID") or socket.gethostname()
     url = db_url(args)
-    configure_logging(args.serial)
+    handler = configure_logging(args.serial)
     on_event = None
     if args.events:
         def on_event(event: dict[str, Any]) -> None:
@@ -151,8 +152,11 @@ def run(args: argparse.Namespace) -> int:
                          table_port=args.table_port, files_root=files_root(args, url), on_event=on_event,
                          simulate=SimulatedUnit(args.seed, unplug_after_s=args.unplug_after)
                          if args.simulate else None)
-    with RecordStore.open(url) as store:
-        record = run_unit(request, store)
+    try:
+        with RecordStore.open(url) as store:
+            record = run_unit(request, store)
+    finally:
+        logging.getLogger("imu_station.factory").removeHandler(handler)
     if args.json:
         sys.stdout.write(json.dumps(record.to_dict(), indent=1, allow_nan=False) + "\n")
     else:

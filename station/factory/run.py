@@ -453,7 +453,7 @@ class _UnitField(logging.Filter):
         return True
 
 
-def configure_logging(serial: str, stream: Any = None) -> None:
+def configure_logging(serial: str, stream: Any = None) -> logging.Handler:
     """Log lines on stderr, each naming the unit (several units' logs interleave on a line)."""
     import sys
 
@@ -463,6 +463,7 @@ def configure_logging(serial: str, stream: Any = None) -> None:
     log.handlers[:] = [handler]
     log.setLevel(logging.INFO)
     log.propagate = False
+    return handler
 
 
 def _log_serial(serial: str) -> None:
