@@ -30,7 +30,8 @@ class LinkStats:
     length_errors: int = 0
     truncated: int = 0
     bad_payloads: int = 0
-    lost: int = 0  # samples missing from seq gaps (u32 wrap understood)
+    lost: int = 0  # samples missing from seq gaps (u32 wrap understood), less seq_skipped
+    seq_skipped: int = 0  # seq values the protocol spent on packets without a sample (not lost)
     seq_resets: int = 0  # times seq went backwards (device restart or a replayed frame)
     overflow_drops: int = 0  # samples dropped because the consumer did not keep up
 
@@ -45,9 +46,10 @@ class LinkStats:
         return out
 
     def summary(self) -> str:
+        skipped = f" ({self.seq_skipped} seq skipped by non-sample packets)" if self.seq_skipped else ""
         return (f"{self.samples} samples, {self.rate_hz:.1f} Hz, {self.errors} errors "
                 f"({self.crc_errors} CRC, {self.truncated} truncated, {self.length_errors} length), "
-                f"{self.resyncs} resyncs, {self.garbage_bytes} garbage bytes, {self.lost} lost, "
+                f"{self.resyncs} resyncs, {self.garbage_bytes} garbage bytes, {self.lost} lost{skipped}, "
                 f"{self.overflow_drops} dropped (overflow)")
 
 
@@ -60,6 +62,7 @@ class LinkMonitor:
     def __init__(self) -> None:
         self.stats = LinkStats()
         self._last_seq: int | None = None
+        self._gaps = 0  # seq values missing between consecutive samples
         self._first_t_us: int | None = None
         self._window: deque[tuple[int, int]] = deque()  # (t_us of a batch's last sample, samples so far)
 
@@ -78,7 +81,8 @@ class LinkMonitor:
         prev[1:] = seq[:-1]
         gap = (seq - prev - 1) % SEQ_MODULUS
         backwards = gap >= _SEQ_BACKWARDS
-        s.lost += int(gap[~backwards].sum())
+        self._gaps += int(gap[~backwards].sum())
+        s.lost = max(0, self._gaps - s.seq_skipped)
         s.seq_resets += int(backwards.sum())
         self._last_seq = int(seq[-1])
         s.samples += n
@@ -105,3 +109,5 @@ class LinkMonitor:
         s.length_errors = dec.length_errors
         s.truncated = dec.truncated
         s.bad_payloads = dec.bad_payloads
+        s.seq_skipped = dec.seq_skipped
+        s.lost = max(0, self._gaps - s.seq_skipped)

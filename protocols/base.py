@@ -60,6 +60,7 @@ class DecoderStats:
     truncated: int = 0  # frames cut short by the start of another frame or the end of stream
     bad_payloads: int = 0  # good checksum but a payload the message id does not allow
     unknown_ids: int = 0  # good frames with an id this decoder does not know (still returned)
+    seq_skipped: int = 0  # sequence numbers taken by good packets that carry no sample (not losses)
 
     @property
     def errors(self) -> int:

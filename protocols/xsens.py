@@ -21,7 +21,8 @@ are turned into mean acceleration and rate over the interval between consecutive
 packets (from SampleTimeFine). Packets without inertial data (GNSS, orientation only, status)
 are returned as messages, not errors. ``seq`` is the PacketCounter unwrapped past 65535 (a
 packet without a counter takes the next number); packets that are not samples (GNSS-only,
-the other rate) consume counter values too, so they show as gaps in ``seq``. ``t_us`` is the
+the other rate) consume counter values too: they show as gaps in ``seq`` and are counted in
+``stats.seq_skipped``, which the link statistics take off their ``lost``. ``t_us`` is the
 unwrapped SampleTimeFine (10 kHz ticks) in microseconds; ``temp`` is the last Temperature item
 seen (NaN before the first).
 """
@@ -439,6 +440,8 @@ class XsensDecoder(StreamDecoderBase):
             self.source = source
         if source is None or source != self.source:
             self.other_source_packets += source is not None
+            # Its counter value is not a lost sample: the link statistics must not count it as one.
+            self.stats.seq_skipped += packet.counter is not None
             return False
         if packet.counter is not None:
             seq = self._counter & 0xFFFFFFFF

@@ -62,3 +62,18 @@ def test_decoder_counters_are_mirrored_and_summed_into_errors() -> None:
     assert (d["crc_errors"], d["truncated"], d["length_errors"], d["bad_payloads"]) == (2, 3, 1, 4)
     assert d["errors"] == 10 and d["resyncs"] == 9 and d["garbage_bytes"] == 77 and d["overflow_drops"] == 5
 
+
+
+def test_seq_values_spent_on_packets_without_samples_are_not_lost() -> None:
+    from drivers.link_stats import LinkMonitor
+    from protocols.base import SAMPLE_DTYPE, DecoderStats
+
+    mon = LinkMonitor()
+    batch = np.zeros(4, dtype=SAMPLE_DTYPE)
+    batch["seq"] = [10, 11, 13, 16]  # three seq values missing
+    batch["t_us"] = [0, 10_000, 30_000, 60_000]
+    mon.add_samples(batch)
+    assert mon.stats.lost == 3
+    mon.update_decoder(DecoderStats(seq_skipped=2))  # two of them went to non-sample packets
+    assert mon.stats.lost == 1 and mon.stats.seq_skipped == 2
+    assert "2 seq skipped" in mon.stats.summary()
