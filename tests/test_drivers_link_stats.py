@@ -65,9 +65,6 @@ def test_decoder_counters_are_mirrored_and_summed_into_errors() -> None:
 
 
 def test_seq_values_spent_on_packets_without_samples_are_not_lost() -> None:
-    from drivers.link_stats import LinkMonitor
-    from protocols.base import SAMPLE_DTYPE, DecoderStats
-
     mon = LinkMonitor()
     batch = np.zeros(4, dtype=SAMPLE_DTYPE)
     batch["seq"] = [10, 11, 13, 16]  # three seq values missing
