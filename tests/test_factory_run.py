@@ -7,7 +7,6 @@ import json
 import os
 import subprocess
 import sys
-import textwrap
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -229,7 +228,8 @@ def test_example_factory_script_into_postgres(postgres_url: str, tmp_path: Path)
     with psycopg.connect(postgres_url, autocommit=True) as conn:
         conn.execute("CREATE DATABASE example_line")
     url = postgres_url.rsplit("/", 1)[0] + "/example_line"
-    (tmp_path / "plan.yaml").write_text(textwrap.dedent(TIGHT_PLAN).replace("max_abs: 1,", "max_abs: 80,"))
+    quick = TIGHT_PLAN.replace("max_abs: 1,", "max_abs: 80,").replace("hold_s: 1", "hold_s: 0.5")
+    (tmp_path / "plan.yaml").write_text(quick.replace("rate_hz: 100", "rate_hz: 50"))
     script = REPO / "examples" / "factory_script.py"
     done = subprocess.run([sys.executable, str(script), "plan.yaml", "--db", url], cwd=tmp_path,
                           capture_output=True, text=True, timeout=200)
