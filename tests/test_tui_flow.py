@@ -52,7 +52,8 @@ async def _drive_with_enter(app: StationApp) -> None:
 
 def test_enter_only_six_position_and_rotations_writes_the_units_parameters(tmp_path):
     out = tmp_path / "unit.yaml"
-    config = TuiConfig(simulate=True, seed=4, out=out, hold_s=1.0, rotation_rate_dps=360.0, export=["json"])
+    config = TuiConfig(simulate=True, seed=4, out=out, hold_s=1.0, rotation_rate_dps=360.0, export=["json"],
+                       speed=4.0)
     app = StationApp(config)
     truth_holder = {}
 

@@ -147,7 +147,7 @@ def test_results_snapshot_of_an_ideal_unit(tmp_path):
 
 def test_allan_screen_plots_and_fits_the_white_noise(tmp_path):
     out = tmp_path / "noise.yaml"
-    config = TuiConfig(simulate=True, seed=6, rate_hz=1000.0, out=out)
+    config = TuiConfig(simulate=True, seed=6, rate_hz=1000.0, out=out, speed=2.0)
     app = StationApp(config)
     holder = {}
 
@@ -181,7 +181,8 @@ def test_allan_screen_plots_and_fits_the_white_noise(tmp_path):
 def test_thermal_screen_follows_a_ramp_and_fits(tmp_path):
     out = tmp_path / "thermal.yaml"
     profile = ramp([(0.0, 20.0), (30.0, 50.0), (60.0, 20.0)])
-    server = PtyServer(SimDevice(seed=8, rate_hz=100.0, scenario="still", temperature=profile)).start()
+    unit = SimDevice(seed=8, rate_hz=100.0, scenario="still", temperature=profile)
+    server = PtyServer(unit, speed=4.0).start()
     device = open_device(server.port_path)
     app = StationApp(TuiConfig(out=out))
 

@@ -31,7 +31,7 @@ def test_whole_flow_in_tmux_answered_with_enter_only(tmp_path):
     status = tmp_path / "exit-code"
     session = f"imu-{uuid.uuid4().hex[:8]}"
     station = Path(sys.executable).with_name("imu-station")
-    command = (f"{station} tui --simulate --seed 9 --hold 1 --rotation-rate 360 --out {out}; "
+    command = (f"{station} tui --simulate --seed 9 --hold 1 --rotation-rate 360 --speed 4 --out {out}; "
                f"echo $? > {status}")
     tmux("new-session", "-d", "-s", session, "-x", "120", "-y", "42", command)
     screens: list[str] = []

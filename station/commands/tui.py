@@ -10,6 +10,7 @@ from station.commands.export import FORMATS
 from station.errors import StationError
 from station.tui.config import TuiConfig
 
+MAX_SPEED = 20.0
 NAME = "tui"
 HELP = "guided calibration in the terminal: connect, live view, sequence wizard, results, Allan, thermal"
 DESCRIPTION = """\
@@ -37,6 +38,7 @@ EPILOG = """\
 examples:
   imu-station tui --port /dev/ttyUSB0 --out unit42.yaml --export c
   imu-station tui --simulate --sequence six-position --hold 2 --out sim.yaml
+  imu-station tui --simulate --speed 4 --out sim.yaml          (a quick demonstration)
   imu-station tui --port /dev/ttyACM0 --sequence my-fixture.yaml --no-rotations"""
 
 
@@ -47,6 +49,13 @@ def _positive(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not value > 0:
         raise argparse.ArgumentTypeError(f"{text} must be positive")
+    return value
+
+
+def _speed(text: str) -> float:
+    value = _positive(text)
+    if value > MAX_SPEED:
+        raise argparse.ArgumentTypeError(f"{text}: at most {MAX_SPEED:g}")
     return value
 
 
@@ -79,6 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="--simulate: which simulated unit (default 0)")
     parser.add_argument("--rate", type=_positive, default=200.0, metavar="HZ",
                         help="--simulate: the simulated unit's sample rate (default 200)")
+    parser.add_argument("--speed", type=_speed, default=1.0, metavar="X",
+                        help="--simulate: run the simulated unit's clock X times faster than the wall clock "
+                        "(demos and tests; every hold and turn is timed on the device clock), at most "
+                        f"{MAX_SPEED:g}")
 
 
 def config_from_args(args: argparse.Namespace) -> TuiConfig:
@@ -92,7 +105,7 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
     return TuiConfig(port=args.port, simulate=args.simulate, protocol=args.protocol, sequence=args.sequence,
                      rotations=not args.no_rotations, out=args.out, capture=args.capture, export=args.export,
                      export_dir=args.export_dir, hold_s=args.hold, rotation_rate_dps=args.rotation_rate,
-                     seed=args.seed, rate_hz=args.rate, allan_minutes=args.allan_minutes)
+                     seed=args.seed, rate_hz=args.rate, speed=args.speed, allan_minutes=args.allan_minutes)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,6 +23,7 @@ class TuiConfig:
     rotation_rate_dps: float = 90.0
     seed: int = 0
     rate_hz: float = 200.0
+    speed: float = 1.0
     allan_minutes: float = 60.0
 
     def capture_path(self) -> Path | None:

@@ -62,11 +62,13 @@ def open_simulated(config: TuiConfig) -> Session:
     from mocks.device import SimDevice
     from mocks.pty_server import PtyServer
 
-    server = PtyServer(SimDevice(seed=config.seed, rate_hz=config.rate_hz, scenario="still")).start()
+    device = SimDevice(seed=config.seed, rate_hz=config.rate_hz, scenario="still")
+    server = PtyServer(device, speed=config.speed).start()
     try:
-        device = open_device(server.port_path, protocol="native")
+        port = open_device(server.port_path, protocol="native")
     except Exception:
         server.stop()
         raise
-    return Session(device, f"{SIMULATED} (seed {config.seed}) on {server.port_path}", rig=server.device,
+    clock = f", clock x{config.speed:g}" if config.speed != 1 else ""
+    return Session(port, f"{SIMULATED} (seed {config.seed}{clock}) on {server.port_path}", rig=device,
                    closers=[server.stop])
