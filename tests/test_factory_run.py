@@ -19,6 +19,7 @@ from mocks.truth import UnitTruth
 from station.acquisition.capture import read_capture
 from station.factory.plan import SCHEMA
 from station.factory.records import RecordStore, RunRecord, sha256_file
+from station.factory.trend_plot import trend_series, write_trend_plot
 
 REPO = Path(__file__).resolve().parents[1]
 SEEDS = (21, 22, 23, 24)
@@ -121,6 +122,20 @@ def test_every_record_present_and_consistent(line: tuple[subprocess.CompletedPro
         assert [label for label, _ in capture.segments()] == ["+x", "-x", "+y", "-y", "+z", "-z", "rot+x",
                                                                 "rot+y", "rot+z"]
         assert len(capture) == m["capture.samples"].value
+
+
+def test_trend_plot_of_the_line(line: tuple[subprocess.CompletedProcess[str], Path], tmp_path: Path) -> None:
+    _, work = line
+    with RecordStore.open(work / "line.sqlite") as store:
+        records = store.query()
+    series = trend_series(records)
+    assert "gyro.bias.z" in series and "device.serial" not in series  # numeric, limited ones
+    expected = [r.measurements()["gyro.bias.z"].value for r in records]
+    assert series["gyro.bias.z"]["values"].tolist() == expected
+    assert (series["gyro.bias.z"]["low"], series["gyro.bias.z"]["high"]) == (-3.0, 3.0)
+    plotted = write_trend_plot(tmp_path / "trend.png", records, ["gyro.bias.z", "accel.scale_error.x"])
+    assert plotted == ["gyro.bias.z", "accel.scale_error.x"]
+    assert (tmp_path / "trend.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.mark.parametrize("seed", SEEDS)

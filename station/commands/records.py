@@ -13,6 +13,7 @@ from rich.table import Table
 from station.commands.run import add_db_arguments, db_url, usage_error_exits_4
 from station.errors import StationError
 from station.factory.records import OUTCOMES, RecordStore, RunRecord, utc_now
+from station.factory.trend_plot import write_trend_plot
 from station.files import atomic_write_text
 
 NAME = "records"
@@ -22,7 +23,8 @@ List the records of 'imu-station run' / 'run-many' from the record database (SQL
 oldest first, filtered by unit serial, station, outcome and start date (UTC). --json prints the
 full records (phases, measurements with limits and units, attachments with SHA-256); --export FILE
 writes them as one JSON document (schema imu-station/records-export/1), e.g. a unit's history
-with --serial. --verify re-hashes every attachment and reports missing or altered files."""
+with --serial. --plot draws each measurement across the records against its limits (PNG).
+--verify re-hashes every attachment and reports missing or altered files."""
 EPILOG = """\
 exit codes: 0 done; 1 --verify found a missing or altered file; 4 bad option or database.
 
@@ -30,6 +32,7 @@ examples:
   imu-station records --serial A1234
   imu-station records --since 2026-11-01 --until 2026-11-22 --outcome FAIL
   imu-station records --serial A1234 --export A1234-history.json --verify
+  imu-station records --since 2026-11-01 --plot trend.png --measurement gyro.bias.z
   imu-station records --db postgresql://line@db/imu --station line-a-3 --json"""
 
 EXPORT_SCHEMA = "imu-station/records-export/1"
@@ -46,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="started on or before (a date includes the whole day)")
     parser.add_argument("--json", action="store_true", help="print the full records as JSON on stdout")
     parser.add_argument("--export", type=Path, metavar="FILE.json", help="write the records as one JSON file")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png",
+                        help="PNG of the measurements across the records, with their limits")
+    parser.add_argument("--measurement", action="append", default=None, metavar="NAME",
+                        help="--plot: this measurement (repeat; default: every one with limits, up to 12)")
     parser.add_argument("--verify", action="store_true",
                         help="check every attachment against its SHA-256 (exit 1 when one differs)")
 
@@ -78,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
             k: getattr(args, k) for k in ("serial", "station", "outcome", "since", "until")},
             "records": [r.to_dict() for r in records]}
         atomic_write_text(args.export, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    plotted: list[str] = []
+    if args.plot:
+        if not records:
+            raise StationError("--plot: no record matches; nothing to plot")
+        plotted = write_trend_plot(args.plot, records, args.measurement)
     if args.json:
         sys.stdout.write(json.dumps([r.to_dict() for r in records], indent=1, allow_nan=False) + "\n")
     else:
@@ -85,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
         console.print(_table(records))
         if args.export:
             console.print(f"{args.export}: {len(records)} record(s) written")
+        if args.plot:
+            console.print(f"{args.plot}: {len(plotted)} measurement(s) plotted")
         if args.verify:
             console.print(f"verified {sum(len(r.attachments()) for r in records)} attachment(s): "
                           + ("all intact" if not problems else f"{len(problems)} problem(s)"))

@@ -1,0 +1,77 @@
+"""A PNG of measurements across records: each measurement against its limits, run after run.
+
+What a line engineer looks at first: which quantity drifts towards its limit, which units failed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from station.factory.records import RunRecord
+from station.files import atomic_open
+
+MAX_PANELS = 12
+
+
+def trend_series(records: list[RunRecord], names: list[str] | None = None) -> dict[str, dict]:
+    """Per measurement name: values (NaN where a record lacks it), unit, limits and outcomes, in record order.
+
+    Without ``names``: every numeric measurement that has limits in at least one record.
+    """
+    if names is None:
+        names = []
+        for r in records:
+            for m in r.measurements().values():
+                limited = m.low is not None or m.high is not None
+                if limited and isinstance(m.value, int | float) and m.name not in names:
+                    names.append(m.name)
+    series = {}
+    for name in names:
+        values, outcomes, unit, low, high = [], [], "", None, None
+        for r in records:
+            m = r.measurements().get(name)
+            ok = m is not None and isinstance(m.value, int | float)
+            values.append(float(m.value) if ok else np.nan)
+            outcomes.append(m.outcome if m is not None else "")
+            if m is not None:
+                unit, low, high = m.unit, m.low, m.high
+        series[name] = {"values": np.array(values), "outcomes": outcomes, "unit": unit, "low": low,
+                        "high": high}
+    return series
+
+
+def write_trend_plot(path: str | Path, records: list[RunRecord], names: list[str] | None = None) -> list[str]:
+    """Write the PNG; returns the measurement names plotted (at most :data:`MAX_PANELS`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = dict(list(trend_series(records, names).items())[:MAX_PANELS])
+    n = max(1, len(series))
+    cols = 2 if n > 1 else 1
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 2.2 * rows + 0.6), squeeze=False)
+    x = np.arange(len(records))
+    labels = [r.serial for r in records]
+    for ax, (name, s) in zip(axes.ravel(), series.items(), strict=False):
+        failed = np.array([o == "FAIL" for o in s["outcomes"]])
+        ax.plot(x, s["values"], "-", color="0.7", lw=0.8)
+        ax.plot(x[~failed], s["values"][~failed], "o", color="tab:blue", ms=4, label="pass")
+        if failed.any():
+            ax.plot(x[failed], s["values"][failed], "x", color="tab:red", ms=7, mew=2, label="fail")
+        for bound in (s["low"], s["high"]):
+            if bound is not None:
+                ax.axhline(bound, color="tab:red", ls="--", lw=1)
+        ax.set_title(name + (f" ({s['unit']})" if s["unit"] else ""), fontsize=9)
+        ax.set_xticks(x, labels if len(records) <= 20 else [""] * len(records), rotation=60, fontsize=6)
+    for ax in axes.ravel()[len(series):]:
+        ax.set_visible(False)
+    fig.suptitle(f"imu-station records: {len(records)} run(s), limits dashed, failures x", fontsize=10)
+    fig.tight_layout()
+    with atomic_open(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=100)
+    plt.close(fig)
+    return list(series)
