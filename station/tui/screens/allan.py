@@ -41,7 +41,7 @@ class AllanScreen(Screen[None]):
     BINDINGS = [Binding("enter", "stop", "stop and fit", show=True), Binding("escape", "back", "back")]
     DEFAULT_CSS = """
     AllanScreen #plots { width: 1fr; border: round $accent; }
-    AllanScreen #side { width: 48; border: round $secondary; padding: 0 1; }
+    AllanScreen #side { width: 60; border: round $secondary; padding: 0 1; }
     """
 
     def compose(self) -> ComposeResult:
@@ -55,7 +55,6 @@ class AllanScreen(Screen[None]):
         self.title = "imu-station · Allan recording"
         self.recording = open_recording(self.app, "allan")
         self.stopped = False
-        self.started = time.monotonic()
         self._read()
 
     def on_unmount(self) -> None:
@@ -93,7 +92,8 @@ class AllanScreen(Screen[None]):
         if self.stopped:
             return
         stats = d["stats"]
-        elapsed = time.monotonic() - self.started
+        # The device clock, not the wall clock: the record's length is what the Allan deviation sees.
+        elapsed = d["count"] / stats.rate_hz if stats.rate_hz > 0 else 0.0
         side = Text()
         side.append("Allan recording\n", style="bold")
         side.append(f"recorded  {elapsed / 60:6.1f} min of {self.app.config.allan_minutes:g} min asked\n")
@@ -105,7 +105,7 @@ class AllanScreen(Screen[None]):
                     "minutes show white noise only.\n\nEnter: stop and fit · Escape: back")
         self.query_one("#side", Static).update(side)
         if "adev" in d:
-            self.query_one("#plots", Static).update(adev_plots(d["tau"], d["adev"]))
+            self.query_one("#plots", Static).update(adev_plots(d["tau"], d["adev"], self.plot_width()))
         if elapsed >= 60 * self.app.config.allan_minutes:
             self.action_stop()
 
@@ -146,13 +146,17 @@ class AllanScreen(Screen[None]):
 
     def show_fit(self, fit: tuple, saved: str | None) -> None:
         curve, section = fit
-        self.query_one("#plots", Static).update(adev_plots(curve.tau, curve.adev))
+        self.query_one("#plots", Static).update(adev_plots(curve.tau, curve.adev, self.plot_width()))
         text = Text("\n".join(allan_report.summary_lines(section)) + "\n\n")
         text.append(f"noise section saved to {saved}" if saved else "no --out: nothing saved", style="bold")
         if self.recording.path is not None:
             text.append(f"\nrecording in {self.recording.path}")
         text.append("\nEscape: back · q: quit")
         self.query_one("#side", Static).update(text)
+
+    def plot_width(self) -> int:
+        """Plot cells that fit the panel beside the axis labels."""
+        return max(20, self.query_one("#plots", Static).size.width - 14)
 
     def action_back(self) -> None:
         self.app.show("live")

@@ -125,7 +125,8 @@ class ThermalScreen(Screen[None]):
         side.append("Sweep the chamber over the whole operating range, slowly\n"
                     "(about 1 degC/min), up and down.\n\nEnter: stop and fit · Escape: back")
         self.query_one("#side", Static).update(side)
-        self.query_one("#plots", Static).update(sweep_plots(blocks))
+        width = max(20, self.query_one("#plots", Static).size.width - 14)
+        self.query_one("#plots", Static).update(sweep_plots(blocks, width))
 
     def on_link_failed(self, message: LinkFailed) -> None:
         self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))
