@@ -3,6 +3,7 @@ failing its checks (exit 2), a run over its time (exit 5)."""
 
 from __future__ import annotations
 
+import json
 import re
 import time
 from pathlib import Path
@@ -125,7 +126,6 @@ def test_real_ports_and_a_unit_reporting_another_serial_fails(tmp_path: Path,
                                                                capsys: pytest.CaptureFixture[str]) -> None:
     """``run --port --table-port`` on ports served here; the unit on the fixture is not the one named."""
     import dataclasses
-    import json
 
     from mocks.pty_server import PtyServer
     from mocks.truth import UnitTruth
@@ -149,3 +149,33 @@ def test_real_ports_and_a_unit_reporting_another_serial_fails(tmp_path: Path,
     assert all(m["outcome"] == "PASS" for m in calibrate["measurements"] if m["outcome"] != "UNSET")
     assert record["device"]["port"] == server.port_path
     assert record["reason"] == "outside limits: device.serial"
+
+
+def test_ctrl_c_during_run_many_records_the_unit_aborted(tmp_path: Path) -> None:
+    """Ctrl-C reaches run-many and its child (one process group): the unit is recorded ABORTED, exit 2."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    write_plan(tmp_path, "sequence: {name: six-position, rotations: false, hold_s: 1}\n"
+                         "device: {rate_hz: 50}\n")
+    argv = ["run-many", "--plan", "plan.yaml", "--simulate", "1", "--db", "r.sqlite", "--json"]
+    proc = subprocess.Popen([sys.executable, "-m", "station.cli", *argv], cwd=tmp_path,
+                            start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not list((tmp_path / "r-files").glob("SIM-000000/*/capture.csv")):
+        time.sleep(0.2)  # until the unit's sequence has started
+    time.sleep(1.0)
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, err[-2000:]
+    (unit,) = json.loads(out)["units"]
+    assert (unit["outcome"], unit["record"]["reason"]) == ("ABORTED", "interrupted (Ctrl-C)")
+    from station.factory.records import RecordStore
+
+    with RecordStore.open(tmp_path / "r.sqlite") as store:
+        (record,) = store.query()
+    assert record.outcome == "ABORTED" and record.verify() == []

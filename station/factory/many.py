@@ -23,6 +23,7 @@ from rich.table import Table
 
 # Worst last: a configuration error says more about the line than a unit's failure does.
 SEVERITY = (0, 1, 2, 5, 3, 4)
+STOP_WAIT_S = 30.0  # after Ctrl-C, how long the children get to save their records
 OUTCOME_NAMES = {0: "PASS", 1: "FAIL", 2: "ABORTED", 3: "ERROR", 4: "USAGE", 5: "TIMEOUT"}
 STYLES = {"PASS": "bold green", "FAIL": "bold red", "ABORTED": "yellow", "ERROR": "bold magenta",
           "TIMEOUT": "magenta", "USAGE": "bold magenta"}
@@ -119,10 +120,18 @@ class RunMany:
         title = f"imu-station run-many: {self.plan.name}, {len(self.units)} units"
         with Live(summary_table(self.units, title), console=self.console, refresh_per_second=4,
                   transient=False) as live:
-            while any(p.poll() is None for _, p, _, _ in procs):
-                with self._lock:
-                    live.update(summary_table(self.units, title))
-                time.sleep(0.25)
+            try:
+                self._follow_all(procs, live, title)
+            except KeyboardInterrupt:
+                # Ctrl-C reached every child too (one process group): each records its unit as
+                # aborted. Wait for those records, then stop whatever still runs.
+                deadline = time.monotonic() + STOP_WAIT_S
+                while any(p.poll() is None for _, p, _, _ in procs) and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                for _, proc, _, _ in procs:
+                    if proc.poll() is None:
+                        proc.terminate()
+                        proc.wait()
             for unit, proc, readers, log in procs:
                 for r in readers:
                     r.join(timeout=5.0)
@@ -135,6 +144,12 @@ class RunMany:
                         unit.serial = unit.record.get("serial", unit.serial)
             live.update(summary_table(self.units, title))
         return self.units
+
+    def _follow_all(self, procs: list, live: Live, title: str) -> None:
+        while any(p.poll() is None for _, p, _, _ in procs):
+            with self._lock:
+                live.update(summary_table(self.units, title))
+            time.sleep(0.25)
 
     def _follow(self, unit: UnitProgress, stream: IO[str], log: IO[str]) -> None:
         for line in stream:
