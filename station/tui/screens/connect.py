@@ -32,7 +32,7 @@ class ConnectScreen(Screen[None]):
     def compose(self) -> ComposeResult:
         yield Header()
         with Vertical():
-            yield Static("Choose the unit's port and press Enter.", id="hint")
+            yield Static("", id="hint")
             yield OptionList(id="ports")
             yield Static("not connected", id="info")
         yield Footer()
@@ -43,6 +43,9 @@ class ConnectScreen(Screen[None]):
         ports.add_option(Option(f"{SIMULATED:<24} the station's simulator (no hardware)", id=SIMULATED))
         for p in available_ports():
             ports.add_option(Option(f"{p.device:<24} {p.description}  {p.hwid}", id=p.device))
+        ports.highlighted = 0
+        ports.focus()
+        self.show_hint()
         config = self.app.config
         if config.simulate or config.port:
             self.connect(SIMULATED if config.simulate else config.port)
@@ -70,7 +73,7 @@ class ConnectScreen(Screen[None]):
     def on_snapshot(self, message: Snapshot) -> None:
         session: Session = message.data["session"]
         self.app.session = session
-        self.query_one("#hint", Static).update("Connected. Enter: live view · c: another port · ?: help")
+        self.show_hint()
         self.show_link()
 
     def on_link_failed(self, message: LinkFailed) -> None:
@@ -110,4 +113,12 @@ class ConnectScreen(Screen[None]):
         config = self.app.config
         config.protocol = names[(names.index(config.protocol) + 1) % len(names)] if config.protocol in names \
             else names[0]
-        self.notify(f"protocol: {config.protocol} (applies to the next connection)")
+        self.show_hint()
+
+    def show_hint(self) -> None:
+        protocol = self.app.config.protocol
+        if self.app.session is None:
+            text = f"Choose the unit's port and press Enter.   protocol: {protocol} (p: change)"
+        else:
+            text = f"Connected. Enter: live view · c: another port · p: protocol ({protocol}) · ?: help"
+        self.query_one("#hint", Static).update(text)
