@@ -233,3 +233,23 @@ def _samples(capture):
     out["t_us"] = np.round(capture.t * 1e6).astype(np.uint64)
     out["acc"], out["gyro"], out["temp"] = capture.acc, capture.gyro, capture.temp
     return out
+
+
+def test_a_capture_file_that_cannot_be_written_is_reported_on_the_screen(tmp_path):
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("a file where a folder should be")
+    app = StationApp(TuiConfig(simulate=True, seed=2, capture=blocker / "run.csv"))
+
+    async def run() -> None:
+        async with app.run_test(size=SIZE) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
+            await pilot.press("w")
+            def stopped() -> bool:
+                return any("The run stopped" in r for r in svg_rows(app.export_screenshot()))
+
+            await wait_for(pilot, stopped, 10, "the error on the screen", step_s=0.3)
+            rows = "\n".join(svg_rows(app.export_screenshot()))
+            assert "not-a-dir" in rows
+            await pilot.press("q")
+
+    asyncio.run(run())

@@ -23,9 +23,11 @@ from station.acquisition.runner import (
     StepRecord,
 )
 from station.acquisition.sequences import Sequence, resolve
+from station.errors import StationError
 from station.tui.art import bar, step_art, step_instruction
 from station.tui.bridge import RunnerEvent, TuiOperator
 from station.tui.config import TuiConfig
+from station.tui.messages import LinkFailed
 
 MARKS = {"accepted": "[green]✓[/green]", "skipped": "[yellow]↷[/yellow]", "failed": "[red]✗[/red]",
          "aborted": "[red]✗[/red]"}
@@ -93,22 +95,27 @@ class WizardScreen(Screen[None]):
 
     @work(thread=True, exclusive=True, group="reader")
     def _run(self) -> None:
-        app = self.app
-        session = app.session
+        session = self.app.session
         operator = self.operator if session.rig is None else SimulatedOperator(session.rig, self.operator)
-        path = app.config.capture_path()
-        recorder = None
-        if path is not None:
-            recorder = Recorder(path, device=session.info, with_step=True, port=session.name,
-                                protocol=session.device.protocol)
+        path = self.app.config.capture_path()
         try:
-            runner = SequenceRunner(session.device, self.sequence, operator, RunOptions(),
-                                    sink=RecorderSink(recorder, session.device) if recorder else None)
-            result = runner.run()
-        finally:
-            if recorder is not None:
-                recorder.close(session.device.stats.as_dict())
-        app.last_run = result
+            recorder = None
+            if path is not None:
+                recorder = Recorder(path, device=session.info, with_step=True, port=session.name,
+                                    protocol=session.device.protocol)
+            try:
+                SequenceRunner(session.device, self.sequence, operator, RunOptions(),
+                               sink=RecorderSink(recorder, session.device) if recorder else None).run()
+            finally:
+                if recorder is not None:
+                    recorder.close(session.device.stats.as_dict())
+        except (StationError, OSError) as exc:
+            # The capture file could not be written (disk full, no permission): say so on the screen.
+            self.post_message(LinkFailed(exc))
+
+    def on_link_failed(self, message: LinkFailed) -> None:
+        text = Text(f"The run stopped: {message.error}\nq: quit", style="red")
+        self.query_one("#prompt", Static).update(text)
 
     # ---- runner events -------------------------------------------------------------------------
 
@@ -168,6 +175,7 @@ class WizardScreen(Screen[None]):
 
     def _on_end(self, event: RunnerEvent) -> None:
         self.result = event.payload
+        self.app.last_run = self.result
         accepted = len(self.result.accepted)
         text = Text(f"Run {self.result.outcome}: {accepted} of {len(self.sequence)} steps captured, "
                     f"{len(self.result.capture)} samples.", style="bold")
