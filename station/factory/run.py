@@ -245,8 +245,10 @@ class UnitRun:
             outcome, reason = stop.outcome, stop.reason
         except DriverError as exc:
             outcome, reason = "ERROR", str(exc)
+            self._phase_broke()
         except KeyboardInterrupt:
             outcome, reason = "ABORTED", "interrupted (Ctrl-C)"
+            self._phase_broke()
         finally:
             for phase in self.record.phases:
                 phase.end = phase.end or utc_now()
@@ -258,6 +260,11 @@ class UnitRun:
         log.info("outcome %s%s", outcome, f": {reason}" if reason else "")
         self._event(event="outcome", outcome=outcome, exit_code=self.record.exit_code, reason=reason)
         return self.record
+
+    def _phase_broke(self) -> None:
+        """The phase under way when the run was cut short did not pass."""
+        if self.record.phases and self.record.phases[-1].outcome == "PASS":
+            self.record.phases[-1].outcome = "ERROR"
 
     def _close(self) -> None:
         for thing in (self.device, self.table):
