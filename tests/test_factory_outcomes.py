@@ -179,3 +179,4 @@ def test_ctrl_c_during_run_many_records_the_unit_aborted(tmp_path: Path) -> None
     with RecordStore.open(tmp_path / "r.sqlite") as store:
         (record,) = store.query()
     assert record.outcome == "ABORTED" and record.verify() == []
+    assert (record.phases[-1].name, record.phases[-1].outcome) == ("sequence", "ERROR")
