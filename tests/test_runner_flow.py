@@ -185,3 +185,20 @@ def test_dropouts_are_reported_and_a_lost_link_keeps_the_capture():
     assert result.steps[-1].status == "aborted"
     assert [label for label, _ in result.capture.segments()][0] == "+z"
     assert result.capture.link["lost"] >= first.dropouts.lost
+
+
+def test_twelve_position_diagonal_poses_are_reached_and_labelled():
+    server = PtyServer(SimDevice(seed=5, rate_hz=200.0, scenario="still"), speed=8.0).start()
+    device = open_device(server.port_path)
+    try:
+        seq = builtin("twelve-position", rotations=False, hold_s=1.0)
+        result = SequenceRunner(device, seq, SimulatedOperator(server.device, ScriptedOperator())).run()
+    finally:
+        device.close()
+        server.stop()
+    assert result.outcome == "completed" and result.accepted == seq.labels
+    truth, g = server.device.truth.accel, server.device.truth.gravity
+    for (label, sl), step in zip(result.capture.segments(), seq.steps, strict=True):
+        assert label == step.label
+        expected = truth.matrix @ (g * step.up) + truth.bias + truth.thermal.coeffs[:, 6]
+        assert np.allclose(result.capture.acc[sl].mean(axis=0), expected, atol=0.03), label
