@@ -151,7 +151,7 @@ def test_refusals_name_the_problem(sweep_csv, sweep_h5, tmp_path, capsys) -> Non
     assert "inside the fitted range" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         cli.main(["thermal", str(sweep_csv), "-o", str(tmp_path / "p.yaml"), "--segments", "many"])
-    assert exc.value.code == 2
+    assert exc.value.code == 4
     with pytest.raises(SystemExit):
         cli.main(["thermal", str(sweep_csv), "-o", str(tmp_path / "p.yaml"), "--terms", "t4"])
     assert "unknown terms" in capsys.readouterr().err
