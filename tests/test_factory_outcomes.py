@@ -76,7 +76,7 @@ def test_step_failing_its_checks_twice_aborts_exit_2(tmp_path: Path) -> None:
     plan = load_plan(write_plan(tmp_path, "sequence: {file: seq.yaml}\ndevice: {rate_hz: 50}\n"
                                           "run: {max_attempts: 2, step_timeout_s: 20}\n"))
     with FactoryStation(plan, db=str(tmp_path / "r.sqlite"), station="t") as line:
-        record = line.run("GEAR-1", simulate=SimulatedUnit(seed=4, table_turn_error=0.2))
+        record = line.run("GEAR-1", simulate=SimulatedUnit(seed=4, table_turn_error=0.2, speed=3))
         (stored,) = line.history("GEAR-1")
     assert (record.outcome, record.exit_code) == ("ABORTED", 2)
     assert record.reason.startswith("step rot+z: turned +") and "asked +360" in record.reason
@@ -117,7 +117,7 @@ def test_table_turning_short_times_out_exit_5(tmp_path: Path) -> None:
     plan = load_plan(write_plan(tmp_path, "sequence: {file: seq.yaml}\ndevice: {rate_hz: 50}\n"
                                           "run: {step_timeout_s: 4}\n"))
     with FactoryStation(plan, db=str(tmp_path / "r.sqlite"), station="t") as line:
-        record = line.run("SHORT-1", simulate=SimulatedUnit(seed=4, table_turn_error=-0.5))
+        record = line.run("SHORT-1", simulate=SimulatedUnit(seed=4, table_turn_error=-0.5, speed=3))
     assert (record.outcome, record.exit_code) == ("TIMEOUT", 5)
     assert "rot+z" in record.reason and "turn not completed" in record.reason and "after 4 s" in record.reason
 

@@ -74,8 +74,9 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.Completed
     work = tmp_path_factory.mktemp("line")
     (work / "seq.yaml").write_text(LINE_SEQUENCE)
     (work / "plan.yaml").write_text(LINE_PLAN)
-    done = cli("run-many", "--plan", "plan.yaml", "--simulate", "4", "--seed", str(SEEDS[0]), "--db",
-               "line.sqlite", "--json", cwd=work)
+    # The simulated clocks run 3x real time: the same samples and motion, in a third of the wait.
+    done = cli("run-many", "--plan", "plan.yaml", "--simulate", "4", "--seed", str(SEEDS[0]), "--speed", "3",
+               "--db", "line.sqlite", "--json", cwd=work)
     return done, work
 
 
@@ -192,8 +193,8 @@ def test_records_command_history_export_and_verify(line: Line) -> None:
 
 def test_unit_outside_its_limits_exits_1(tmp_path: Path) -> None:
     (tmp_path / "tight.yaml").write_text(TIGHT_PLAN)
-    done = cli("run", "--plan", "tight.yaml", "--simulate", "--seed", "8", "--serial", "auto", "--json",
-               "--db", "r.sqlite", cwd=tmp_path)
+    done = cli("run", "--plan", "tight.yaml", "--simulate", "--seed", "8", "--speed", "3", "--serial", "auto",
+               "--json", "--db", "r.sqlite", cwd=tmp_path)
     assert done.returncode == 1, done.stderr[-2000:]
     record = json.loads(done.stdout)
     assert record["outcome"] == "FAIL" and record["exit_code"] == 1

@@ -95,6 +95,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--simulate: the simulated unit's intrinsics and noise (default 0)")
     parser.add_argument("--unplug-after", type=float, default=None, metavar="S",
                         help="--simulate: pull the unit's cable after S seconds (to rehearse exit 3)")
+    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
+                        help="--simulate: run the simulated unit's clock X times faster than real time "
+                             "(rehearsals; default 1)")
     parser.add_argument("--serial", required=True, metavar="SN",
                         help="the unit's serial number; 'auto' takes the one the unit reports")
     parser.add_argument("--station", default=None, metavar="ID",
@@ -116,8 +119,10 @@ def _check(args: argparse.Namespace) -> None:
     if not args.simulate and not args.table_port:
         raise StationError("give the turntable's --table-port (a manual fixture is driven from a factory "
                            "script through the Python API, station.factory.api)")
-    if (args.unplug_after is not None or args.seed) and not args.simulate:
-        raise StationError("--seed and --unplug-after apply to --simulate only")
+    if (args.unplug_after is not None or args.seed or args.speed != 1.0) and not args.simulate:
+        raise StationError("--seed, --speed and --unplug-after apply to --simulate only")
+    if not 0.1 <= args.speed <= 20:
+        raise StationError(f"--speed {args.speed}: give 0.1 to 20 times real time")
     if args.unplug_after is not None and args.unplug_after <= 0:
         raise StationError(f"--unplug-after {args.unplug_after}: must be a positive number of seconds")
 
@@ -150,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
 
     request = RunRequest(plan=plan, serial=args.serial, station=station, port=args.port,
                          table_port=args.table_port, files_root=files_root(args, url), on_event=on_event,
-                         simulate=SimulatedUnit(args.seed, unplug_after_s=args.unplug_after)
+                         simulate=SimulatedUnit(args.seed, unplug_after_s=args.unplug_after,
+                                                speed=args.speed)
                          if args.simulate else None)
     try:
         with RecordStore.open(url) as store:

@@ -44,6 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--simulate", type=int, default=None, metavar="N",
                         help="N simulated units on simulated turntables (seeds --seed .. --seed+N-1)")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="--simulate: first seed (default 0)")
+    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
+                        help="--simulate: the simulated units' clocks run X times faster than real time")
     parser.add_argument("--station", default=None, metavar="ID",
                         help="this station's id (default $IMU_STATION_ID or the host name)")
     add_db_arguments(parser)
@@ -61,8 +63,10 @@ def units_of(args: argparse.Namespace) -> list[UnitSpec]:
         if args.serial and len(args.serial) != args.simulate:
             raise StationError(f"{len(args.serial)} --serial for {args.simulate} simulated units")
         serials = args.serial or ["auto"] * args.simulate
-        return [UnitSpec(f"sim {args.seed + i}", serials[i], seed=args.seed + i)
+        return [UnitSpec(f"sim {args.seed + i}", serials[i], seed=args.seed + i, speed=args.speed)
                 for i in range(args.simulate)]
+    if args.speed != 1.0:
+        raise StationError("--speed applies to --simulate only")
     if not args.port:
         raise StationError("give --port P --table-port T for each unit, or --simulate N")
     if len(args.table_port) != len(args.port):

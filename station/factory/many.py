@@ -38,10 +38,12 @@ class UnitSpec:
     port: str | None = None
     table_port: str | None = None
     seed: int | None = None
+    speed: float = 1.0
 
     def arguments(self) -> list[str]:
         if self.seed is not None:
-            return ["--simulate", "--seed", str(self.seed), "--serial", self.serial]
+            return ["--simulate", "--seed", str(self.seed), "--speed", f"{self.speed:g}",
+                    "--serial", self.serial]
         assert self.port is not None and self.table_port is not None
         return ["--port", self.port, "--table-port", self.table_port, "--serial", self.serial]
 

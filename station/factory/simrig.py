@@ -20,12 +20,16 @@ class SimulatedUnit:
 
     ``unplug_after_s``: the unit's link ends after this many seconds (a cable pulled mid-run).
     ``table_turn_error``: the simulated table turns (1 + this) times the asked angle (a wrong gear).
+    ``speed``: the unit's clock (and so the table's motion) runs this many times faster than the
+    wall clock (rehearsals and tests; the plan's times stay in device seconds, its timeouts in
+    wall seconds).
     """
 
     seed: int = 0
     grade: str = "mems"
     unplug_after_s: float | None = None
     table_turn_error: float = 0.0
+    speed: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,6 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float) -> Iterator[
     # 50 ms blocks (the server default is 20 ms): each block is one batch the runner checks, and the
     # station runs several simulated units at once.
     server = PtyServer(SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still"), faults=faults,
-                       block_s=0.05)
+                       block_s=0.05, speed=unit.speed)
     with server, TurntableSim(server.device, turn_error=unit.table_turn_error) as table:
         yield SimulatedPorts(server.port_path, table.port_path, server.device)
