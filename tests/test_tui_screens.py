@@ -4,6 +4,7 @@ and the text drawings and plots they are made of."""
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -114,14 +115,16 @@ def test_wizard_snapshot_help_skip_and_abort(tmp_path):
     assert not (tmp_path / "p.yaml").exists()
 
 
-def test_results_snapshot_of_an_ideal_unit(tmp_path):
+def test_results_snapshot_of_an_ideal_unit(tmp_path, monkeypatch):
+    # A relative output path: the screen shows it, and the snapshot must not depend on where tmp is.
+    monkeypatch.chdir(tmp_path)
     truth = UnitTruth.ideal()
     segments = sequence_segments("six-position", hold_s=1.0, rotation_rate_dps=180.0)
     rec = simulate(truth, segments, rate_hz=100.0)
     capture = rec.to_capture()
     capture.device = {"serial": "SIM-IDEAL", "model": "imu-sim", "firmware": "1.0.0", "rate_hz": 100}
     run = RunResult("completed", capture, [], builtin("six-position"))
-    out = tmp_path / "ideal.yaml"
+    out = Path("ideal.yaml")
     app = StationApp(TuiConfig(out=out))
 
     async def drive() -> None:
