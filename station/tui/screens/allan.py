@@ -8,11 +8,7 @@ import numpy as np
 from rich.console import Group
 from rich.text import Text
 from textual import work
-from textual.app import ComposeResult
-from textual.binding import Binding
-from textual.containers import Horizontal
-from textual.screen import Screen
-from textual.widgets import Footer, Header, Static
+from textual.widgets import Static
 
 from station.acquisition.allan_source import AXES
 from station.engines.allan import allan_curve, cluster_sizes, integrate_rates, overlapping_adev
@@ -23,7 +19,8 @@ from station.export.params_file import ParamsFile, to_plain
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, braille_plot
 from station.tui.pump import pump
-from station.tui.recording import Recording, open_recording
+from station.tui.recording import Recording
+from station.tui.screens.long_recording import LongRecordingScreen
 
 COLORS = ("red", "green", "dodger_blue1")
 MIN_SAMPLES = 64
@@ -37,28 +34,15 @@ def adev_plots(tau: np.ndarray, adev: np.ndarray, width: int = 50, height: int =
                  braille_plot(acc, width, height, True, True, "tau (s)", "accel ADEV (m/s^2)"))
 
 
-class AllanScreen(Screen[None]):
-    BINDINGS = [Binding("enter", "stop", "stop and fit", show=True), Binding("escape", "back", "back")]
+class AllanScreen(LongRecordingScreen):
+    HEADING = "Allan recording"
+    KIND = "allan"
+    INTRO = "Keep the unit still. The recording runs until Enter."
+    FITTING = "fitting the noise terms ..."
     DEFAULT_CSS = """
     AllanScreen #plots { width: 1fr; border: round $accent; }
     AllanScreen #side { width: 60; border: round $secondary; padding: 0 1; }
     """
-
-    def compose(self) -> ComposeResult:
-        yield Header()
-        with Horizontal():
-            yield Static("", id="plots")
-            yield Static("Keep the unit still. The recording runs until Enter.", id="side")
-        yield Footer()
-
-    def on_mount(self) -> None:
-        self.title = "imu-station · Allan recording"
-        self.recording = open_recording(self.app, "allan")
-        self.stopped = False
-        self._read()
-
-    def on_unmount(self) -> None:
-        self.recording.close()
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
@@ -109,18 +93,6 @@ class AllanScreen(Screen[None]):
         if elapsed >= 60 * self.app.config.allan_minutes:
             self.action_stop()
 
-    def on_link_failed(self, message: LinkFailed) -> None:
-        self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))
-
-    def action_stop(self) -> None:
-        if self.stopped:
-            return
-        self.stopped = True
-        self.workers.cancel_group(self, "reader")
-        self.recording.close()
-        self.query_one("#side", Static).update("fitting the noise terms ...")
-        self._fit()
-
     @work(thread=True, exclusive=True, group="fit")
     def _fit(self) -> None:
         samples = self.recording.snapshot()
@@ -157,6 +129,3 @@ class AllanScreen(Screen[None]):
     def plot_width(self) -> int:
         """Plot cells that fit the panel beside the axis labels."""
         return max(20, self.query_one("#plots", Static).size.width - 14)
-
-    def action_back(self) -> None:
-        self.app.show("live")

@@ -8,11 +8,7 @@ import numpy as np
 from rich.console import Group
 from rich.text import Text
 from textual import work
-from textual.app import ComposeResult
-from textual.binding import Binding
-from textual.containers import Horizontal
-from textual.screen import Screen
-from textual.widgets import Footer, Header, Static
+from textual.widgets import Static
 
 from station.acquisition.runner import samples_to_capture
 from station.commands.thermal import format_report
@@ -22,7 +18,7 @@ from station.export.params_file import ParamsFile
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, braille_plot
 from station.tui.pump import pump
-from station.tui.recording import open_recording
+from station.tui.screens.long_recording import LongRecordingScreen
 
 COLORS = ("red", "green", "dodger_blue1")
 BLOCK_S = 1.0
@@ -65,28 +61,15 @@ def sweep_plots(blocks: dict[str, np.ndarray], width: int = 50, height: int = 8)
     )
 
 
-class ThermalScreen(Screen[None]):
-    BINDINGS = [Binding("enter", "stop", "stop and fit", show=True), Binding("escape", "back", "back")]
+class ThermalScreen(LongRecordingScreen):
+    HEADING = "temperature sweep"
+    KIND = "thermal"
+    INTRO = "Keep the unit still in the chamber. The sweep is recorded until Enter."
+    FITTING = "fitting the thermal model ..."
     DEFAULT_CSS = """
     ThermalScreen #plots { width: 1fr; border: round $accent; }
     ThermalScreen #side { width: 48; border: round $secondary; padding: 0 1; }
     """
-
-    def compose(self) -> ComposeResult:
-        yield Header()
-        with Horizontal():
-            yield Static("", id="plots")
-            yield Static("Keep the unit still in the chamber. The sweep is recorded until Enter.", id="side")
-        yield Footer()
-
-    def on_mount(self) -> None:
-        self.title = "imu-station · temperature sweep"
-        self.recording = open_recording(self.app, "thermal")
-        self.stopped = False
-        self._read()
-
-    def on_unmount(self) -> None:
-        self.recording.close()
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
@@ -128,18 +111,6 @@ class ThermalScreen(Screen[None]):
         width = max(20, self.query_one("#plots", Static).size.width - 14)
         self.query_one("#plots", Static).update(sweep_plots(blocks, width))
 
-    def on_link_failed(self, message: LinkFailed) -> None:
-        self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))
-
-    def action_stop(self) -> None:
-        if self.stopped:
-            return
-        self.stopped = True
-        self.workers.cancel_group(self, "reader")
-        self.recording.close()
-        self.query_one("#side", Static).update("fitting the thermal model ...")
-        self._fit()
-
     @work(thread=True, exclusive=True, group="fit")
     def _fit(self) -> None:
         samples = self.recording.snapshot()
@@ -166,6 +137,3 @@ class ThermalScreen(Screen[None]):
         text.append(f"thermal section saved to {saved}" if saved else "no --out: nothing saved", style="bold")
         text.append("\nEscape: back · q: quit")
         self.query_one("#side", Static).update(text)
-
-    def action_back(self) -> None:
-        self.app.show("live")

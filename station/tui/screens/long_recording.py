@@ -1,0 +1,58 @@
+"""The frame shared by the long-recording screens: record the stream until Enter, then fit it."""
+
+from __future__ import annotations
+
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal
+from textual.screen import Screen
+from textual.widgets import Footer, Header, Static
+
+from station.tui.messages import LinkFailed
+from station.tui.recording import open_recording
+
+
+class LongRecordingScreen(Screen[None]):
+    """A ``#plots`` panel and a ``#side`` panel over a recording named ``KIND``.
+
+    A subclass supplies the texts below, a ``_read`` worker that fills ``self.recording`` and a
+    ``_fit`` worker that runs once the reader is stopped.
+    """
+
+    BINDINGS = [Binding("enter", "stop", "stop and fit", show=True), Binding("escape", "back", "back")]
+    HEADING = ""
+    KIND = ""
+    INTRO = ""
+    FITTING = ""
+
+    def compose(self) -> ComposeResult:
+        yield Header()
+        with Horizontal():
+            yield Static("", id="plots")
+            yield Static(self.INTRO, id="side")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.title = f"imu-station · {self.HEADING}"
+        self.recording = open_recording(self.app, self.KIND)
+        self.stopped = False
+        self._read()
+
+    def on_unmount(self) -> None:
+        self.recording.close()
+
+    def on_link_failed(self, message: LinkFailed) -> None:
+        self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))
+
+    def action_stop(self) -> None:
+        if self.stopped:
+            return
+        self.stopped = True
+        self.workers.cancel_group(self, "reader")
+        self.recording.close()
+        self.query_one("#side", Static).update(self.FITTING)
+        self._fit()
+
+    def action_back(self) -> None:
+        self.app.show("live")
