@@ -52,6 +52,10 @@ class TableState:
 class TableFault(DriverError):
     """The table reports a fault (limit switch, drive error): someone must look at it."""
 
+    def __init__(self, message: str, port: str = "", status: int = 0):
+        super().__init__(message, port)
+        self.status = status
+
 
 class Turntable:
     """The table at ``port`` (device path, pty or pyserial URL). Use as a context manager."""
@@ -88,9 +92,7 @@ class Turntable:
             code = int(parts[1]) if len(parts) > 1 and parts[1].isdigit() else 0
             text = parts[2] if len(parts) > 2 else reply
             cls = TableFault if code == ERR_FAULT else CommandRejected
-            error = cls(f"{self.port}: turntable refused {line!r}: {text}", self.port)
-            error.status = code
-            raise error
+            raise cls(f"{self.port}: turntable refused {line!r}: {text}", self.port, status=code)
         return reply
 
     def _readline(self) -> str:
