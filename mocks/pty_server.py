@@ -20,12 +20,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import os
 import select
 import threading
 import time
-import tty
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +32,7 @@ import numpy as np
 
 from mocks.device import SimDevice
 from mocks.faults import FaultInjector, FaultSpec
+from mocks.raw_pty import open_serving_pty
 
 MAX_PENDING_BYTES = 256 * 1024  # beyond this the host is not reading: new output is dropped
 
@@ -103,15 +102,7 @@ class PtyServer:
     # --- life cycle ----------------------------------------------------------------------
 
     def start(self) -> PtyServer:
-        master, slave = os.openpty()
-        tty.setraw(master)
-        tty.setraw(slave)
-        self.port_path = os.ttyname(slave)
-        # Closed at once: the host opens the path; EIO on the master then says nobody has it open.
-        os.close(slave)
-        flags = fcntl.fcntl(master, fcntl.F_GETFL)
-        fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
-        self._master = master
+        self._master, self.port_path = open_serving_pty()
         if self.link is not None:
             with contextlib.suppress(FileNotFoundError):
                 if self.link.is_symlink():

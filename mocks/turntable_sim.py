@@ -11,18 +11,17 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import math
 import os
 import re
 import select
 import threading
 import time
-import tty
 
 import numpy as np
 
 from mocks.device import SimDevice
+from mocks.raw_pty import open_serving_pty
 
 _POSE_RE = re.compile(r"^(?:[+-][xyz]){1,3}$")
 _AXIS_RE = re.compile(r"^[+-][xyz]$")
@@ -76,13 +75,7 @@ class TurntableSim:
     # ---- life cycle -------------------------------------------------------------------------------
 
     def start(self) -> TurntableSim:
-        master, slave = os.openpty()
-        tty.setraw(master)
-        tty.setraw(slave)
-        self.port_path = os.ttyname(slave)
-        os.close(slave)
-        fcntl.fcntl(master, fcntl.F_SETFL, fcntl.fcntl(master, fcntl.F_GETFL) | os.O_NONBLOCK)
-        self._master = master
+        self._master, self.port_path = open_serving_pty()
         self._thread = threading.Thread(target=self._run, name="turntable-sim", daemon=True)
         self._thread.start()
         return self

@@ -10,7 +10,6 @@ import os
 import select
 import threading
 import time
-import tty
 
 import numpy as np
 import pytest
@@ -24,6 +23,7 @@ from drivers import (
     SerialDevice,
     open_device,
 )
+from mocks.raw_pty import open_raw_pty
 from protocols import native
 from protocols.base import SAMPLE_DTYPE
 from protocols.native import NativeDecoder, encode_ack, encode_device_info, encode_samples
@@ -35,10 +35,7 @@ class RawPty:
     """A raw pseudo-terminal whose master end the test writes and reads."""
 
     def __init__(self) -> None:
-        self.master, self._slave = os.openpty()
-        tty.setraw(self.master)
-        tty.setraw(self._slave)
-        self.path = os.ttyname(self._slave)
+        self.master, self._slave, self.path = open_raw_pty()
 
     def write(self, data: bytes) -> None:
         view = memoryview(data)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import threading
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ import pytest
 from mocks.device import SimDevice
 from mocks.encoders_extra import EXTRA_ENCODERS  # noqa: F401  (registers the encoders)
 from mocks.pty_server import PtyServer
+from mocks.raw_pty import open_raw_pty
 from protocols.ascii_lines import STANDARD_GRAVITY, encode_csv
 from protocols.base import SAMPLE_DTYPE
 from station.acquisition.capture import read_capture
@@ -53,10 +53,7 @@ class LinePty:
     """A raw pty the test writes text lines into from a thread, at a steady pace."""
 
     def __init__(self, data: bytes, lines_per_write: int = 5, period_s: float = 0.01) -> None:
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.master)
-        tty.setraw(self.slave)
-        self.path = os.ttyname(self.slave)
+        self.master, self.slave, self.path = open_raw_pty()
         self._lines = data.splitlines(keepends=True)
         self._n = lines_per_write
         self._period = period_s

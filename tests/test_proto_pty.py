@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +15,7 @@ from drivers import open_device
 from mocks.device import SimDevice
 from mocks.encoders_extra import DECODER_OF, EXTRA_ENCODERS
 from mocks.pty_server import PtyServer
+from mocks.raw_pty import open_raw_pty
 from protocols.base import SAMPLE_DTYPE
 
 
@@ -23,10 +23,7 @@ class ReplayPty:
     """A raw pty whose master end the test writes recorded bytes into."""
 
     def __init__(self) -> None:
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.master)
-        tty.setraw(self.slave)
-        self.path = os.ttyname(self.slave)
+        self.master, self.slave, self.path = open_raw_pty()
 
     def replay(self, data: bytes, seed: int, max_chunk: int = 300) -> None:
         """Write ``data`` in random chunks with short pauses, so the reader sees ragged reads."""
