@@ -145,12 +145,8 @@ def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None
     out += tcal
     notes.append("ArduPilot applies the sensor's orientation before these corrections; the values are in the "
                  "unit's own axes, as calibrated")
-    result = ap.AutopilotExport("ardupilot", out, notes=notes)
-    values = result.values()
-    result.pose_errors = ap.assess(params, values, lambda v, a, g, t: ardupilot_correct(v, instance, a, g, t))
-    result.offsets = lambda temp: ardupilot_offsets(values, instance, temp)
-    result.limitations = ap.limitations(params, result.pose_errors, cubic_fits=fits)
-    return result
+    return ap.finish_export("ardupilot", params, out, notes, fits, instance, ardupilot_correct,
+                            ardupilot_offsets)
 
 
 def render_ardupilot(result: ap.AutopilotExport, params: ParamsFile, station_id: str, exported: str) -> str:

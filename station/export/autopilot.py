@@ -30,6 +30,10 @@ NOMINAL_TEMP = 25.0  # degC, where intrinsics are compared when the file has no 
 
 TargetCorrection = Callable[[dict[str, float], np.ndarray, np.ndarray, np.ndarray],
                             tuple[np.ndarray, np.ndarray]]
+# A target's own formulas, reading the parameters of sensor instance ``int``.
+InstanceCorrection = Callable[[dict[str, float], int, np.ndarray, np.ndarray, np.ndarray],
+                              tuple[np.ndarray, np.ndarray]]
+InstanceOffsets = Callable[[dict[str, float], int, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass
@@ -242,6 +246,19 @@ def limitations(params: ParamsFile, errors: dict[str, dict[str, Any]],
                                   f"dT^2, dT and t*dT terms dropped; largest bias they carry for dT in "
                                   f"[{triad.dt_min:g}, {triad.dt_max:g}] degC/s"))
     return out
+
+
+def finish_export(target: str, params: ParamsFile, out: list[Param], notes: list[str],
+                  fits: dict[str, CubicFit | None], instance: int, correct: InstanceCorrection,
+                  offsets: InstanceOffsets) -> AutopilotExport:
+    """The export of ``out`` with its pose errors, offsets and limitations, from the target's own
+    ``correct`` and ``offsets`` formulas for sensor ``instance``."""
+    result = AutopilotExport(target, out, notes=notes)
+    values = result.values()
+    result.pose_errors = assess(params, values, lambda v, a, g, t: correct(v, instance, a, g, t))
+    result.offsets = lambda temp: offsets(values, instance, temp)
+    result.limitations = limitations(params, result.pose_errors, cubic_fits=fits)
+    return result
 
 
 def vector_params(prefix: str, suffixes: tuple[str, str, str], values: np.ndarray) -> list[Param]:

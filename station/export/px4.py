@@ -92,12 +92,7 @@ def build_px4(params: ParamsFile, instance: int = 0, device_id: int | None = Non
                      "(from 'listener sensor_accel' / 'sensor_gyro') to bind them")
     notes.append("PX4 rotates the corrected vector by the sensor's rotation afterwards; these values are in "
                  "the unit's own axes, as calibrated")
-    result = ap.AutopilotExport("px4", out, notes=notes)
-    values = result.values()
-    result.pose_errors = ap.assess(params, values, lambda v, a, g, t: px4_correct(v, instance, a, g, t))
-    result.offsets = lambda temp: px4_offsets(values, instance, temp)
-    result.limitations = ap.limitations(params, result.pose_errors, cubic_fits=fits)
-    return result
+    return ap.finish_export("px4", params, out, notes, fits, instance, px4_correct, px4_offsets)
 
 
 def render_px4(result: ap.AutopilotExport, params: ParamsFile, station_id: str, exported: str) -> str:
