@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import decode_helpers
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -25,18 +26,7 @@ from protocols.base import SAMPLE_DTYPE
 
 
 def feed_ragged(decoder, data: bytes, seed: int = 0, max_chunk: int = 41):
-    rng = np.random.default_rng(seed)
-    samples, messages, pos = [], [], 0
-    while pos < len(data):
-        n = int(rng.integers(1, max_chunk + 1))
-        out = decoder.feed(data[pos : pos + n])
-        samples.append(out.samples)
-        messages += out.messages
-        pos += n
-    out = decoder.flush()
-    samples.append(out.samples)
-    messages += out.messages
-    return np.concatenate(samples), messages
+    return decode_helpers.feed_ragged(decoder, data, seed, max_chunk)
 
 
 def make_samples(n: int, seed: int = 0) -> np.ndarray:

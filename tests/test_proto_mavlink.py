@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 pytest.importorskip("pymavlink", reason="pymavlink is not installed (pip install 'imu-station[mavlink]')")
 
+import decode_helpers  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from protocols.base import SAMPLE_DTYPE  # noqa: E402
@@ -19,18 +20,7 @@ from protocols.mavlink import IMU_MESSAGES, MILLI_G, MavlinkDecoder, encode_samp
 
 
 def feed_ragged(decoder, data: bytes, seed: int = 0, max_chunk: int = 53):
-    rng = np.random.default_rng(seed)
-    samples, messages, pos = [], [], 0
-    while pos < len(data):
-        n = int(rng.integers(1, max_chunk + 1))
-        out = decoder.feed(data[pos : pos + n])
-        samples.append(out.samples)
-        messages += out.messages
-        pos += n
-    out = decoder.flush()
-    samples.append(out.samples)
-    messages += out.messages
-    return np.concatenate(samples), messages
+    return decode_helpers.feed_ragged(decoder, data, seed, max_chunk)
 
 
 def make_samples(n: int, seed: int = 0, t0_us: int = 1_000_000) -> np.ndarray:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
+import decode_helpers
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -32,14 +33,7 @@ GOLDEN_FOLDERS = ["1", "2", "3"]
 
 def feed_ragged(decoder, data: bytes, seed: int = 0, max_chunk: int = 97) -> np.ndarray:
     """Feed ``data`` in random chunks of 1..max_chunk bytes; all samples, flushed at the end."""
-    rng = np.random.default_rng(seed)
-    out, pos = [], 0
-    while pos < len(data):
-        n = int(rng.integers(1, max_chunk + 1))
-        out.append(decoder.feed(data[pos : pos + n]).samples)
-        pos += n
-    out.append(decoder.flush().samples)
-    return np.concatenate(out)
+    return decode_helpers.feed_ragged(decoder, data, seed, max_chunk)[0]
 
 
 def read_golden(path: Path) -> list[dict[str, list[str]]]:
