@@ -26,6 +26,13 @@ class InputFileError(StationError):
         self.line = line
         self.column = column
 
+    @classmethod
+    def invalid_yaml(cls, path: object, exc: Exception) -> InputFileError:
+        """The error for a file PyYAML could not parse, at the line of its problem mark if it has one."""
+        mark = getattr(exc, "problem_mark", None)
+        return cls(path, f"is not valid YAML: {getattr(exc, 'problem', exc)}",
+                   line=mark.line + 1 if mark is not None else None)
+
 
 class EngineInputError(StationError):
     """The data cannot determine what was asked (too few poses, rank deficiency, motion, ...)."""

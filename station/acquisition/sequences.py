@@ -276,9 +276,7 @@ def load_yaml(path: str | Path) -> Sequence:
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise InputFileError(path, f"is not valid YAML: {getattr(exc, 'problem', exc)}",
-                             line=mark.line + 1 if mark else None) from None
+        raise InputFileError.invalid_yaml(path, exc) from None
     if not isinstance(root, yaml.MappingNode):
         raise InputFileError(path, "must be a YAML mapping with 'name' and 'steps'", line=1)
     top = {}

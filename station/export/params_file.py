@@ -149,10 +149,7 @@ class ParamsFile:
         try:
             data = yaml.safe_load(text)
         except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            line = mark.line + 1 if mark is not None else None
-            problem = getattr(exc, "problem", exc)
-            raise InputFileError(path, f"is not valid YAML: {problem}", line=line) from None
+            raise InputFileError.invalid_yaml(path, exc) from None
         return cls.from_dict(data, path)
 
     @classmethod

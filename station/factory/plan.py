@@ -191,9 +191,7 @@ def load_plan(path: str | Path) -> Plan:
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise InputFileError(path, f"is not valid YAML: {getattr(exc, 'problem', exc)}",
-                             line=mark.line + 1 if mark else None) from None
+        raise InputFileError.invalid_yaml(path, exc) from None
     r = _Reader(path)
     if root is None:
         raise InputFileError(path, "is empty; a plan needs at least 'schema', 'name' and 'sequence'")
