@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import pytest
+from device_helpers import read_samples
 
 from drivers import (
     CommandRejected,
@@ -104,16 +105,6 @@ def make_samples(n: int, first_seq: int = 0, seed: int = 0) -> np.ndarray:
     return s
 
 
-def read_n(dev: SerialDevice, n: int, timeout: float = 5.0) -> np.ndarray:
-    got, count = [], 0
-    deadline = time.monotonic() + timeout
-    while count < n and time.monotonic() < deadline:
-        b = dev.read(0.1)
-        got.append(b)
-        count += len(b)
-    return np.concatenate(got) if got else np.zeros(0, SAMPLE_DTYPE)
-
-
 @pytest.fixture
 def pty():
     p = RawPty()
@@ -125,7 +116,7 @@ def test_samples_arrive_bit_exact_with_link_stats(pty: RawPty) -> None:
     sent = make_samples(2000)
     with open_device(pty.path) as dev:
         pty.write(encode_samples(sent))
-        got = read_n(dev, len(sent))
+        got = read_samples(dev, len(sent), timeout=5.0)
         stats = dev.stats
     assert got.tobytes() == sent.tobytes()
     assert stats.samples == 2000 and stats.bytes == 2000 * native.SAMPLE_FRAME_SIZE
@@ -157,7 +148,7 @@ def test_faults_on_the_wire_lose_only_the_damaged_frames(pty: RawPty) -> None:
             good.append(i)
     with open_device(pty.path) as dev:
         pty.write(bytes(wire))
-        got = read_n(dev, len(good))
+        got = read_samples(dev, len(good), timeout=5.0)
         time.sleep(0.1)
         stats = dev.stats
     assert got.tobytes() == sent[good].tobytes()
@@ -172,7 +163,7 @@ def test_seq_gaps_and_wrap_counted_over_the_port(pty: RawPty) -> None:
     kept = np.delete(sent, [10, 11, 70])  # 70 is after the wrap
     with open_device(pty.path) as dev:
         pty.write(encode_samples(kept))
-        got = read_n(dev, len(kept))
+        got = read_samples(dev, len(kept), timeout=5.0)
         assert dev.stats.lost == 3 and dev.stats.seq_resets == 0
     assert got.tobytes() == kept.tobytes()
 
@@ -212,7 +203,7 @@ def test_second_opener_gets_port_busy_and_close_releases_the_port(pty: RawPty) -
     assert dev.closed and not dev._thread.is_alive()
     with open_device(pty.path) as again:  # released
         pty.write(encode_samples(make_samples(5)))
-        assert len(read_n(again, 5)) == 5
+        assert len(read_samples(again, 5, timeout=5.0)) == 5
 
 
 def test_commands_get_their_answers_between_samples(pty: RawPty) -> None:
@@ -225,7 +216,8 @@ def test_commands_get_their_answers_between_samples(pty: RawPty) -> None:
             dev.set_rate(400)
             dev.start()
             dev.stop()
-            assert len(read_n(dev, 12)) == 12  # the samples sent around each answer still arrive
+            # The samples sent around each answer still arrive.
+            assert len(read_samples(dev, 12, timeout=5.0)) == 12
     finally:
         responder.stop()
     assert responder.rate_hz == 400
@@ -271,5 +263,5 @@ def test_slow_consumer_overflows_without_blocking_the_reader(pty: RawPty) -> Non
         first = dev.read(0.1)
         assert len(first) == 500 - stats.overflow_drops
         pty.write(encode_samples(make_samples(30, first_seq=500)))  # the reader is still alive
-        later = read_n(dev, 30)
+        later = read_samples(dev, 30, timeout=5.0)
     assert later["seq"].tolist() == list(range(500, 530))

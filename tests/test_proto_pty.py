@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from device_helpers import read_samples
 from test_proto_xsens import read_golden, xyz
 
 from drivers import open_device
@@ -16,7 +17,6 @@ from mocks.device import SimDevice
 from mocks.encoders_extra import DECODER_OF, EXTRA_ENCODERS
 from mocks.pty_server import PtyServer
 from mocks.raw_pty import open_raw_pty
-from protocols.base import SAMPLE_DTYPE
 
 
 class ReplayPty:
@@ -42,16 +42,6 @@ class ReplayPty:
             os.close(fd)
 
 
-def read_until(dev, n: int, timeout: float = 10.0) -> np.ndarray:
-    got, count = [], 0
-    deadline = time.monotonic() + timeout
-    while count < n and time.monotonic() < deadline:
-        batch = dev.read(0.1)
-        got.append(batch)
-        count += len(batch)
-    return np.concatenate(got) if got else np.zeros(0, SAMPLE_DTYPE)
-
-
 @pytest.mark.parametrize("folder", ["1", "2", "3"])
 @pytest.mark.parametrize("protocol", ["xsens", "auto"])
 def test_real_xsens_capture_through_a_pty_gives_every_golden_sample(shared_data: Path, folder: str,
@@ -62,7 +52,7 @@ def test_real_xsens_capture_through_a_pty_gives_every_golden_sample(shared_data:
     try:
         with open_device(pty.path, protocol=protocol) as dev:
             pty.replay((base / "output.bin").read_bytes(), seed=int(folder))
-            samples = read_until(dev, len(inertial))
+            samples = read_samples(dev, len(inertial), timeout=10.0)
             stats = dev.stats
     finally:
         pty.close()
@@ -86,7 +76,7 @@ def test_simulated_unit_speaking_each_format_is_read_by_its_decoder_and_by_auto(
         device = SimDevice(seed=4, rate_hz=200, encoder=encoder)
         with PtyServer(device, record=True) as server:
             with open_device(server.port_path, protocol=protocol) as dev:
-                got = read_until(dev, 60)
+                got = read_samples(dev, 60, timeout=10.0)
             sent = server.sent()
         assert len(got) >= 60, (encoder, protocol)
         # The host starts listening mid-stream: find its first sample among those sent, then
