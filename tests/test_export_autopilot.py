@@ -87,6 +87,13 @@ def ardupilot_firmware(v: dict[str, float], raw_acc, raw_gyro, temp):
             raw_gyro - tcal("GYR", "INS_GYR1_CALTEMP") - goff)
 
 
+# Each target: its builder and renderer, a reader of the file it writes, and its firmware's formula.
+TARGETS = {
+    "px4": (build_px4, render_px4, read_px4, px4_firmware),
+    "ardupilot": (build_ardupilot, render_ardupilot, read_ardupilot, ardupilot_firmware),
+}
+
+
 def pose_inputs(params: ParamsFile, temps: np.ndarray, rate: float = 1.0):
     """Raw readings of the six poses (gravity; +-rate rad/s) at each temperature, dT = 0, from the
     forward model raw = M true + b + B(T, 0)."""
@@ -161,10 +168,7 @@ def test_ardupilot_holds_a_cubic_diagonal_model_exactly(tmp_path: Path) -> None:
 @pytest.mark.parametrize("target", ["px4", "ardupilot"])
 def test_misalignment_and_gyro_scale_reported_with_their_size(target: str, tmp_path: Path) -> None:
     params = make_params(seed=4, thermal=False)
-    build, render, read, firmware = {
-        "px4": (build_px4, render_px4, read_px4, px4_firmware),
-        "ardupilot": (build_ardupilot, render_ardupilot, read_ardupilot, ardupilot_firmware),
-    }[target]
+    build, render, read, firmware = TARGETS[target]
     result = build(params)
     path = tmp_path / "unit.txt"
     path.write_text(render(result, params, "st", "2026-11-22T10:00:00Z"))
@@ -193,10 +197,7 @@ def test_misalignment_and_gyro_scale_reported_with_their_size(target: str, tmp_p
 @pytest.mark.parametrize("target", ["px4", "ardupilot"])
 def test_thermal_segments_and_dtemp_terms_reported(target: str, tmp_path: Path) -> None:
     params = make_params(seed=6)
-    build, render, read, firmware = {
-        "px4": (build_px4, render_px4, read_px4, px4_firmware),
-        "ardupilot": (build_ardupilot, render_ardupilot, read_ardupilot, ardupilot_firmware),
-    }[target]
+    build, render, read, firmware = TARGETS[target]
     result = build(params)
     path = tmp_path / "unit.txt"
     path.write_text(render(result, params, "st", "2026-11-22T10:00:00Z"))
@@ -240,8 +241,7 @@ def test_hostile_unit_strings_stay_in_comments(target: str, tmp_path: Path) -> N
     device = {"serial": "x\n1\t1\tCAL_ACC0_XOFF\t100\t9\nINS_ACCOFFS_X,100", "model": "\r\n#",
               "firmware": "é\t"}
     params = make_params(seed=2, device=device)
-    build, render, read = {"px4": (build_px4, render_px4, read_px4),
-                           "ardupilot": (build_ardupilot, render_ardupilot, read_ardupilot)}[target]
+    build, render, read, _ = TARGETS[target]
     result = build(params)
     text = render(result, params, "st\nINS_GYROFFS_X,5", "2026-11-22T10:00:00Z")
     path = tmp_path / "unit.txt"
