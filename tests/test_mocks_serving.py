@@ -58,6 +58,14 @@ class Host:
                     return m
         raise AssertionError(f"no answer 0x{answer_id:02x} within {timeout} s")
 
+    def rate_over(self, seconds: float) -> float:
+        """Samples per wall-clock second decoded while pumping for ``seconds``."""
+        before = len(self.all_samples())
+        t0 = time.monotonic()
+        self.pump(seconds)
+        elapsed = time.monotonic() - t0
+        return (len(self.all_samples()) - before) / elapsed
+
     def all_samples(self) -> np.ndarray:
         """Samples decoded so far (a frame still arriving stays in the decoder)."""
         return np.concatenate(self.samples) if self.samples else np.zeros(0, dtype=native.SAMPLE_DTYPE)
@@ -106,13 +114,9 @@ def test_pty_paces_samples_on_the_wall_clock_within_2_percent() -> None:
     with PtyServer(seed=1, rate_hz=400) as srv, serial.Serial(srv.port_path, timeout=0.05) as port:
         host = Host(port)
         host.pump(0.3)
-        before = len(host.all_samples())
-        t0 = time.monotonic()
-        host.pump(2.0)
-        elapsed = time.monotonic() - t0
-        got = len(host.all_samples()) - before
+        rate = host.rate_over(2.0)
     # Blocks of 20 ms at each end bound the count error to ~16 samples of 800 (2 %).
-    assert got / elapsed == pytest.approx(400.0, rel=0.02)
+    assert rate == pytest.approx(400.0, rel=0.02)
     samples = host.all_samples()
     assert np.all(np.diff(samples["seq"].astype(np.int64)) == 1)
     # The device clock and the wall clock agree: the last sample is not far behind the schedule.
@@ -256,12 +260,7 @@ def test_sim_url_answers_commands_and_paces_within_2_percent() -> None:
         host = Host(port)
         info = json.loads(host.ask(encode_frame(native.GET_INFO), native.DEVICE_INFO).payload)
         assert info == {"serial": "SIM-000003", "model": "imu-sim-mems", "firmware": "1.0.0", "rate_hz": 400}
-        before = len(host.all_samples())
-        t0 = time.monotonic()
-        host.pump(2.0)
-        elapsed = time.monotonic() - t0
-        got = len(host.all_samples()) - before
-        assert got / elapsed == pytest.approx(400.0, rel=0.02)
+        assert host.rate_over(2.0) == pytest.approx(400.0, rel=0.02)
         zero = encode_frame(native.SET_RATE, b"\x00\x00")
         assert parse_ack(host.ask(zero, native.ACK).payload).status == native.ACK_BAD_ARGUMENT
         assert port.device.rate_hz == 400
