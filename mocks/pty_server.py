@@ -32,7 +32,7 @@ import numpy as np
 
 from mocks.device import SimDevice
 from mocks.faults import FaultInjector, FaultSpec
-from mocks.raw_pty import open_serving_pty
+from mocks.raw_pty import PtyService, open_serving_pty
 
 MAX_PENDING_BYTES = 256 * 1024  # beyond this the host is not reading: new output is dropped
 
@@ -59,7 +59,7 @@ class ServerStats:
         return self.samples / self.device_time_s if self.device_time_s > 0 else 0.0
 
 
-class PtyServer:
+class PtyServer(PtyService):
     """A simulated unit on a pty: ``with PtyServer(seed=3) as srv: serial.Serial(srv.port_path)``.
 
     Parameters
@@ -72,11 +72,15 @@ class PtyServer:
     speed : the device clock runs this many times faster than the wall clock (default 1).
     """
 
+    THREAD_NAME = "pty-server"
+    FAILED = "the pty server thread failed"
+
     def __init__(self, device: SimDevice | None = None, *, seed: int = 0, rate_hz: float = 200.0,
                  scenario: str | Sequence = "still", faults: FaultSpec | None = None, block_s: float = 0.02,
                  link: str | os.PathLike[str] | None = None, record: bool = False, speed: float = 1.0):
         if not speed > 0:
             raise ValueError(f"speed must be positive, not {speed}")
+        super().__init__()
         if device is None:
             device = SimDevice(seed=seed, rate_hz=rate_hz, scenario=scenario)
         self.device = device
@@ -88,12 +92,7 @@ class PtyServer:
         self.speed = float(speed)
         self.stats = ServerStats()
         self.sent_samples: list[np.ndarray] = []
-        self.port_path = ""
-        self._master = -1
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
         self._closed = threading.Event()
-        self._error: BaseException | None = None
         self._pending = bytearray()
         self._host = False
         self._hold_until = 0.0
@@ -109,24 +108,8 @@ class PtyServer:
                     self.link.unlink()
             self.link.symlink_to(self.port_path)
         self._t0 = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name="pty-server", daemon=True)
-        self._thread.start()
+        self._start_thread()
         return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        self._close_master()
-        if self._error is not None:
-            error, self._error = self._error, None
-            raise RuntimeError("the pty server thread failed") from error
-
-    def __enter__(self) -> PtyServer:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     @property
     def running(self) -> bool:
@@ -154,9 +137,7 @@ class PtyServer:
         self.stats.device_time_s = self.stats.elapsed_s * self.speed
 
     def _close_master(self) -> None:
-        if self._master >= 0:
-            os.close(self._master)
-            self._master = -1
+        super()._close_master()
         if self.link is not None and self.link.is_symlink():
             self.link.unlink()
         self._closed.set()

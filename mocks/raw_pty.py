@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import fcntl
 import os
+import threading
 import tty
+from typing import Self
 
 
 def open_raw_pty() -> tuple[int, int, str]:
@@ -25,3 +27,51 @@ def open_serving_pty() -> tuple[int, str]:
     os.close(slave)
     fcntl.fcntl(master, fcntl.F_SETFL, fcntl.fcntl(master, fcntl.F_GETFL) | os.O_NONBLOCK)
     return master, path
+
+
+class PtyService:
+    """A simulator that answers on a raw pty from its own thread; ``with`` starts and stops it.
+
+    A subclass opens the pty in ``start`` (then calls :meth:`_start_thread`) and serves it in
+    ``_run``, keeping in ``self._error`` what its thread failed with, for :meth:`stop` to raise.
+    """
+
+    THREAD_NAME = "pty-service"
+    FAILED = "the pty service failed"
+
+    def __init__(self) -> None:
+        self.port_path = ""
+        self._master = -1
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+
+    def start(self) -> Self:
+        raise NotImplementedError
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+    def _start_thread(self) -> None:
+        self._thread = threading.Thread(target=self._run, name=self.THREAD_NAME, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        self._close_master()
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise RuntimeError(self.FAILED) from error
+
+    def _close_master(self) -> None:
+        if self._master >= 0:
+            os.close(self._master)
+            self._master = -1
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

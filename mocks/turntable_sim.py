@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from mocks.device import SimDevice
-from mocks.raw_pty import open_serving_pty
+from mocks.raw_pty import PtyService, open_serving_pty
 
 _POSE_RE = re.compile(r"^(?:[+-][xyz]){1,3}$")
 _AXIS_RE = re.compile(r"^[+-][xyz]$")
@@ -36,7 +36,7 @@ def _up_vector(label: str) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-class TurntableSim:
+class TurntableSim(PtyService):
     """``with TurntableSim(server.device) as table: Turntable(table.port_path)``.
 
     Parameters
@@ -50,11 +50,14 @@ class TurntableSim:
         on the motor would.
     """
 
+    THREAD_NAME = "turntable-sim"
+    FAILED = "the turntable simulator failed"
     model = "imu-sim-table"
     firmware = "1.0.0"
 
     def __init__(self, device: SimDevice, slew_dps: float = 180.0, settle_s: float = 0.2,
                  serial: str = "TT-SIM-0001", turn_error: float = 0.0):
+        super().__init__()
         self.device = device
         self.slew_dps = slew_dps
         self.settle_s = settle_s
@@ -62,40 +65,17 @@ class TurntableSim:
         self.turn_error = turn_error
         self.up = "+z"
         self.commands: list[str] = []
-        self.port_path = ""
-        self._master = -1
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
         self._lock = threading.Lock()
         self._move_start = 0.0
         self._move_end = 0.0  # device time at which the commanded motion (and its settle) ends
         self._turn_deg = 0.0
-        self._error: BaseException | None = None
 
     # ---- life cycle -------------------------------------------------------------------------------
 
     def start(self) -> TurntableSim:
         self._master, self.port_path = open_serving_pty()
-        self._thread = threading.Thread(target=self._run, name="turntable-sim", daemon=True)
-        self._thread.start()
+        self._start_thread()
         return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        if self._master >= 0:
-            os.close(self._master)
-            self._master = -1
-        if self._error is not None:
-            error, self._error = self._error, None
-            raise RuntimeError("the turntable simulator failed") from error
-
-    def __enter__(self) -> TurntableSim:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # ---- serving ----------------------------------------------------------------------------------
 
