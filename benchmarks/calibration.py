@@ -17,7 +17,10 @@ import os
 import statistics
 import sys
 import time
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -42,6 +45,7 @@ XSENS = REPO.parent / "shared" / "data" / "xsens-imu_tk"
 IMUCAL_REGIONS = (("+x", "x_p"), ("-x", "x_a"), ("+y", "y_p"), ("-y", "y_a"), ("+z", "z_p"), ("-z", "z_a"),
                   ("rot-x", "x_rot"), ("rot-y", "y_rot"), ("rot-z", "z_rot"))
 GROUPS = ("accel matrix", "accel bias (m/s^2)", "gyro matrix", "gyro bias (rad/s)")
+T = TypeVar("T")
 
 
 def errors(matrix_a, bias_a, matrix_g, bias_g, truth: UnitTruth) -> list[float]:
@@ -89,6 +93,17 @@ def _read(path: Path) -> np.ndarray:
         return np.loadtxt(fh)
 
 
+def median_wall_cpu(run: Callable[[], T], repeats: int) -> tuple[float, float, T]:
+    """Median wall and CPU seconds of ``repeats`` calls of ``run``, and what the last call returned."""
+    times, cpu = [], []
+    for _ in range(repeats):
+        start, start_cpu = time.perf_counter(), time.process_time()
+        result = run()
+        times.append(time.perf_counter() - start)
+        cpu.append(time.process_time() - start_cpu)
+    return statistics.median(times), statistics.median(cpu), result
+
+
 def time_free(repeats: int) -> None:
     if not XSENS.is_dir():
         print(f"2. skipped: {XSENS} not found")
@@ -100,13 +115,8 @@ def time_free(repeats: int) -> None:
     runs = {"imu_tk settings (upper, 101-sample window)": (50.0, "upper", FreeSettings.imu_tk()),
             "station defaults (lower, 1 s window, detected still)": (None, "lower", FreeSettings())}
     for name, (still, convention, settings) in runs.items():
-        times, cpu = [], []
-        for _ in range(repeats):
-            start, start_cpu = time.perf_counter(), time.process_time()
-            report = calibrate_free(t, acc[:, 1:], gyro[:, 1:], 9.81744, still, convention, settings)
-            times.append(time.perf_counter() - start)
-            cpu.append(time.process_time() - start_cpu)
-        wall_s, cpu_s = statistics.median(times), statistics.median(cpu)
+        run = partial(calibrate_free, t, acc[:, 1:], gyro[:, 1:], 9.81744, still, convention, settings)
+        wall_s, cpu_s, report = median_wall_cpu(run, repeats)
         print(f"   {name:54s} total {wall_s:.3f} s wall, {cpu_s:.3f} s CPU, "
               f"k = {report.details['chosen_multiplier']:g}, "
               f"{report.accel.extra['static_intervals']} intervals")
@@ -117,14 +127,8 @@ def time_free(repeats: int) -> None:
     intervals = intervals[(intervals[:, 1] - intervals[:, 0]) >= 100]
     calibrated = (acc[:, 1:] - report.accel.bias) @ report.details["accel_correction"].T
     directions = np.array([calibrated[a:b + 1].mean(axis=0) for a, b in intervals])
-    times, cpu = [], []
-    for _ in range(repeats):
-        start, start_cpu = time.perf_counter(), time.process_time()
-        blocks = gyro_blocks(t, gyro[:, 1:] - report.gyro.bias, intervals, directions)
-        fit_gyroscope(blocks)
-        times.append(time.perf_counter() - start)
-        cpu.append(time.process_time() - start_cpu)
-    gyro_s, gyro_cpu = statistics.median(times), statistics.median(cpu)
+    gyro_s, gyro_cpu, _ = median_wall_cpu(
+        lambda: fit_gyroscope(gyro_blocks(t, gyro[:, 1:] - report.gyro.bias, intervals, directions)), repeats)
     print(f"   gyroscope stage alone (37 blocks, analytic Jacobian): {gyro_s:.3f} s wall, "
           f"{gyro_cpu:.3f} s CPU; imu_tk (Ceres, autodiff, compiled) about 0.3 s: ratio "
           f"{gyro_cpu / 0.3:.2f} (CPU)")
