@@ -68,13 +68,7 @@ class AllanScreen(LongRecordingScreen):
 
         pump(device, self.recording.add, on_tick, lambda exc: self.post_message(LinkFailed(exc)))
 
-    def on_snapshot(self, message: Snapshot) -> None:
-        d = message.data
-        if "fit" in d:
-            self.show_fit(d["fit"], d.get("saved"))
-            return
-        if self.stopped:
-            return
+    def show_progress(self, d: dict) -> None:
         stats = d["stats"]
         # The device clock, not the wall clock: the record's length is what the Allan deviation sees.
         elapsed = d["count"] / stats.rate_hz if stats.rate_hz > 0 else 0.0

@@ -9,15 +9,16 @@ from textual.containers import Horizontal
 from textual.screen import Screen
 from textual.widgets import Footer, Header, Static
 
-from station.tui.messages import LinkFailed
+from station.tui.messages import LinkFailed, Snapshot
 from station.tui.recording import open_recording
 
 
 class LongRecordingScreen(Screen[None]):
     """A ``#plots`` panel and a ``#side`` panel over a recording named ``KIND``.
 
-    A subclass supplies the texts below, a ``_read`` worker that fills ``self.recording`` and a
-    ``_fit`` worker that runs once the reader is stopped.
+    A subclass supplies the texts below, a ``_read`` worker that fills ``self.recording`` and posts
+    progress snapshots for ``show_progress``, and a ``_fit`` worker, run once the reader is stopped,
+    that posts ``{"fit": ..., "saved": path or None}`` for ``show_fit``.
     """
 
     BINDINGS = [Binding("enter", "stop", "stop and fit", show=True), Binding("escape", "back", "back")]
@@ -41,6 +42,13 @@ class LongRecordingScreen(Screen[None]):
 
     def on_unmount(self) -> None:
         self.recording.close()
+
+    def on_snapshot(self, message: Snapshot) -> None:
+        d = message.data
+        if "fit" in d:
+            self.show_fit(d["fit"], d["saved"])
+        elif not self.stopped:
+            self.show_progress(d)
 
     def on_link_failed(self, message: LinkFailed) -> None:
         self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))

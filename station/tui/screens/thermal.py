@@ -88,13 +88,7 @@ class ThermalScreen(LongRecordingScreen):
 
         pump(device, self.recording.add, on_tick, lambda exc: self.post_message(LinkFailed(exc)))
 
-    def on_snapshot(self, message: Snapshot) -> None:
-        d = message.data
-        if "fit" in d:
-            self.show_fit(d["fit"], d["saved"])
-            return
-        if self.stopped:
-            return
+    def show_progress(self, d: dict) -> None:
         blocks, stats = d["blocks"], d["stats"]
         temp = blocks["temp"]
         rate = temperature_rate(blocks["t"], temp)
