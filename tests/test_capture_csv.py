@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fs_helpers import mount_tmpfs
 
 from protocols.base import SAMPLE_DTYPE
 from station.acquisition.capture import read_capture
@@ -118,11 +119,7 @@ def test_writer_refuses_a_path_it_cannot_create(tmp_path: Path) -> None:
 def tiny_fs(tmp_path: Path):
     """A real 64 KiB tmpfs, so the disk really fills (needs the right to mount: root in CI containers)."""
     mnt = tmp_path / "tiny"
-    mnt.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True,
-                          text=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs to fill a disk: {done.stderr.strip() or done.returncode}")
+    mount_tmpfs(mnt, "64k")
     yield mnt
     subprocess.run(["umount", str(mnt)], check=True)
 

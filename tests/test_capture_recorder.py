@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fs_helpers import mount_tmpfs
 from test_drivers_serial import RawPty, make_samples
 
 from drivers import NoSamples, PortLost, open_device
@@ -115,11 +116,7 @@ def test_rows_carry_the_step_label_current_when_written(tmp_path: Path, suffix: 
 def small_fs(tmp_path: Path):
     """A real 8 MiB tmpfs that the capture fills (needs the right to mount: root in CI containers)."""
     mnt = tmp_path / "small"
-    mnt.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True,
-                          text=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs to fill a disk: {done.stderr.strip() or done.returncode}")
+    mount_tmpfs(mnt, "8m")
     yield mnt
     subprocess.run(["umount", "--lazy", str(mnt)], check=True)
 
