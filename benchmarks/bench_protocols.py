@@ -17,11 +17,10 @@ from __future__ import annotations
 
 import argparse
 import io
-import statistics
-import time
 from collections.abc import Callable
 
 import numpy as np
+from timing import median_time
 
 from protocols import ascii_lines, mavlink, native, xsens
 from protocols.base import SAMPLE_DTYPE
@@ -39,15 +38,6 @@ def make_samples(n: int) -> np.ndarray:
     s["gyro"] = rng.normal(0, 1, (n, 3))
     s["temp"] = 25.0
     return s
-
-
-def median_time(run: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def feed_all(make_decoder: Callable[[], object], data: bytes) -> Callable[[], int]:

@@ -14,13 +14,9 @@ from __future__ import annotations
 import argparse
 import gzip
 import os
-import statistics
 import sys
-import time
-from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import TypeVar
 
 import numpy as np
 
@@ -29,6 +25,7 @@ sys.path.insert(0, str(REPO))
 
 from imucal import FerrarisCalibration  # noqa: E402
 from imucal.ferraris_calibration import FerrarisSignalRegions  # noqa: E402
+from timing import median_wall_cpu  # noqa: E402
 
 from mocks.rig import sequence_segments, simulate  # noqa: E402
 from mocks.truth import UnitTruth  # noqa: E402
@@ -45,7 +42,6 @@ XSENS = REPO.parent / "shared" / "data" / "xsens-imu_tk"
 IMUCAL_REGIONS = (("+x", "x_p"), ("-x", "x_a"), ("+y", "y_p"), ("-y", "y_a"), ("+z", "z_p"), ("-z", "z_a"),
                   ("rot-x", "x_rot"), ("rot-y", "y_rot"), ("rot-z", "z_rot"))
 GROUPS = ("accel matrix", "accel bias (m/s^2)", "gyro matrix", "gyro bias (rad/s)")
-T = TypeVar("T")
 
 
 def errors(matrix_a, bias_a, matrix_g, bias_g, truth: UnitTruth) -> list[float]:
@@ -91,17 +87,6 @@ def compare_with_imucal(seeds: int, hold_s: float, rate_hz: float) -> None:
 def _read(path: Path) -> np.ndarray:
     with gzip.open(path, "rt") as fh:
         return np.loadtxt(fh)
-
-
-def median_wall_cpu(run: Callable[[], T], repeats: int) -> tuple[float, float, T]:
-    """Median wall and CPU seconds of ``repeats`` calls of ``run``, and what the last call returned."""
-    times, cpu = [], []
-    for _ in range(repeats):
-        start, start_cpu = time.perf_counter(), time.process_time()
-        result = run()
-        times.append(time.perf_counter() - start)
-        cpu.append(time.process_time() - start_cpu)
-    return statistics.median(times), statistics.median(cpu), result
 
 
 def time_free(repeats: int) -> None:

@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 import serial
+from timing import median_time
 
 from mocks.device import SimDevice
 from mocks.rig import Timeline, sequence_segments, simulate
@@ -60,15 +61,6 @@ def per_sample_loop(truth: UnitTruth, timeline: Timeline, n: int, rate_hz: float
         out[k, :3] = acc_m @ force + truth.accel.bias + white_acc
         out[k, 3:] = gyro_m @ rate + truth.gyro.bias + walk + white_gyro
     return out
-
-
-def median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def bench_simulate(samples: int, repeats: int) -> None:
