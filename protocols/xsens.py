@@ -361,7 +361,8 @@ class XsensDecoder(StreamDecoderBase):
         while True:
             start = buf.find(SYNC, pos)
             if start < 0:
-                keep = 1 if buf.endswith(SYNC[:1]) else 0
+                # Keep a trailing first sync byte, unless it is the last byte of a decoded frame.
+                keep = 1 if len(buf) > pos and buf.endswith(SYNC[:1]) else 0
                 skipped = len(buf) - pos - keep
                 if skipped > 0:
                     stats.garbage_bytes += skipped

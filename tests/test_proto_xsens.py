@@ -347,3 +347,13 @@ def test_high_rate_packets_and_normal_ones_never_mix(source: str | None) -> None
         np.testing.assert_allclose(out["acc"], np.array(hr_acc, dtype=np.float32))
         assert (np.diff(out["t_us"].astype(np.int64))[:9] == 1000).all()
         assert out["seq"].tolist() == hr_seq
+
+
+def test_frame_ending_in_the_preamble_byte_is_not_garbage_when_the_stream_is_cut_after_it() -> None:
+    samples = make_samples(2000, seed=5)
+    frames = [encode_samples(samples[i : i + 1]) for i in range(len(samples))]
+    assert any(f.endswith(b"\xfa") for f in frames), "the stream must hold a frame whose checksum is 0xFA"
+    dec = XsensDecoder()
+    got = np.concatenate([dec.feed(f).samples for f in frames])
+    assert len(got) == len(samples)
+    assert dec.stats.garbage_bytes == 0 and dec.stats.resyncs == 0
