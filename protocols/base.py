@@ -82,6 +82,24 @@ class StreamDecoderBase:
     def feed(self, data: bytes) -> Decoded:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def _seek_sync(self, sync: bytes, pos: int) -> tuple[int, bool]:
+        """Move ``pos`` to the next ``sync`` in the buffer, counting the bytes skipped as garbage.
+
+        Returns the new position and whether a sync was found. When none is, a trailing first
+        sync byte is kept for the next chunk (unless it ended a frame already consumed), and the
+        position is where the next chunk's search resumes.
+        """
+        buf = self._buf
+        start = buf.find(sync, pos)
+        found = start >= 0
+        if not found:
+            keep = 1 if len(buf) > pos and buf.endswith(sync[:1]) else 0
+            start = max(pos, len(buf) - keep)
+        if start > pos:
+            self.stats.garbage_bytes += start - pos
+            self.stats.resyncs += 1
+        return start, found
+
     def flush(self) -> Decoded:
         """End of stream: whatever is left in the buffer is an incomplete frame."""
         if self._buf:

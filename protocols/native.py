@@ -185,20 +185,9 @@ class NativeDecoder(StreamDecoderBase):
         pos = 0
         stats = self.stats
         while True:
-            start = buf.find(SYNC, pos)
-            if start < 0:
-                # Keep a trailing first sync byte, unless it ended a frame already consumed.
-                keep = 1 if len(buf) > pos and buf.endswith(SYNC[:1]) else 0
-                skipped = len(buf) - pos - keep
-                if skipped > 0:
-                    stats.garbage_bytes += skipped
-                    stats.resyncs += 1
-                pos = len(buf) - keep
+            pos, found = self._seek_sync(SYNC, pos)
+            if not found:
                 break
-            if start > pos:
-                stats.garbage_bytes += start - pos
-                stats.resyncs += 1
-                pos = start
             samples, used = decode_sample_frames(memoryview(buf)[pos:])
             if used:
                 batches.append(samples)

@@ -359,20 +359,9 @@ class XsensDecoder(StreamDecoderBase):
         stats = self.stats
         pos = 0
         while True:
-            start = buf.find(SYNC, pos)
-            if start < 0:
-                # Keep a trailing first sync byte, unless it is the last byte of a decoded frame.
-                keep = 1 if len(buf) > pos and buf.endswith(SYNC[:1]) else 0
-                skipped = len(buf) - pos - keep
-                if skipped > 0:
-                    stats.garbage_bytes += skipped
-                    stats.resyncs += 1
-                pos = len(buf) - keep
+            pos, found = self._seek_sync(SYNC, pos)
+            if not found:
                 break
-            if start > pos:
-                stats.garbage_bytes += start - pos
-                stats.resyncs += 1
-                pos = start
             if len(buf) - pos < 4:
                 break
             length = buf[pos + 3]
