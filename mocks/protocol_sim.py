@@ -31,6 +31,7 @@ import numbers
 import threading
 import time
 import urllib.parse
+from dataclasses import dataclass
 
 import numpy as np
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, to_bytes
@@ -44,34 +45,48 @@ _FAULT_KEYS = {"garbage", "bitflip", "truncate", "drop", "stall", "stall_s", "ga
 _MAX_POLL_S = 0.05
 
 
-def parse_sim_url(url: str) -> dict[str, object]:
-    """Options of a ``sim://`` URL as keyword values; raises ValueError naming the bad option."""
+@dataclass
+class SimOptions:
+    """The options of a ``sim://`` URL (see the module docstring)."""
+
+    seed: int = 0
+    rate: float = 200.0
+    scenario: str = "still"
+    loop: bool | None = None
+    grade: str = "mems"
+    ideal: bool = False
+    speed: float = 1.0
+    record: bool = False
+    faults: FaultSpec | None = None
+
+
+def parse_sim_url(url: str) -> SimOptions:
+    """Options of a ``sim://`` URL; raises ValueError naming the bad option."""
     parts = urllib.parse.urlsplit(url)
     if parts.scheme != "sim":
         raise ValueError(f"expected a URL of the form sim://?seed=N&rate=HZ..., got {url!r}")
-    options: dict[str, object] = {"seed": 0, "rate": 200.0, "scenario": "still", "loop": None,
-                                  "grade": "mems", "ideal": False, "speed": 1.0, "record": False,
-                                  "faults": None}
+    options = SimOptions()
     fault_parts: list[str] = []
     for key, values in urllib.parse.parse_qs(parts.query, keep_blank_values=True).items():
         value = values[-1]
         try:
             if key == "seed":
-                options["seed"] = int(value)
+                options.seed = int(value)
             elif key == "rate":
-                options["rate"] = float(value)
+                options.rate = float(value)
             elif key == "scenario":
                 if value not in SCENARIOS:
                     raise ValueError(f"unknown scenario {value!r}; known: {', '.join(SCENARIOS)}")
-                options["scenario"] = value
+                options.scenario = value
             elif key in ("loop", "ideal", "record"):
-                options[key] = value not in ("0", "false", "no", "")
+                setattr(options, key, value not in ("0", "false", "no", ""))
             elif key == "grade":
-                options["grade"] = value
+                options.grade = value
             elif key == "speed":
-                options["speed"] = float(value)
-                if options["speed"] <= 0:
+                speed = float(value)
+                if speed <= 0:
                     raise ValueError("speed must be positive")
+                options.speed = speed
             elif key == "faults":
                 fault_parts.append(value)
             elif key == "fault_seed":
@@ -83,12 +98,14 @@ def parse_sim_url(url: str) -> dict[str, object]:
         except ValueError as exc:
             raise ValueError(f"sim:// option {key}={value!r}: {exc}") from None
     if fault_parts:
-        options["faults"] = FaultSpec.parse(",".join(fault_parts))
+        options.faults = FaultSpec.parse(",".join(fault_parts))
     return options
 
 
 class Serial(SerialBase):
     """A pyserial port backed by a simulated device (see the module docstring for the URL)."""
+
+    is_open: bool  # set by SerialBase (untyped)
 
     def __init__(self, *args: object, **kwargs: object):
         self.device: SimDevice | None = None
@@ -113,23 +130,22 @@ class Serial(SerialBase):
             raise SerialException("Port must be configured before it can be used.")
         try:
             opts = parse_sim_url(self._port)
-            seed = opts["seed"]
-            truth = UnitTruth.ideal() if opts["ideal"] else UnitTruth.random(seed, grade=opts["grade"])
-            self.device = SimDevice(truth, seed=opts["seed"], rate_hz=opts["rate"], scenario=opts["scenario"],
-                                    loop=opts["loop"])
+            truth = UnitTruth.ideal() if opts.ideal else UnitTruth.random(opts.seed, grade=opts.grade)
+            self.device = SimDevice(truth, seed=opts.seed, rate_hz=opts.rate, scenario=opts.scenario,
+                                    loop=opts.loop)
         except ValueError as exc:
             raise SerialException(f"cannot open {self._port!r}: {exc}") from None
-        faults: FaultSpec | None = opts["faults"]
-        self.injector = FaultInjector(faults, record=opts["record"]) if faults and faults.active else None
+        faults = opts.faults
+        self.injector = FaultInjector(faults, record=opts.record) if faults and faults.active else None
         self._disconnect_s = faults.disconnect_after_s if faults else None
-        self.speed = opts["speed"]
-        self._record = opts["record"]
+        self.speed = opts.speed
+        self._record = opts.record
         self._reconfigure_port()
         self.is_open = True
         self._t0 = time.monotonic()
 
     def _reconfigure_port(self) -> None:
-        if not isinstance(self._baudrate, numbers.Integral) or not 0 < self._baudrate < 2**32:
+        if not isinstance(self._baudrate, numbers.Integral) or not 0 < int(self._baudrate) < 2**32:
             raise ValueError(f"invalid baudrate: {self._baudrate!r}")
 
     def close(self) -> None:
@@ -179,7 +195,7 @@ class Serial(SerialBase):
             self._pump()
             if self._gone() or (self.injector is not None and self.injector.disconnected):
                 raise SerialException("write failed: the simulated device disconnected (sim:// fault)")
-            self._rx += self.device.feed(bytes(data))
+            self._rx += self._device().feed(bytes(data))
         return len(data)
 
     def reset_input_buffer(self) -> None:
@@ -243,26 +259,32 @@ class Serial(SerialBase):
         if not self.is_open:
             raise PortNotOpenError()
 
+    def _device(self) -> SimDevice:
+        if self.device is None:
+            raise PortNotOpenError()
+        return self.device
+
     def _gone(self) -> bool:
         return self.injector is not None and self.injector.disconnected and not self._rx
 
     def _seconds_to_next_sample(self) -> float:
-        return (self.device.next_due_s() - self.device_time_s()) / self.speed
+        return (self._device().next_due_s() - self.device_time_s()) / self.speed
 
     def _pump(self) -> None:
         """Move every sample due by now into the receive buffer (through the faults)."""
         now = self.device_time_s()
         if self.injector is not None and self._disconnect_s is not None and now >= self._disconnect_s:
             self.injector.end_link()
-        samples = self.device.produce(now)
+        device = self._device()
+        samples = device.produce(now)
         if not len(samples):
             return
         if self._record:
             self._sent.append(samples)
         if self.injector is None:
-            self._rx += self.device.encode_samples(samples)
+            self._rx += device.encode_samples(samples)
             return
-        out = self.injector.apply(self.device.encode_frames(samples))
+        out = self.injector.apply(device.encode_frames(samples))
         if out.stall_s:
             self._hold_until = max(self._hold_until, time.monotonic()) + out.stall_s
         self._rx += out.data

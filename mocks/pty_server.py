@@ -172,7 +172,7 @@ class PtyServer(PtyService):
             device_time = (now - self._t0) * self.speed
             self._emit(device_time)
             if faults is not None and faults.disconnect_after_s is not None \
-                    and device_time >= faults.disconnect_after_s:
+                    and device_time >= faults.disconnect_after_s and self.injector is not None:
                 self.injector.end_link()
             self._flush(now)
             if self.injector is not None and self.injector.disconnected and not self._pending:
@@ -248,10 +248,10 @@ class PtyServer(PtyService):
         if self.injector is None:
             self._pending += self.device.encode_samples(samples)
         else:
-            self._queue(self.device.encode_frames(samples))
+            self._queue(self.injector, self.device.encode_frames(samples))
 
-    def _queue(self, frames: list[bytes]) -> None:
-        out = self.injector.apply(frames)
+    def _queue(self, injector: FaultInjector, frames: list[bytes]) -> None:
+        out = injector.apply(frames)
         if out.stall_s:
             self._hold_until = max(self._hold_until, time.monotonic()) + out.stall_s
         self._pending += out.data

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 
@@ -131,6 +132,13 @@ class _Reject(ValueError):
         self.kind = kind
 
 
+class _Options(TypedDict, total=False):
+    """The :class:`AsciiDecoder` arguments :meth:`AsciiDecoder.from_option` may set."""
+
+    columns: str
+    rate_hz: float
+
+
 _LINE_END = re.compile(rb"[\r\n]")
 # "Cal1:...", "Info: ...": a tagged line of another kind, text for us (Raw: and Uni: are read before).
 _TAGGED = re.compile(r"[A-Za-z][A-Za-z0-9 _-]*:")
@@ -171,17 +179,18 @@ class AsciiDecoder(StreamDecoderBase):
         """A decoder from ``COLUMNS[@RATE_HZ]`` (either part may be empty): ``t:ms,ax:g,...``,
         ``@50`` (default columns, lines without a clock at 50 Hz), ``ax,ay,az,gx,gy,gz@200``."""
         columns, has_rate, rate = option.rpartition("@") if "@" in option else (option, "", "")
-        kwargs: dict[str, object] = {}
+        kwargs: _Options = {}
         if columns:
             kwargs["columns"] = columns
         if has_rate:
             try:
-                kwargs["rate_hz"] = float(rate)
+                rate_hz = float(rate)
             except ValueError:
                 raise ValueError(f"rate {rate!r} after '@' in {option!r} is not a number of Hz") from None
-            if not kwargs["rate_hz"] > 0:
+            if not rate_hz > 0:
                 raise ValueError(f"rate {rate!r} after '@' in {option!r} must be positive")
-        return cls(**kwargs)  # type: ignore[arg-type]
+            kwargs["rate_hz"] = rate_hz
+        return cls(**kwargs)
 
     def feed(self, data: bytes) -> Decoded:
         buf = self._buf
@@ -309,6 +318,7 @@ class AsciiDecoder(StreamDecoderBase):
             return
         if not text:
             return
+        values: tuple | None
         try:
             if text.startswith(("Raw:", "Uni:")):
                 kind, values = "motioncal", self._motioncal(text)

@@ -58,7 +58,7 @@ def _rate(samples: np.ndarray) -> float:
         return float("nan")
     dt = np.diff(samples["t_us"].astype(np.int64))
     dt = dt[dt > 0]
-    return float(1e6 / np.median(dt)) if len(dt) else float("nan")
+    return 1e6 / float(np.median(dt)) if len(dt) else float("nan")
 
 
 def _damage(stats: DecoderStats) -> str:
@@ -196,12 +196,13 @@ class AutoDecoder(StreamDecoderBase):
             return Decoded()
         self._new = 0
         found = detect(bytes(self._buf))
-        if found.protocol is None:
+        inner = found.decoder
+        if found.protocol is None or inner is None:
             return Decoded()
         self.detection = found
-        self._inner = found.decoder
+        self._inner = inner
         garbage_before = self.stats.garbage_bytes
-        self.stats = self._inner.stats
+        self.stats = inner.stats
         self.stats.garbage_bytes += garbage_before
         self._buf.clear()
         return found.decoded

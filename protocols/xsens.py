@@ -140,8 +140,8 @@ def _encode_values(values, precision: int) -> bytes:
     if precision == FLOAT64:
         return struct.pack(f">{len(values)}d", *values)
     if precision == FP1220:
-        fixed = [max(-(2**31), min(2**31 - 1, round(float(v) * 1048576.0))) for v in values]
-        return struct.pack(f">{len(values)}i", *fixed)
+        words = [max(-(2**31), min(2**31 - 1, round(float(v) * 1048576.0))) for v in values]
+        return struct.pack(f">{len(values)}i", *words)
     out = bytearray()
     for v in values:
         fixed = max(-(2**47), min(2**47 - 1, round(float(v) * 4294967296.0)))
@@ -412,17 +412,22 @@ class XsensDecoder(StreamDecoderBase):
 
     def _on_packet(self, packet: MTData2Packet, rows: list[tuple]) -> bool:
         """Track counter, time and temperature; append the sample rows. False: not inertial."""
+        # This packet's unwrapped counter and fine time, when it carries them.
+        counter: int | None = None
+        fine: int | None = None
         if packet.counter is not None:
             if self._counter is None:
-                self._counter = packet.counter
+                counter = packet.counter
             else:
-                self._counter += (packet.counter - self._counter) & 0xFFFF
+                counter = self._counter + ((packet.counter - self._counter) & 0xFFFF)
+            self._counter = counter
         if packet.time_fine is not None:
             if self._fine is None:
-                self._fine = packet.time_fine
+                fine = packet.time_fine
             else:
                 # Signed step: GNSS packets carry the older time of their fix, not a wrap.
-                self._fine += ((packet.time_fine - self._fine + 2**31) & 0xFFFFFFFF) - 2**31
+                fine = self._fine + (((packet.time_fine - self._fine + 2**31) & 0xFFFFFFFF) - 2**31)
+            self._fine = fine
         if packet.temp is not None:
             self._temp = packet.temp
         source = packet.source
@@ -433,13 +438,13 @@ class XsensDecoder(StreamDecoderBase):
             # Its counter value is not a lost sample: the link statistics must not count it as one.
             self.stats.seq_skipped += packet.counter is not None
             return False
-        if packet.counter is not None:
-            seq = self._counter & 0xFFFFFFFF
+        if counter is not None:
+            seq = counter & 0xFFFFFFFF
         else:
             seq = self._own_seq & 0xFFFFFFFF
         self._own_seq = seq + 1
-        if packet.time_fine is not None:
-            ticks = self._fine
+        if fine is not None:
+            ticks = fine
         elif packet.time_coarse is not None:
             ticks = packet.time_coarse * TICKS_PER_SECOND
         else:
