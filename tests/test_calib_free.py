@@ -102,34 +102,38 @@ def xsens(shared_data):
 def test_reproduces_imu_tk_on_its_xsens_session(xsens) -> None:
     acc, gyro = xsens
     report = calibrate_free(acc[:, 0], acc[:, 1:], gyro[:, 1:], 9.81744, 50.0, "upper", FreeSettings.imu_tk())
+    # imu_tk's still period ends at the sample nearest t0 + 50 s: t0 = 0.02984 s and the timestamps are
+    # irregular, so that is sample 5001 (t = 50.0346 s), not 5000; the gyro bias is their mean
+    assert report.details["still_samples"] == 5002
     published_counts = [42, 40, 39, 38, 38, 38, 38, 38, 38]
     published_costs = [0.134724, 0.131345, 0.126126, 0.120558, 0.120131, 0.120586, 0.121338, 0.121422,
                        0.138240]
     trials = report.details["trials"]
     assert [tr["intervals"] for tr in trials] == published_counts
-    np.testing.assert_allclose([tr["cost"] for tr in trials], published_costs, rtol=1e-4)
+    # published to 6 digits: half a unit of the last one is at most 4.2e-6 relative here
+    np.testing.assert_allclose([tr["cost"] for tr in trials], published_costs, rtol=5e-6)
     assert report.details["chosen_multiplier"] == 6
 
     c = report.details["accel_correction"]
     k = np.diag(c)
     t = c / k[None, :]
-    np.testing.assert_allclose(t, [[1, -0.0033593, -0.00890639], [0, 1, -0.0213341], [0, 0, 1]], rtol=1e-4,
+    np.testing.assert_allclose(t, [[1, -0.0033593, -0.00890639], [0, 1, -0.0213341], [0, 0, 1]], rtol=2e-5,
                                atol=1e-12)
-    np.testing.assert_allclose(k, [0.00241278, 0.00242712, 0.00241168], rtol=1e-4)
-    np.testing.assert_allclose(report.accel.bias, [33124.2, 33275.2, 32364.4], rtol=1e-5)
+    np.testing.assert_allclose(k, [0.00241278, 0.00242712, 0.00241168], rtol=3e-6)
+    np.testing.assert_allclose(report.accel.bias, [33124.2, 33275.2, 32364.4], atol=0.05)
 
     g = report.details["gyro_correction"]
     assert report.gyro.extra["blocks"] == 37
-    assert report.details["gyro_cost"] == pytest.approx(0.00150696, rel=1e-4)
-    np.testing.assert_allclose(1 / np.diag(g), [4777.96, 4764.21, 4773.66], rtol=1e-4)
+    assert report.details["gyro_cost"] == pytest.approx(0.00150696, rel=5e-6)
+    np.testing.assert_allclose(1 / np.diag(g), [4777.96, 4764.21, 4773.66], rtol=2e-6)
     published_t = np.array([[1, 0.00593634, 0.00111101], [0.00808812, 1, -0.0535569],
                             [0.0253067, -0.0025513, 1]])
-    # off-diagonal terms agree to 2e-6 absolute (better than 1e-4 relative to the matrix). Closer is
-    # not meaningful: imu_tk's accelerometer fit stops at Ceres' default function tolerance (1e-6),
-    # and moving our accelerometer parameters along the fit's flattest directions by that much of
-    # its cost moves these terms by up to 3e-6 and the gyro cost by 1e-4 (measured).
-    np.testing.assert_allclose(g / np.diag(g)[None, :], published_t, rtol=0, atol=2e-6)
-    np.testing.assert_allclose(report.gyro.bias, [32777.1, 32459.8, 32511.8], rtol=1e-5)
+    # Every term within half a unit of its last published digit (<= 4.5e-6 relative) except T_xz, which
+    # is 1.1e-5 off: imu_tk's Ceres run stops at its function tolerance (1e-6) before the minimum we reach,
+    # and that stop moves T_xz by 1.0e-5 relative (a Ceres build of the same problem gives 0.00111100949 at
+    # its default stop and 0.00111099816 converged; ours is the latter).
+    np.testing.assert_allclose(g / np.diag(g)[None, :], published_t, rtol=2e-5)
+    np.testing.assert_allclose(report.gyro.bias, [32777.1, 32459.8, 32511.8], atol=0.05)
 
 
 def test_default_settings_give_xsens_factory_gains(xsens) -> None:

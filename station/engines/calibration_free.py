@@ -80,7 +80,8 @@ class FreeSettings:
     min_interval_s: shortest static interval used when fitting means.
     cost: "mean" (mean of r^2, comparable across thresholds) or "half_sum" (1/2 sum r^2, Ceres).
     min_intervals: fewest static intervals a fit accepts (imu_tk: 12).
-    inclusive_still_end: the still period is samples 0..n inclusive (imu_tk) rather than 0..n-1.
+    inclusive_still_end: the still period ends at the sample nearest t0 + S, inclusive (imu_tk's
+        initialInterval), rather than before t0 + S.
     gyro_bias: "still": the gyro bias is the mean of the initial still period (imu_tk);
         "intervals": each move between static intervals k and k+1 subtracts the mean of the gyro
         over those two intervals, following a bias that drifts during the session.
@@ -422,13 +423,15 @@ class ThresholdTrial:
 
 
 def _still_samples(t: np.ndarray, initial_still_s: float, inclusive: bool) -> int:
-    """Samples of the still period: those with t - t0 < S, or imu_tk's n = S * rate plus one
-    (its interval [0, n] is inclusive)."""
-    if inclusive:
-        n = int(round(initial_still_s / float(np.median(np.diff(t))))) + 1
-    else:
-        n = int(np.searchsorted(t - t[0], initial_still_s, side="left"))
-    return min(len(t), n)
+    """Samples of the still period: those with t - t0 < S, or imu_tk's samples 0..i inclusive with
+    i the sample whose timestamp is nearest t0 + S (ties to the later one). On irregular
+    timestamps the two differ by a sample, which moves the gyro bias enough to matter."""
+    if not inclusive:
+        return min(len(t), int(np.searchsorted(t - t[0], initial_still_s, side="left")))
+    end_ts = t[0] + initial_still_s
+    after = min(len(t) - 1, max(1, int(np.searchsorted(t, end_ts, side="left"))))
+    nearest = after - 1 if end_ts - t[after - 1] < t[after] - end_ts else after
+    return nearest + 1
 
 
 def detect_initial_still(t: np.ndarray, acc: np.ndarray, window: int) -> float:
