@@ -142,12 +142,14 @@ def read_csv(path: str | Path) -> Capture:
     if not chunks:
         raise InputFileError(path, "has a header but no sample rows", line=2)
 
-    def cat(name: str) -> np.ndarray | None:
-        parts = [getattr(c, name) for c in chunks]
-        return None if parts[0] is None else np.concatenate(parts)
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(c, name) for c in chunks])
 
-    return Capture(t=cat("t"), acc=cat("acc"), gyro=cat("gyro"), temp=cat("temp"), dtemp=cat("dtemp"),
-                   step=cat("step"), source=str(path))
+    def cat_optional(name: str) -> np.ndarray | None:
+        return None if getattr(chunks[0], name) is None else cat(name)
+
+    return Capture(t=cat("t"), acc=cat("acc"), gyro=cat("gyro"), temp=cat_optional("temp"),
+                   dtemp=cat_optional("dtemp"), step=cat_optional("step"), source=str(path))
 
 
 class CsvWriter:

@@ -114,7 +114,8 @@ def pose_check(acc: np.ndarray, up: np.ndarray, tolerance_deg: float) -> PoseChe
         return PoseCheck(math.nan, (0.0, 0.0, 0.0), "", False)
     measured = mean / norm
     angle = angle_between_deg(measured, up)
-    return PoseCheck(angle, tuple(float(x) for x in measured), nearest_pose(measured), angle <= tolerance_deg)
+    measured_up = (float(measured[0]), float(measured[1]), float(measured[2]))
+    return PoseCheck(angle, measured_up, nearest_pose(measured), angle <= tolerance_deg)
 
 
 def vertical_axis_check(acc: np.ndarray, axis: int, tolerance_deg: float) -> PoseCheck:

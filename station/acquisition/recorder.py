@@ -38,7 +38,9 @@ MIN_FREE_BYTES = 4 * 1024 * 1024
 
 class CaptureWriter(Protocol):
     path: Path
-    rows: int
+
+    @property
+    def rows(self) -> int: ...
 
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None: ...
 
@@ -256,5 +258,8 @@ def _install_sigint(flag: threading.Event) -> Callable[[], None] | None:
         flag.set()
         signal.signal(signal.SIGINT, previous)
 
+    def restore() -> None:
+        signal.signal(signal.SIGINT, previous)
+
     signal.signal(signal.SIGINT, handler)
-    return lambda: signal.signal(signal.SIGINT, previous)
+    return restore

@@ -188,6 +188,12 @@ def samples_to_capture(samples: np.ndarray, labels: np.ndarray | None = None, de
     )
 
 
+def _mean3(vectors: np.ndarray) -> tuple[float, float, float]:
+    """Mean of (N, 3) vectors as a plain tuple."""
+    x, y, z = vectors.mean(axis=0)
+    return float(x), float(y), float(z)
+
+
 class _Window:
     """The last ``span_s`` seconds of samples (device clock), for the live checks."""
 
@@ -289,8 +295,8 @@ class SequenceRunner:
         self.operator.status(LiveStatus(
             index=self._index, total=len(self.sequence), step=step, state=self._state, attempt=self._attempt,
             message=message,
-            acc_mean=tuple(float(x) for x in w["acc"].mean(axis=0)) if len(w) else None,
-            gyro_mean=tuple(float(x) for x in w["gyro"].mean(axis=0)) if len(w) else None,
+            acc_mean=_mean3(w["acc"]) if len(w) else None,
+            gyro_mean=_mean3(w["gyro"]) if len(w) else None,
             temp=float(w["temp"][-1]) if len(w) else None,
             rate_hz=stats.rate_hz, lost=stats.lost + stats.overflow_drops, link_errors=stats.errors, **kw))
 
@@ -374,7 +380,7 @@ class SequenceRunner:
 
     def _review(self, step: Step, record: StepRecord) -> Action:
         self._state = State.REVIEW
-        choices = (Action.REDO, Action.SKIP, Action.ACCEPT, Action.ABORT)
+        choices: tuple[Action, ...] = (Action.REDO, Action.SKIP, Action.ACCEPT, Action.ABORT)
         if self._attempt >= self.options.max_attempts:
             # Out of attempts: a script that keeps answering redo must not loop for ever.
             choices = (Action.SKIP, Action.ACCEPT, Action.ABORT)

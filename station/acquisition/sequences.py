@@ -188,13 +188,13 @@ class Sequence:
     def with_timing(self, hold_s: float | None = None, rate_dps: float | None = None,
                     settle_s: float | None = None) -> Sequence:
         """The same steps with every hold, rate or settle replaced (short runs in tests and demos)."""
-        steps = []
+        steps: list[Step] = []
         for s in self.steps:
             if isinstance(s, PoseStep):
                 steps.append(replace(s, hold_s=hold_s) if hold_s is not None else s)
             else:
-                kw = {k: v for k, v in (("rate_dps", rate_dps), ("settle_s", settle_s)) if v is not None}
-                steps.append(replace(s, **kw))
+                steps.append(replace(s, rate_dps=s.rate_dps if rate_dps is None else rate_dps,
+                                     settle_s=s.settle_s if settle_s is None else settle_s))
         return Sequence(self.name, tuple(steps))
 
 
@@ -204,6 +204,7 @@ def builtin(name: str, rotations: bool = True, hold_s: float = 5.0, rotation_rat
 
     ``rotations`` alone (name ``"rotations"``) is the six rotations without static poses.
     """
+    poses: tuple[str, ...]
     if name == "six-position":
         poses = SIX_POSITION
     elif name == "twelve-position":
@@ -249,9 +250,8 @@ def _line(node: yaml.Node) -> int:
 def _number(node: yaml.Node, path: Path, key: str) -> float:
     # Only a plain scalar can be a number: "5" in quotes is a string and is refused.
     value = yaml.safe_load(node.value) if isinstance(node, yaml.ScalarNode) and node.style is None else None
-    good = isinstance(value, int | float) and not isinstance(value, bool)
-    good = good and math.isfinite(value) and value > 0
-    if not good:
+    if not (isinstance(value, int | float) and not isinstance(value, bool)
+            and math.isfinite(value) and value > 0):
         raise InputFileError(path, f"'{key}' must be a positive number, not {getattr(node, 'value', '?')!r}",
                              line=_line(node), column=key)
     return float(value)

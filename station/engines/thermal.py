@@ -166,8 +166,8 @@ def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
     labels = np.asarray(step).astype(str) if step is not None else np.array([], dtype=str)
     if np.any(labels != ""):
         static = (labels != "") & ~np.char.startswith(labels, "rot")
-        names, pose[static] = np.unique(labels[static], return_inverse=True)
-        return pose, [str(n) for n in names]
+        labelled, pose[static] = np.unique(labels[static], return_inverse=True)
+        return pose, [str(label) for label in labelled]
     rate = 1.0 / np.median(np.diff(t)) if n > 1 else 1.0
     w = max(int(round(rate)), 5)
     nw = n // w
@@ -193,7 +193,7 @@ def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
             centres.append(mean_dir[i])
             window_pose[i] = len(centres) - 1
     pose[: nw * w] = np.repeat(window_pose, w)
-    names = []
+    names: list[str] = []
     for k, c in enumerate(centres):
         name = _axis_name(c)
         names.append(name if name and name not in names else f"pose{k + 1}")
@@ -337,7 +337,7 @@ def _design(blocks: _Blocks, y: np.ndarray, fold: np.ndarray, folds: int, breaks
     nb = len(blocks.temp)
     seg = np.searchsorted(np.asarray(breaks), blocks.temp, side="right")
     n_seg = len(breaks) + 1
-    cols = []
+    cols: list[np.ndarray] = []
     term_cols = np.zeros((n_seg, len(VARIABLE_TERMS)), dtype=int)
     for s in range(n_seg):
         in_s = seg == s
@@ -749,7 +749,7 @@ def fit_thermal(
 
     tau_scores: dict[float, float] = {}
     if tau_s is None:
-        best = None
+        best: tuple[float, float, _Blocks] | None = None
         for tau in TAU_CANDIDATES_S:
             b = remapped(blocks_for(tau))
             fold = _fold_ids(b.pose, folds)
@@ -768,6 +768,7 @@ def fit_thermal(
             advance()
             if best is None or score < best[0] * (1 - 1e-3):
                 best = (score, tau, b)
+        assert best is not None  # TAU_CANDIDATES_S is not empty
         _, tau, blocks = best
     else:
         tau = float(tau_s)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from station import __version__
+from station.engines.thermal_model import ThermalModel
 from station.export import autopilot as ap
 from station.export.params_file import ParamsFile
 
@@ -82,9 +83,9 @@ def ardupilot_correct(values: dict[str, float], instance: int, raw_acc: np.ndarr
     return (raw_acc - acc_off) * acc_scal, raw_gyro - gyr_off
 
 
-def _temperature_range(params: ParamsFile) -> tuple[float, float]:
+def _temperature_range(thermal: ThermalModel) -> tuple[float, float]:
     """One range for both sensors: where both models are valid, or their union if disjoint."""
-    triads = [t for t in (params.thermal.accel, params.thermal.gyro) if t is not None]
+    triads = [t for t in (thermal.accel, thermal.gyro) if t is not None]
     lo, hi = max(t.t_min for t in triads), min(t.t_max for t in triads)
     if lo >= hi:
         lo, hi = min(t.t_min for t in triads), max(t.t_max for t in triads)
@@ -101,13 +102,14 @@ def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None
     out: list[ap.Param] = []
     notes: list[str] = []
     thermal = params.thermal
-    has_thermal = thermal is not None and (thermal.accel is not None or thermal.gyro is not None)
+    if thermal is not None and thermal.accel is None and thermal.gyro is None:
+        thermal = None  # a thermal section without a model: nothing to compensate
     fits: dict[str, ap.CubicFit | None] = {"accel": None, "gyro": None}
     offsets = {"accel": None if params.accel is None else params.accel.bias.copy(),
                "gyro": None if params.gyro is None else params.gyro.bias.copy()}
-    tcal: list[ap.Param] = [ap.Param(f"{n['tcal']}ENABLE", 1 if has_thermal else 0, "int")]
-    if has_thermal:
-        lo, hi = _temperature_range(params)
+    tcal: list[ap.Param] = [ap.Param(f"{n['tcal']}ENABLE", 0 if thermal is None else 1, "int")]
+    if thermal is not None:
+        lo, hi = _temperature_range(thermal)
         t_cal = float(np.clip(thermal.reference_temp, lo, hi))
         tcal += [ap.Param(f"{n['tcal']}TMIN", lo, "float"), ap.Param(f"{n['tcal']}TMAX", hi, "float")]
         for name, sensor, caltemp in (("accel", "ACC", n["acc_caltemp"]), ("gyro", "GYR", n["gyr_caltemp"])):
@@ -119,27 +121,30 @@ def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None
                 coeffs = fit.coeffs
                 x = t_cal - TEMP_REFERENCE
                 shift = coeffs[:, 0] + coeffs[:, 1] * x + coeffs[:, 2] * x**2 + coeffs[:, 3] * x**3
-                offsets[name] = (offsets[name] if offsets[name] is not None else np.zeros(3)) + shift
+                offset = offsets[name]
+                offsets[name] = (offset if offset is not None else np.zeros(3)) + shift
             for k in (1, 2, 3):
                 tcal += ap.vector_params(f"{n['tcal']}{sensor}{k}_", AXES, coeffs[:, k] * SCALE_FACTOR)
             tcal.append(ap.Param(caltemp, t_cal, "float"))
-    if params.accel is not None or offsets["accel"] is not None:
+    # An offset exists where the file has intrinsics or a thermal model for the sensor.
+    acc_off, gyr_off = offsets["accel"], offsets["gyro"]
+    if acc_off is not None:
         if device_id is not None:
             out.append(ap.Param(n["acc_id"], device_id, "int"))
-        out += ap.vector_params(n["acc_off"], AXES, offsets["accel"])
+        out += ap.vector_params(n["acc_off"], AXES, acc_off)
         scale = 1.0 / params.accel.scale if params.accel is not None else np.ones(3)
         out += ap.vector_params(n["acc_scal"], AXES, scale)
         lo_s, hi_s = ACCEL_SCALE_RANGE
         if np.any((scale < lo_s) | (scale > hi_s)):
             notes.append(f"warning: accel scale {np.round(scale, 4).tolist()} is outside ArduPilot's "
                          f"{lo_s}..{hi_s}; its accel calibration would reject it")
-        if np.any(np.abs(offsets["accel"]) > ACCEL_OFFSET_LIMIT):
-            notes.append(f"warning: accel offsets {np.round(offsets['accel'], 4).tolist()} exceed "
+        if np.any(np.abs(acc_off) > ACCEL_OFFSET_LIMIT):
+            notes.append(f"warning: accel offsets {np.round(acc_off, 4).tolist()} exceed "
                          f"ArduPilot's +-{ACCEL_OFFSET_LIMIT} m/s^2 range")
-    if params.gyro is not None or offsets["gyro"] is not None:
+    if gyr_off is not None:
         if gyro_device_id is not None:
             out.append(ap.Param(n["gyr_id"], gyro_device_id, "int"))
-        out += ap.vector_params(n["gyr_off"], AXES, offsets["gyro"])
+        out += ap.vector_params(n["gyr_off"], AXES, gyr_off)
         notes.append("ArduPilot re-measures gyro offsets at every boot unless INS_GYR_CAL = 0; "
                      "set it to keep these")
     out += tcal

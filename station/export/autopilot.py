@@ -152,8 +152,9 @@ def _raw(cal: SensorCalibration | None, triad: ThermalBias | None, t_ref: float,
 
 def _dtemp_effect(triad: ThermalBias, t_ref: float) -> float:
     lo, hi = triad.t_min, triad.t_max
-    temp, dtemp = np.meshgrid(np.linspace(lo, hi, 101), np.linspace(triad.dt_min, triad.dt_max, DTEMP_POINTS))
-    temp, dtemp = temp.ravel(), dtemp.ravel()
+    grid_t, grid_dt = np.meshgrid(np.linspace(lo, hi, 101),
+                                  np.linspace(triad.dt_min, triad.dt_max, DTEMP_POINTS))
+    temp, dtemp = grid_t.ravel(), grid_dt.ravel()
     diff = triad.evaluate(temp, dtemp, t_ref) - triad.evaluate(temp, np.zeros_like(temp), t_ref)
     return float(np.max(np.linalg.norm(diff, axis=1)))
 
@@ -171,8 +172,8 @@ def assess(params: ParamsFile, values: dict[str, float],
     t_ref = reference_temp(params)
     span = thermal_range(params)
     thermal = params.thermal
-    temps = np.array([t_ref])
-    if span is not None:
+    temps: np.ndarray = np.array([t_ref])
+    if span is not None and thermal is not None:
         # Segment edges and just below them: a piecewise model jumps there, the cubic does not.
         edges = np.array([x for triad in (thermal.accel, thermal.gyro) if triad is not None
                           for seg in triad.segments for x in (seg.t_min, seg.t_max)])
@@ -261,7 +262,7 @@ def finish_export(target: str, params: ParamsFile, out: list[Param], notes: list
     return result
 
 
-def vector_params(prefix: str, suffixes: tuple[str, str, str], values: np.ndarray) -> list[Param]:
+def vector_params(prefix: str, suffixes: tuple[str, ...], values: np.ndarray) -> list[Param]:
     values = np.asarray(values, float)
     return [Param(f"{prefix}{s}", float(v), "float") for s, v in zip(suffixes, values, strict=True)]
 

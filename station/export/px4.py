@@ -74,7 +74,7 @@ def build_px4(params: ParamsFile, instance: int = 0, device_id: int | None = Non
     thermal = params.thermal
     for name, letter, dev in (("accel", "A", device_id), ("gyro", "G", gyro_device_id)):
         triad = getattr(thermal, name) if thermal is not None else None
-        if triad is None:
+        if thermal is None or triad is None:
             continue
         fit = ap.fit_cubic(triad, thermal.reference_temp, thermal.reference_temp, triad.t_min, triad.t_max)
         fits[name] = fit
