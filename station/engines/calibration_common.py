@@ -74,6 +74,23 @@ def covariance(jac: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, float
     return s2 * np.linalg.pinv(jtj), s2
 
 
+def pooled_scatter(residual: np.ndarray, unknowns: int) -> float | None:
+    """Variance of one row of ``residual`` (P, 3) about a fit with ``unknowns`` parameters per axis,
+    pooled over the three axes, or None when there are no spare rows.
+
+    s^2 = sum r^2 / d with d = 3 (P - unknowns) degrees of freedom, times Student's t variance
+    factor d / (d - 2): a scale estimated from d residuals makes err / s a t variable, whose
+    variance is d / (d - 2), so the product gives z-scores of unit variance (for d > 2).
+    Pooling the axes assumes their drift and noise are alike (one die, one process), which
+    triples the degrees of freedom of a six-pose or six-rotation fit (2 per axis).
+    """
+    r = np.asarray(residual, float)
+    dof = r.size - 3 * unknowns
+    if dof <= 2:
+        return None
+    return float(np.sum(r**2) / dof * dof / (dof - 2))
+
+
 def propagate(fun: Callable[[np.ndarray], np.ndarray], p: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Covariance of fun(p) by first-order propagation J cov J^T (J by central differences)."""
     p = np.asarray(p, float)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.engines.calibration_common import pooled_scatter
 from station.engines.calibration_static import _unit_columns
 from station.errors import EngineInputError
 
@@ -93,9 +94,11 @@ def fit_rotations(integrals: np.ndarray, angles: np.ndarray, axes: np.ndarray, d
     k = x.shape[1]
     theta, *_ = np.linalg.lstsq(x, y, rcond=None)
     residual = y - x @ theta
-    dof = len(y) - k
-    fit_var = np.sum(residual**2, axis=0) / dof if dof > 0 else np.zeros(3)
-    sigma2 = np.maximum(fit_var, np.mean(noise_var, axis=0))
+    # the larger of the integrals' white noise and their scatter about the fit (pooled over axes,
+    # Student-corrected): bias drift during the turns shows in the scatter only
+    scatter = pooled_scatter(residual, k)
+    white = np.mean(noise_var, axis=0)
+    sigma2 = white if scatter is None else np.maximum(scatter, white)
     xtx_inv = np.linalg.inv(x.T @ x)
     cov = np.zeros((12, 12))
     for j in range(3):

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.engines.calibration_common import pooled_scatter
 from station.errors import EngineInputError
 
 _UNKNOWNS = ["M[:,x] (x-axis sensitivity)", "M[:,y] (y-axis sensitivity)", "M[:,z] (z-axis sensitivity)",
@@ -41,7 +42,7 @@ class PoseFit:
     cov: np.ndarray           # (12, 12) over [M.ravel() (row-major), b]
     residual: np.ndarray      # (P, 3) y_p - (M g u_p + b)
     condition: float
-    sigma2: np.ndarray        # (3,) variance of one pose mean, per axis
+    sigma2: np.ndarray        # (3,) variance of one pose mean about the model, per axis
 
 
 def _design(up: np.ndarray, g: float) -> np.ndarray:
@@ -82,8 +83,10 @@ def fit_poses(means: np.ndarray, up: np.ndarray, g: float, mean_var: np.ndarray,
     """Eq. (2) over poses with mean readings ``means`` (P, 3) and up vectors ``up`` (P, 3).
 
     ``mean_var`` (P, 3) is the variance of each mean from the samples' scatter; the covariance
-    of Theta is sigma_j^2 (X^T X)^-1 per output axis j, with sigma_j^2 the larger of the fit's
-    residual variance (when there are spare poses) and the mean variance of the means.
+    of Theta is sigma_j^2 (X^T X)^-1 per output axis j, with sigma_j^2 the larger of the pose
+    means' white-noise variance on axis j and the pose-to-pose scatter of the residuals
+    (``calibration_common.pooled_scatter``: pooled over the axes, Student-corrected). The scatter
+    is what shows a bias that drifts between poses; white noise alone would understate it.
     """
     means = np.asarray(means, float)
     x = _design(up, g)
@@ -95,10 +98,9 @@ def fit_poses(means: np.ndarray, up: np.ndarray, g: float, mean_var: np.ndarray,
     theta, *_ = np.linalg.lstsq(x, means, rcond=None)
     residual = means - x @ theta
     xtx_inv = np.linalg.inv(x.T @ x)
-    dof = len(means) - 4
     noise_var = np.mean(mean_var, axis=0)
-    fit_var = np.sum(residual**2, axis=0) / dof if dof > 0 else np.zeros(3)
-    sigma2 = np.maximum(fit_var, noise_var)
+    scatter = pooled_scatter(residual, 4)
+    sigma2 = noise_var if scatter is None else np.maximum(scatter, noise_var)
     cov = np.zeros((12, 12))
     # Theta[k, j] = M[j, k] (k < 3) or b[j] (k = 3); index in [M.ravel(), b]
     index = [[3 * j + k if k < 3 else 9 + j for k in range(4)] for j in range(3)]

@@ -1,6 +1,21 @@
 """Calibration from a labelled capture of known poses and rotations (turntable, fixture, or the
 station's guided sequences): checks the data, then runs ``calibration_static`` (accelerometer,
-eq. 2 there) and ``calibration_rotation`` (gyroscope, eqs. 1-2 there)."""
+eq. 2 there) and ``calibration_rotation`` (gyroscope, eqs. 1-2 there).
+
+Uncertainty. Each 1-sigma comes from the fit's covariance with the variance of one pose mean (or
+one rotation's integral) taken as the larger of its white noise and the scatter of the residuals
+about the fit, pooled over the three axes and Student-corrected (``pooled_scatter``): the bias
+wanders from pose to pose (bias instability, rate random walk), and only the scatter shows it.
+The bias needs one more term, the drift budget: the bias moved during the session, so the poses
+measure the session's mean bias, which differs from the unit's long-run (static) bias by a
+session-common offset that no single capture can see. It is budgeted as large as the drift
+seen from pose to pose, so each bias variance gets one pose's scatter added:
+
+    sigma_b^2 = sigma_b,fit^2 + s^2,   s^2 = max(pooled residual scatter, white noise of one pose)
+
+(accelerometer: the residuals of eq. 2 of ``calibration_static``; gyroscope: the static steps'
+mean rates about their mean, since the true rate is zero in every one of them).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +24,7 @@ import numpy as np
 from station.engines.calibration_common import (
     CalibrationReport,
     pinned_run,
+    pooled_scatter,
     pose_vector,
     rotation_of,
     segments,
@@ -61,12 +77,6 @@ def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label:
                 raise EngineInputError(
                     f"step '{label}' ({_span(t, sl)}): the {name} {axis} axis is saturated (held at "
                     f"{extreme:g} for {run} samples); lower the rotation rate or raise the range")
-
-
-def _small_sample_factor(dof: int) -> float:
-    """Scale a residual-based sigma to the spread of Student's t with ``dof`` degrees of freedom,
-    sqrt(dof / (dof - 2)); 2 where that is undefined (few spare poses)."""
-    return float(np.sqrt(dof / (dof - 2))) if dof > 4 else 2.0
 
 
 def _shows_noise(x: np.ndarray, statics: list[tuple[str, slice]]) -> np.ndarray:
@@ -163,13 +173,8 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
 
     p_acc = np.concatenate([m_acc.ravel(), b_acc])
     acc_sd = stddev_from(acc_parts, p_acc, acc_cov)
-    # The bias drifts during the session (bias instability, rate random walk): correlated in time,
-    # so the pose-to-pose scatter of the residuals is not reduced by the number of poses.
-    pose_scatter = np.sqrt(np.mean(pose.residual**2, axis=0) * len(labels) / max(len(labels) - 4, 1))
-    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + pose_scatter**2)
-    inflate = _small_sample_factor(len(labels) - 4)
-    for key in ("matrix", "scale", "misalignment"):
-        acc_sd[key] = acc_sd[key] * inflate
+    # Drift budget (module docstring): the session-common drift is budgeted as one pose's scatter.
+    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + pose.sigma2)
     calibrated = (means - b_acc) @ np.linalg.inv(m_acc).T
     norm_err = np.linalg.norm(calibrated, axis=1) - gravity
     residual_si = (means - (gravity * up @ m_acc.T + b_acc)) @ np.linalg.inv(m_acc).T
@@ -221,20 +226,21 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
         if not bias_solved:
             warnings.append("gyroscope: the rotations turn one way only about each axis, so the bias does "
                             "not cancel; the static bias was subtracted instead (add the opposite turns)")
-        # Between-step scatter of the step means shows the in-run bias wander that white noise misses;
-        # it is correlated in time, so not divided by the number of steps.
+        # Drift budget (module docstring): the step means scatter about their mean as the bias drifts
+        # (the rate is zero in every static step); the session-common drift is budgeted as one
+        # step's scatter, which is never below one step's white noise.
         step_means = np.array([gyro[sl].mean(axis=0) for _, sl in statics])
-        wander = step_means.std(axis=0, ddof=1) if len(statics) > 1 else 0.0
-        b_sd = np.sqrt(static_var / len(static_gyro) + wander**2)
+        step_white = np.mean([gyro[sl].var(axis=0, ddof=1) / (sl.stop - sl.start) for _, sl in statics],
+                             axis=0)
+        scatter = pooled_scatter(step_means - step_means.mean(axis=0), 1)
+        drift = step_white if scatter is None else np.maximum(scatter, step_white)
+        b_sd = np.sqrt(static_var / len(static_gyro) + drift)
 
         def gyro_parts(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return p[:9].reshape(3, 3), gyro_mean
 
         gyro_sd = stddev_from(gyro_parts, np.concatenate([m_g.ravel(), rot.bias_rotation]), rot.cov)
         gyro_sd["bias"] = b_sd
-        inflate = _small_sample_factor(len(rotations) - (4 if bias_solved else 3))
-        for key in ("matrix", "scale", "misalignment"):
-            gyro_sd[key] = gyro_sd[key] * inflate
         if rot.condition > 50:
             warnings.append(f"gyroscope: the rotations determine the parameters poorly (condition number "
                             f"{rot.condition:.0f}); turn about each axis both ways")
