@@ -418,6 +418,10 @@ class Recording:
 
     ``acc``/``gyro`` are raw (what the unit reports, float64 before the wire's float32);
     ``true_rate`` is the inertial rate in the body frame (rig rate + Earth rate if enabled).
+    ``acc_bias``/``gyro_bias`` (N, 3) are the biases each triad really carried at each sample
+    (``SensorTruth.realized_bias``: static bias + thermal bias + bias instability + random walk),
+    so that a bias estimated from some samples can be compared with the mean bias over those samples
+    as well as with the static ``truth.accel.bias``; None where the maker did not know them.
     """
 
     t: np.ndarray
@@ -433,6 +437,8 @@ class Recording:
     rate_hz: float = 200.0
     first_seq: int = 0
     timeline: Timeline | None = field(default=None, repr=False)
+    acc_bias: np.ndarray | None = field(default=None, repr=False)
+    gyro_bias: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -527,12 +533,16 @@ class UnitSampler:
         rate = rig_rate + seen[1] if self._earth_world is not None else rig_rate
         temp_true = np.asarray(self.temperature(t), float) * np.ones(n)
         dtemp_true = temperature_rate(self.temperature, t) * np.ones(n)
-        acc = self.truth.accel.measure(force, temp_true, dtemp_true, self._acc_noise.next(n))
-        gyro = self.truth.gyro.measure(rate, temp_true, dtemp_true, self._gyro_noise.next(n))
+        acc_noise, acc_drift = self._acc_noise.next_with_drift(n)
+        gyro_noise, gyro_drift = self._gyro_noise.next_with_drift(n)
+        acc = self.truth.accel.measure(force, temp_true, dtemp_true, acc_noise)
+        gyro = self.truth.gyro.measure(rate, temp_true, dtemp_true, gyro_noise)
         temp = temp_true + self._temp_rng.standard_normal(n) * self.temp_noise_degc
         rec = Recording(t=t, acc=acc, gyro=gyro, temp=temp, temp_true=temp_true, dtemp_true=dtemp_true,
                         step=labels, true_specific_force=force, true_rate=rate, truth=self.truth,
-                        rate_hz=self.rate_hz, first_seq=self.count, timeline=self.timeline)
+                        rate_hz=self.rate_hz, first_seq=self.count, timeline=self.timeline,
+                        acc_bias=self.truth.accel.realized_bias(temp_true, dtemp_true, acc_drift),
+                        gyro_bias=self.truth.gyro.realized_bias(temp_true, dtemp_true, gyro_drift))
         self.count += n
         return rec
 

@@ -137,11 +137,21 @@ class NoiseGenerator:
         self.rate_hz = float(rate_hz)
 
     def next(self, n: int) -> np.ndarray:
+        return self.next_with_drift(n)[0]
+
+    def next_with_drift(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The next n samples of noise (n, 3) and, separately, their slowly varying part (n, 3): the
+        bias-instability and random-walk terms, i.e. how far the bias has moved from its static value.
+
+        The noise is summed in the same order as always, so it does not depend on whether the drift
+        is asked for.
+        """
         spec = self.spec
         dt = 1.0 / self.rate_hz
         out = self._rng_white.standard_normal((n, 3)) * (spec.N * np.sqrt(self.rate_hz))
+        drift = np.zeros((n, 3))
         if n == 0:
-            return out
+            return out, drift
         w = self._rng_gm.standard_normal((n, len(self._taus), 3))
         for i, tau in enumerate(self._taus):
             a = np.exp(-dt / tau)
@@ -149,13 +159,15 @@ class NoiseGenerator:
             x, _ = lfilter([1.0], [1.0, -a], w[:, i, :] * gain, axis=0, zi=(a * self._gm_state[i])[None, :])
             self._gm_state[i] = x[-1]
             out += x
+            drift += x
         rw = np.cumsum(self._rng_rw.standard_normal((n, 3)) * (spec.K * np.sqrt(dt)), axis=0) + self._rw_state
         self._rw_state = rw[-1].copy()
         out += rw
+        drift += rw
         u = self._rng_q.standard_normal((n, 3)) * spec.Q
         out += np.diff(np.vstack([self._q_last, u]), axis=0) * self.rate_hz
         self._q_last = u[-1].copy()
-        return out
+        return out, drift
 
 
 @dataclass
@@ -197,6 +209,14 @@ class SensorTruth:
     def matrix(self) -> np.ndarray:
         """M = K (I + S)."""
         return np.diag(self.scale) @ (np.eye(3) + self.misalignment)
+
+    def realized_bias(self, temp: np.ndarray, dtemp: np.ndarray,
+                      drift: np.ndarray | None = None) -> np.ndarray:
+        """The bias the triad carries at each sample (N, 3): b + b_T(T, dT) of eq. (1) plus the noise's
+        slowly varying part ``drift`` (bias instability and random walk,
+        ``NoiseGenerator.next_with_drift``)."""
+        out = self.bias + self.thermal.bias(temp, dtemp)
+        return out + drift if drift is not None else out
 
     def measure(self, true: np.ndarray, temp: np.ndarray, dtemp: np.ndarray,
                 noise: np.ndarray | None = None) -> np.ndarray:

@@ -7,6 +7,8 @@ finite differences of the rig's attitudes.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation as R
@@ -26,7 +28,7 @@ from mocks.rig import (
     sequence_segments,
     simulate,
 )
-from mocks.truth import NoiseSpec, UnitTruth
+from mocks.truth import NoiseGenerator, NoiseSpec, UnitTruth
 from protocols.base import SAMPLE_DTYPE
 
 G = 9.80665
@@ -233,3 +235,28 @@ def test_bad_segments_are_refused() -> None:
         sequence_segments("seven-position")
     with pytest.raises(ValueError, match="non-positive"):
         simulate(UnitTruth.ideal(), [Static("+z", 0.0)])
+
+
+def test_recording_carries_the_bias_each_triad_really_had() -> None:
+    """acc_bias/gyro_bias: static bias + thermal bias + bias instability + random walk, per sample.
+
+    With the white noise off and no quantization, raw - M true is exactly that realized bias; the
+    drift it carries is the noise generator's own slowly varying part, with the same numbers."""
+    truth = UnitTruth.random(21)
+    quiet = [replace(s.noise, N=0.0) for s in (truth.accel, truth.gyro)]
+    truth = truth.with_noise(*quiet)
+    truth.accel.resolution = truth.gyro.resolution = None
+    truth.accel.thermal.coeffs[:, 2] = [1e-3, -2e-3, 0.5e-3]
+    rec = simulate(truth, sequence_segments("six-position", hold_s=20.0), rate_hz=50, seed=21,
+                   temperature=ramp([(0.0, 20.0), (300.0, 35.0)]))
+    np.testing.assert_allclose(rec.acc - rec.true_specific_force @ truth.accel.matrix.T, rec.acc_bias,
+                               atol=1e-12)
+    np.testing.assert_allclose(rec.gyro - rec.true_rate @ truth.gyro.matrix.T, rec.gyro_bias, atol=1e-12)
+    # the bias moved during the session (drift and thermal), away from the static truth
+    assert np.ptp(rec.acc_bias - truth.accel.bias, axis=0).min() > 1e-4
+    # asking for the drift changes no number of the noise itself
+    gen_a = NoiseGenerator(truth.accel.noise, 50.0, np.random.SeedSequence(3))
+    gen_b = NoiseGenerator(truth.accel.noise, 50.0, np.random.SeedSequence(3))
+    total, drift = gen_a.next_with_drift(500)
+    np.testing.assert_array_equal(total, gen_b.next(500))
+    assert np.abs(drift).max() > 0
