@@ -100,9 +100,10 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
                     "samples: cut the record at the gap, or accept it with --max-missing "
                     f"{min(0.99, 2 * timing.missing_fraction):.3g}")
             m = cluster_sizes(record.n_samples, per_decade=args.per_decade)
-            computing = progress.add_task("Allan deviation", total=len(m) * len(AXES))
+            computing = progress.add_task("Allan deviation", total=None)
             curve = allan_curve(record.phase, record.rate_hz, AXES, m,
-                                on_progress=lambda done, total: progress.update(computing, completed=done))
+                                on_progress=lambda done, total: progress.update(computing, completed=done,
+                                                                                total=total))
     curve, noise = identify_noise(curve)
     source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
               "timing_problems": timing.problems()}
