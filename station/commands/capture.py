@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -20,6 +20,7 @@ from drivers import (
     LinkStats,
     NoSamples,
     PortLost,
+    SerialDevice,
     open_device,
 )
 from drivers.serial_device import open_serial
@@ -92,6 +93,13 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _get_info_quickly(device: Device) -> dict[str, Any]:
+    """GET_INFO sent at most twice: a unit that does not answer is recorded anyway."""
+    if isinstance(device, SerialDevice):
+        return device.get_info(timeout=0.5, retries=1)
+    return device.get_info(timeout=0.5)  # the Device interface has no retry count
+
+
 def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:
     """Ask the unit who it is, set its rate if asked, and start it if it does not stream yet.
 
@@ -100,7 +108,7 @@ def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:
     change the capture starts with the samples at the new rate.
     """
     try:
-        info = device.get_info(timeout=0.5, retries=1)
+        info = _get_info_quickly(device)
         print(f"unit: {info.get('model', '?')} serial {info.get('serial', '?')} firmware "
               f"{info.get('firmware', '?')} at {info.get('rate_hz', '?')} Hz", file=err)
     except CommandUnsupported:
@@ -110,7 +118,7 @@ def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:
     if rate_hz is not None:
         device.set_rate(rate_hz)
         try:
-            device.get_info(timeout=0.5, retries=1)  # the file records the unit's info at the new rate
+            _get_info_quickly(device)  # the file records the unit's info at the new rate
         except CommandTimeout:
             pass
         device.read(0)  # samples at the old rate are not part of this capture

@@ -39,6 +39,7 @@ if TYPE_CHECKING:
     from drivers.link_stats import LinkStats
     from station.acquisition.runner import LiveStatus, RunResult
     from station.engines.calibration_common import CalibrationReport
+    from station.engines.sensor_model import SensorCalibration
 
 NAME = "demo"
 HELP = "run the station on a simulated unit: no hardware, no arguments needed"
@@ -232,7 +233,8 @@ class _ProgressOperator(ScriptedOperator):
         label = f"{status.step.label:<5} {status.state.value}"
         if status.angle_deg is not None:
             label += f" {status.angle_deg:+4.0f} deg"
-        self.progress.update(self.task, completed=done, status=label)
+        if self.progress is not None and self.task is not None:
+            self.progress.update(self.task, completed=done, status=label)
 
 
 def report_link(ctx: DemoContext) -> None:
@@ -280,19 +282,23 @@ def calibrate_unit(ctx: DemoContext) -> None:
     # The simulated site's gravity; on a real station it comes from --gravity or --latitude.
     gravity = ctx.server.device.truth.gravity
     rate = capture.device.get("rate_hz")
-    ctx.report = calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
-                                     rate_hz=float(rate) if rate is not None else None)
+    # A capture without step labels is refused by calibrate_turntable itself (its annotation omits None).
+    ctx.report = calibrate_turntable(capture.t, capture.acc, capture.gyro,
+                                     capture.step,  # type: ignore[arg-type]
+                                     gravity, rate_hz=float(rate) if rate is not None else None)
     report = ctx.report
+    accel, gyro = _both_triads(report.accel, report.gyro, "the turntable calibration")
     labels = [label for label, _ in capture.segments()]
     ctx.say(f"    {len(capture)} samples read back, {len(labels)} labelled steps; g = {gravity:.5f} m/s^2")
-    ctx.say(f"    accel: {report.accel.method}, residual RMS {report.accel.residual_rms:.2e} m/s^2")
-    ctx.say(f"    gyro:  {report.gyro.method}, angle residual RMS "
-            f"{np.degrees(report.gyro.residual_rms):.4f} deg")
+    acc_rms = "not given" if accel.residual_rms is None else f"{accel.residual_rms:.2e} m/s^2"
+    gyro_rms = "not given" if gyro.residual_rms is None else f"{np.degrees(gyro.residual_rms):.4f} deg"
+    ctx.say(f"    accel: {accel.method}, residual RMS {acc_rms}")
+    ctx.say(f"    gyro:  {gyro.method}, angle residual RMS {gyro_rms}")
     for warning in report.warnings:
         ctx.say(f"    warning: {warning}")
     params = ParamsFile()
     params.update_device(capture.device)
-    params.accel, params.gyro = report.accel, report.gyro
+    params.accel, params.gyro = accel, gyro
     ctx.params_path = ctx.out_dir / "params.yaml"
     params.save(ctx.params_path)
     ctx.wrote(ctx.params_path, "the parameter file (device, accel, gyro)")
@@ -377,8 +383,9 @@ def export_firmware(ctx: DemoContext) -> None:
         raise DemoFailed(f"the compiled check failed on {fw_dir / BLOB_NAME} (exit {ran.returncode}): "
                          f"{ran.stdout.strip()} {ran.stderr.strip()}")
     c_out = np.array([float(x) for x in lines[1].split()])
-    station = np.concatenate([params.accel.correct(raw_acc[None, :].astype(float))[0],
-                              params.gyro.correct(raw_gyro[None, :].astype(float))[0]])
+    accel, gyro = _both_triads(params.accel, params.gyro, str(ctx.params_path))
+    station = np.concatenate([accel.correct(raw_acc[None, :].astype(float))[0],
+                              gyro.correct(raw_gyro[None, :].astype(float))[0]])
     agreement = float(np.max(np.abs(c_out - station) / np.maximum(1.0, np.abs(station))))
     ctx.results["firmware_check"] = {"load": lines[0], "c": c_out.tolist(), "station": station.tolist(),
                                      "agreement": agreement}
@@ -412,7 +419,8 @@ def compare_with_truth(ctx: DemoContext) -> None:
         table.add_column(name, justify="left" if name in ("triad", "parameter") else "right")
     worst: dict[str, float] = {}
     ratios: list[float] = []
-    for triad, cal, tr in (("accel", ctx.report.accel, truth.accel), ("gyro", ctx.report.gyro, truth.gyro)):
+    accel, gyro = _both_triads(ctx.report.accel, ctx.report.gyro, "the turntable calibration")
+    for triad, cal, tr in (("accel", accel, truth.accel), ("gyro", gyro, truth.gyro)):
         sd = cal.stddev
         entries = [(f"scale {'xyz'[i]}", "scale", cal.scale[i], tr.scale[i], sd["scale"][i])
                    for i in range(3)]
@@ -450,6 +458,13 @@ def list_files(ctx: DemoContext) -> None:
     width = max(len(str(path)) for path, _ in ctx.files)
     for path, what in ctx.files:
         ctx.say(f"    {str(path):<{width}}  {_size(path.stat().st_size):>9}  {what}")
+
+
+def _both_triads(accel: SensorCalibration | None, gyro: SensorCalibration | None,
+                 where: str) -> tuple[SensorCalibration, SensorCalibration]:
+    if accel is None or gyro is None:
+        raise DemoFailed(f"{where} has no {'accel' if accel is None else 'gyro'} calibration")
+    return accel, gyro
 
 
 def _size(n: int) -> str:

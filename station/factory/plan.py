@@ -311,6 +311,8 @@ def _limits(r: _Reader, node: yaml.Node) -> tuple[LimitSpec, ...]:
                          f"({dimension}); use one of {', '.join(repr(u) for u in allowed)}", column="unit")
         if "max_abs" in spec and ("min" in spec or "max" in spec):
             raise r.fail(spec["max_abs"], "give either 'max_abs' or 'min'/'max', not both", column="max_abs")
+        low: float | None
+        high: float | None
         if "max_abs" in spec:
             bound = r.number(spec["max_abs"], "max_abs")
             low, high = -bound, bound

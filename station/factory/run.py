@@ -240,6 +240,7 @@ class UnitRun:
                         self.req.operator = SimulatedOperator(ports.rig, self.req.operator)
                     outcome, reason = self._run(ports.port, ports.table_port)
             else:
+                assert self.req.port is not None  # a request without one was refused above
                 outcome, reason = self._run(self.req.port, self.req.table_port)
         except _Stop as stop:
             outcome, reason = stop.outcome, stop.reason
@@ -272,7 +273,7 @@ class UnitRun:
                 with contextlib.suppress(Exception):
                     thing.close()
 
-    def _run(self, port: str | None, table_port: str | None) -> tuple[str, str]:
+    def _run(self, port: str, table_port: str | None) -> tuple[str, str]:
         plan = self.req.plan
         phase = self._phase("connect")
         try:
@@ -345,6 +346,7 @@ class UnitRun:
         log.info("unit %s (%s, firmware %s) on %s at %d Hz", reported, info.get("model"),
                  info.get("firmware"), port, plan.rate_hz)
         if self.req.operator is None:
+            assert table_port is not None  # execute() refused a request with neither
             self.table = Turntable(table_port)
             table_info = self.table.identify()
             self.table.home()
@@ -354,7 +356,10 @@ class UnitRun:
     def _sequence(self, phase: Phase) -> RunResult:
         plan = self.req.plan
         assert self.device is not None and self.files is not None
-        inner: Operator = self.req.operator if self.req.operator is not None else TableOperator(self.table)
+        inner = self.req.operator
+        if inner is None:
+            assert self.table is not None  # _connect opened it for a run without an operator
+            inner = TableOperator(self.table)
         self._inner = inner
         self._factory_op = FactoryOperator(inner, self.deadline, self._relay)
         options = RunOptions(step_timeout_s=plan.step_timeout_s, max_attempts=plan.max_attempts)
@@ -410,8 +415,11 @@ class UnitRun:
             gravity = normal_gravity(plan.latitude, plan.height)
         else:
             gravity = STANDARD_GRAVITY
-        report = calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
-                                     latitude_deg=plan.latitude, rate_hz=float(plan.rate_hz))
+        # The runner labels every sample; calibrate_turntable refuses an unlabelled capture itself
+        # (its annotation omits None).
+        report = calibrate_turntable(capture.t, capture.acc, capture.gyro,
+                                     capture.step,  # type: ignore[arg-type]
+                                     gravity, latitude_deg=plan.latitude, rate_hz=float(plan.rate_hz))
         phase.measurements += measure(plan, CALIBRATION_QUANTITIES, report, self._link)
         phase.notes += list(report.warnings)
         if any(m.outcome == "FAIL" for m in phase.measurements):

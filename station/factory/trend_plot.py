@@ -23,17 +23,16 @@ def trend_series(records: list[RunRecord], names: list[str] | None = None) -> di
     if names is None:
         names = []
         for r in records:
-            for m in r.measurements().values():
-                limited = m.low is not None or m.high is not None
-                if limited and isinstance(m.value, int | float) and m.name not in names:
-                    names.append(m.name)
+            for measured in r.measurements().values():
+                limited = measured.low is not None or measured.high is not None
+                if limited and isinstance(measured.value, int | float) and measured.name not in names:
+                    names.append(measured.name)
     series = {}
     for name in names:
         values, outcomes, unit, low, high = [], [], "", None, None
         for r in records:
             m = r.measurements().get(name)
-            ok = m is not None and isinstance(m.value, int | float)
-            values.append(float(m.value) if ok else np.nan)
+            values.append(float(m.value) if m is not None and isinstance(m.value, int | float) else np.nan)
             outcomes.append(m.outcome if m is not None else "")
             if m is not None:
                 unit, low, high = m.unit, m.low, m.high
