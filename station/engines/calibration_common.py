@@ -91,6 +91,31 @@ def pooled_scatter(residual: np.ndarray, unknowns: int) -> float | None:
     return float(np.sum(r**2) / dof * dof / (dof - 2))
 
 
+def drift_budget(residual: np.ndarray, unknowns: int, white: np.ndarray) -> np.ndarray:
+    """Variance (3,) budgeted for the session-common bias drift that no single capture can see.
+
+    ``residual`` (P, 3): per-pose values about a fit with ``unknowns`` parameters per axis (pose
+    means minus their mean, or a pose fit's residuals); ``white`` (3,): the white-noise variance of
+    one pose value. The poses scatter by white noise plus the drift between them; the drift's
+    variance is estimated as the excess s^2 - w (s^2 the scatter pooled over the axes with
+    d = 3 (P - unknowns) degrees of freedom and Student-corrected as in :func:`pooled_scatter`,
+    w the mean white variance), plus one standard error of s^2, s^2 sqrt(2 / d), so a drift
+    hidden in the noise is not budgeted as zero:
+
+        D = max(s^2 - w, 0) + s^2 sqrt(2 / d)
+
+    The rule: the bias may be offset from the unit's long-run value by as much as it drifted from
+    pose to pose during the session. With too few spare poses (d <= 2) the budget is ``white``.
+    """
+    r = np.asarray(residual, float)
+    w = np.asarray(white, float)
+    s2 = pooled_scatter(r, unknowns)
+    if s2 is None:
+        return w
+    dof = r.size - 3 * unknowns
+    return np.full(3, max(s2 - float(np.mean(w)), 0.0) + s2 * np.sqrt(2.0 / dof))
+
+
 def propagate(fun: Callable[[np.ndarray], np.ndarray], p: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Covariance of fun(p) by first-order propagation J cov J^T (J by central differences)."""
     p = np.asarray(p, float)

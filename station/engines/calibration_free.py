@@ -48,6 +48,7 @@ from station.engines.calibration_common import (
     CalibrationReport,
     covariance,
     describe_null,
+    drift_budget,
     pinned_run,
     stddev_from,
 )
@@ -82,9 +83,10 @@ class FreeSettings:
     min_intervals: fewest static intervals a fit accepts (imu_tk: 12).
     inclusive_still_end: the still period ends at the sample nearest t0 + S, inclusive (imu_tk's
         initialInterval), rather than before t0 + S.
-    gyro_bias: "still": the gyro bias is the mean of the initial still period (imu_tk);
-        "intervals": each move between static intervals k and k+1 subtracts the mean of the gyro
-        over those two intervals, following a bias that drifts during the session.
+    gyro_bias: "intervals" (the station's default): each move between static intervals k and k+1
+        subtracts the mean of the gyro over those two intervals, following a bias that drifts during
+        the session, and the reported bias is the mean over all static intervals (the rate is zero
+        in each, so they all measure it); "still": the mean of the initial still period (imu_tk).
     """
 
     window_s: float = 1.0
@@ -95,12 +97,14 @@ class FreeSettings:
     cost: str = "mean"
     min_intervals: int = 12
     inclusive_still_end: bool = False
-    gyro_bias: str = "still"
+    gyro_bias: str = "intervals"
 
     @classmethod
     def imu_tk(cls) -> FreeSettings:
-        """imu_tk's demo settings: 101-sample window, first 100 samples per interval, Ceres cost."""
-        return cls(window_samples=101, interval_samples=100, cost="half_sum", inclusive_still_end=True)
+        """imu_tk's demo settings: 101-sample window, first 100 samples per interval, Ceres cost,
+        gyro bias from the still period."""
+        return cls(window_samples=101, interval_samples=100, cost="half_sum", inclusive_still_end=True,
+                   gyro_bias="still")
 
     def window(self, rate_hz: float) -> int:
         w = self.window_samples if self.window_samples else int(round(self.window_s * rate_hz))
@@ -602,10 +606,16 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     cov_g += _direction_covariance(model, sol.x, jac_g, acc, intervals, fit.params, cov_a, convention)
     gyro_c = sol.x.reshape(3, 3)
     # The rate is zero in every static interval, so the scatter of their gyro means shows how far
-    # the bias wanders during the session (white noise alone would understate it).
+    # the bias wanders during the session (white noise alone would understate it). Drift budget as
+    # in ``calibration_turntable``: the session-common offset is budgeted as the drift between intervals.
     interval_means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals])
-    wander = interval_means.std(axis=0, ddof=1)
-    bias_sd = np.sqrt(gyro[:n_still].var(axis=0, ddof=1) / n_still + wander**2)
+    if settings.gyro_bias == "intervals":
+        one_white = np.mean([gyro[a:b + 1].var(axis=0, ddof=1) / (b + 1 - a) for a, b in intervals], axis=0)
+        drift = drift_budget(interval_means - interval_means.mean(axis=0), 1, one_white)
+        bias_sd = np.sqrt(one_white / len(intervals) + drift)
+    else:
+        wander = interval_means.std(axis=0, ddof=1)
+        bias_sd = np.sqrt(gyro[:n_still].var(axis=0, ddof=1) / n_still + wander**2)
     cov_g += _bias_covariance(model, sol.x, jac_g, bias_sd)
 
     def gyro_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

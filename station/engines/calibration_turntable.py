@@ -9,12 +9,13 @@ wanders from pose to pose (bias instability, rate random walk), and only the sca
 The bias needs one more term, the drift budget: the bias moved during the session, so the poses
 measure the session's mean bias, which differs from the unit's long-run (static) bias by a
 session-common offset that no single capture can see. It is budgeted as large as the drift
-seen from pose to pose, so each bias variance gets one pose's scatter added:
+seen from pose to pose (``calibration_common.drift_budget``):
 
-    sigma_b^2 = sigma_b,fit^2 + s^2,   s^2 = max(pooled residual scatter, white noise of one pose)
+    sigma_b^2 = sigma_b,fit^2 + D,   D = max(s^2 - w, 0) + s^2 sqrt(2 / d)
 
-(accelerometer: the residuals of eq. 2 of ``calibration_static``; gyroscope: the static steps'
-mean rates about their mean, since the true rate is zero in every one of them).
+with s^2 the pose values' scatter pooled over the axes (d degrees of freedom) and w their white
+noise (accelerometer: the residuals of eq. 2 of ``calibration_static``; gyroscope: the static
+steps' mean rates about their mean, since the true rate is zero in every one of them).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import numpy as np
 
 from station.engines.calibration_common import (
     CalibrationReport,
+    drift_budget,
     pinned_run,
-    pooled_scatter,
     pose_vector,
     rotation_of,
     segments,
@@ -173,8 +174,8 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
 
     p_acc = np.concatenate([m_acc.ravel(), b_acc])
     acc_sd = stddev_from(acc_parts, p_acc, acc_cov)
-    # Drift budget (module docstring): the session-common drift is budgeted as one pose's scatter.
-    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + pose.sigma2)
+    # Drift budget (module docstring): what the bias drifted from pose to pose.
+    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + drift_budget(pose.residual, 4, np.mean(mean_var, axis=0)))
     calibrated = (means - b_acc) @ np.linalg.inv(m_acc).T
     norm_err = np.linalg.norm(calibrated, axis=1) - gravity
     residual_si = (means - (gravity * up @ m_acc.T + b_acc)) @ np.linalg.inv(m_acc).T
@@ -227,13 +228,11 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
             warnings.append("gyroscope: the rotations turn one way only about each axis, so the bias does "
                             "not cancel; the static bias was subtracted instead (add the opposite turns)")
         # Drift budget (module docstring): the step means scatter about their mean as the bias drifts
-        # (the rate is zero in every static step); the session-common drift is budgeted as one
-        # step's scatter, which is never below one step's white noise.
+        # (the rate is zero in every static step).
         step_means = np.array([gyro[sl].mean(axis=0) for _, sl in statics])
         step_white = np.mean([gyro[sl].var(axis=0, ddof=1) / (sl.stop - sl.start) for _, sl in statics],
                              axis=0)
-        scatter = pooled_scatter(step_means - step_means.mean(axis=0), 1)
-        drift = step_white if scatter is None else np.maximum(scatter, step_white)
+        drift = drift_budget(step_means - step_means.mean(axis=0), 1, step_white)
         b_sd = np.sqrt(static_var / len(static_gyro) + drift)
 
         def gyro_parts(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
