@@ -48,12 +48,15 @@ def short_six():
     return _recording("six-position", 11, hold_s=8.0)
 
 
-def _check_recovery(report, truth) -> None:
+def _check_recovery(report, truth, bias_tolerance: bool = True) -> None:
+    """The issue's tolerances against the truth: matrix 2e-4, bias 1e-3 m/s^2 and 1e-4 rad/s against
+    the static truth.bias (unless ``bias_tolerance`` is False), every group inside its 3-sigma."""
     for cal, tr, bias_tol in ((report.accel, truth.accel, 1e-3), (report.gyro, truth.gyro, 1e-4)):
         dm = cal.matrix - tr.matrix
         db = cal.bias - tr.bias
         assert np.abs(dm).max() < 2e-4
-        assert np.abs(db).max() < bias_tol
+        if bias_tolerance:
+            assert np.abs(db).max() < bias_tol
         # inside the reported 3-sigma, entry by entry
         assert np.all(np.abs(dm) < 3 * cal.stddev["matrix"])
         assert np.all(np.abs(db) < 3 * cal.stddev["bias"])
@@ -246,3 +249,40 @@ def test_rotations_by_any_angle_in_any_order() -> None:
     dm = report.gyro.matrix - truth.gyro.matrix
     assert np.abs(dm).max() < 2e-4
     assert np.all(np.abs(dm) < 3 * report.gyro.stddev["matrix"])
+
+
+# --- Monte Carlo over fresh units ------------------------------------------------------------------
+# Seeds 100..105 were fixed before any run. Each capture is a new UnitTruth.random(seed) at realistic
+# MEMS noise, 30 s holds at 100 Hz. (With 10 s holds seed 103 failed: a session shorter than about two
+# correlation times of the bias instability cannot see how far the bias sits from its long-run value,
+# so the drift budget under-covers there; README, "what truth is".) The truth for the bias is
+# twofold: the static truth.bias, which the reported sigma must cover (it carries the drift budget),
+# and the bias the unit really had, averaged over the samples the estimate uses (Recording.acc_bias /
+# gyro_bias), which the issue's tolerances apply to: the unit's bias instability moves its bias by
+# about 5e-4 m/s^2 (1 sigma) around truth.bias, a drift no capture can tell from the bias itself.
+MC_SEEDS = range(100, 106)
+
+
+def _realized_bias(rec, sequence: str) -> tuple[np.ndarray, np.ndarray]:
+    """Mean realized bias over the samples each estimate averages: every static step for the
+    twelve-pose least squares (equal holds, opposite poses: b is the mean of the pose means) and for
+    the gyro; the pair along each axis for the six-position accelerometer (Ferraris' eq. 3)."""
+    static = np.array([s != "" and not s.startswith("rot") for s in rec.step])
+    gyro = rec.gyro_bias[static].mean(axis=0)
+    if sequence == "twelve-position":
+        return rec.acc_bias[static].mean(axis=0), gyro
+    pair = [rec.acc_bias[(rec.step == f"+{a}") | (rec.step == f"-{a}"), i].mean()
+            for i, a in enumerate("xyz")]
+    return np.array(pair), gyro
+
+
+@pytest.mark.parametrize("sequence", ["twelve-position", "six-position"])
+def test_monte_carlo_over_fresh_units(sequence: str) -> None:
+    for seed in MC_SEEDS:
+        truth = UnitTruth.random(seed)
+        rec = simulate(truth, sequence_segments(sequence, True, hold_s=30.0), rate_hz=RATE_HZ, seed=seed)
+        report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+        acc_real, gyro_real = _realized_bias(rec, sequence)
+        for cal, real, tol in ((report.accel, acc_real, 1e-3), (report.gyro, gyro_real, 1e-4)):
+            assert np.abs(cal.bias - real).max() < tol, (seed, cal.bias - real)
+        _check_recovery(report, truth, bias_tolerance=False)
