@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from textual.app import App
 from textual.binding import Binding
+from textual.screen import Screen
 
 from station.acquisition.runner import RunResult
 from station.tui.config import TuiConfig
@@ -57,6 +58,7 @@ class StationApp(App[int]):
         from station.tui.screens.thermal import ThermalScreen
         from station.tui.screens.wizard import WizardScreen, build_sequence
 
+        screen: Screen[None]
         if name == "live":
             screen = LiveScreen()
         elif name == "wizard":

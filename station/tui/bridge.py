@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import queue
 import threading
+from typing import Any
 
 from textual.message import Message
 from textual.message_pump import MessagePump
@@ -22,10 +23,10 @@ from station.acquisition.sequences import RotationStep, Sequence, Step
 class RunnerEvent(Message):
     """Something the runner told the operator; ``kind`` is the Operator method that was called."""
 
-    def __init__(self, kind: str, payload: object = None, index: int = 0, total: int = 0) -> None:
+    def __init__(self, kind: str, payload: Any = None, index: int = 0, total: int = 0) -> None:
         super().__init__()
         self.kind = kind
-        self.payload = payload
+        self.payload = payload  # what that method was given: a Step, a LiveStatus, a Prompt, ...
         self.index = index
         self.total = total
 

@@ -21,7 +21,7 @@ UI_RATE_HZ = 20.0
 
 
 def pump(device: Device, on_batch: Callable[[np.ndarray], None], on_tick: Callable[[], None],
-         on_error: Callable[[DriverError], None], ui_rate_hz: float = UI_RATE_HZ) -> None:
+         on_error: Callable[[DriverError], object], ui_rate_hz: float = UI_RATE_HZ) -> None:
     """Read ``device`` until the current worker is cancelled or the link fails (``on_error``)."""
     worker = get_current_worker()
     period = 1.0 / ui_rate_hz

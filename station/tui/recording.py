@@ -9,6 +9,7 @@ import numpy as np
 
 from protocols.base import SAMPLE_DTYPE
 from station.acquisition.recorder import Recorder
+from station.tui.session import Session
 
 
 class Recording:
@@ -54,12 +55,10 @@ class Recording:
         """The sample rate from the median device-clock step."""
         if len(samples) < 2:
             return float("nan")
-        return float(1e6 / np.median(np.diff(samples["t_us"].astype(np.int64))))
+        return 1e6 / float(np.median(np.diff(samples["t_us"].astype(np.int64))))
 
 
-def open_recording(app, kind: str) -> Recording:
+def open_recording(session: Session, out: Path | None, kind: str) -> Recording:
     """The recording of a long-recording screen, streamed beside ``--out`` as ``<stem>-<kind>.h5``."""
-    out = app.config.out
-    session = app.session
     path = out.with_name(f"{out.stem}-{kind}.h5") if out is not None else None
     return Recording(path, device=session.info, port=session.name, protocol=session.device.protocol)

@@ -46,7 +46,7 @@ class AllanScreen(LongRecordingScreen):
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
-        device = self.app.session.device
+        device = self.session.device
         next_adev = [0.0]
 
         def on_tick() -> None:
@@ -74,7 +74,7 @@ class AllanScreen(LongRecordingScreen):
         elapsed = d["count"] / stats.rate_hz if stats.rate_hz > 0 else 0.0
         side = Text()
         side.append("Allan recording\n", style="bold")
-        side.append(f"recorded  {elapsed / 60:6.1f} min of {self.app.config.allan_minutes:g} min asked\n")
+        side.append(f"recorded  {elapsed / 60:6.1f} min of {self.station.config.allan_minutes:g} min asked\n")
         side.append(f"samples   {d['count']}\n")
         side.append(f"rate      {stats.rate_hz:.1f} Hz\n")
         side.append(f"lost      {stats.lost}   errors {stats.errors}\n\n")
@@ -84,7 +84,7 @@ class AllanScreen(LongRecordingScreen):
         self.query_one("#side", Static).update(side)
         if "adev" in d:
             self.query_one("#plots", Static).update(adev_plots(d["tau"], d["adev"], self.plot_width()))
-        if elapsed >= 60 * self.app.config.allan_minutes:
+        if elapsed >= 60 * self.station.config.allan_minutes:
             self.action_stop()
 
     @work(thread=True, exclusive=True, group="fit")
@@ -96,15 +96,15 @@ class AllanScreen(LongRecordingScreen):
             rates = np.column_stack([samples["gyro"], samples["acc"]]).astype(np.float64)
             rate = Recording.rate_hz(samples)
             curve, noise = identify_noise(allan_curve(integrate_rates(rates, rate), rate, AXES))
-            section = to_plain(allan_report.noise_section(noise, curve, {"source": self.app.session.name}))
+            section = to_plain(allan_report.noise_section(noise, curve, {"source": self.session.name}))
         except StationError as exc:
             self.post_message(LinkFailed(exc))
             return
         saved = None
-        out = self.app.config.out
+        out = self.station.config.out
         if out is not None:
             params = ParamsFile.load_or_new(out)
-            params.update_device(self.app.session.info)
+            params.update_device(self.session.info)
             params.noise = section
             params.save(out)
             saved = str(out)

@@ -7,17 +7,17 @@ from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Vertical
-from textual.screen import Screen
 from textual.widgets import Footer, Header, OptionList, Static
 from textual.widgets.option_list import Option
 
 from drivers.errors import DriverError
 from protocols.registry import DECODERS
 from station.tui.messages import LinkFailed, Snapshot
+from station.tui.screens.station_screen import StationScreen
 from station.tui.session import SIMULATED, Session, available_ports, open_session
 
 
-class ConnectScreen(Screen[None]):
+class ConnectScreen(StationScreen):
     BINDINGS = [
         Binding("enter", "continue", "continue", show=True),
         Binding("c", "choose", "other port"),
@@ -46,7 +46,7 @@ class ConnectScreen(Screen[None]):
         ports.highlighted = 0
         ports.focus()
         self.show_hint()
-        config = self.app.config
+        config = self.station.config
         if config.simulate or config.port:
             self.connect(SIMULATED if config.simulate else config.port)
         self.set_interval(0.5, self.show_link)
@@ -55,8 +55,8 @@ class ConnectScreen(Screen[None]):
         self.connect(event.option.id)
 
     def connect(self, port: str | None) -> None:
-        if self.app.session is not None:
-            self.app.close_session()
+        if self.station.session is not None:
+            self.station.close_session()
         self.query_one("#info", Static).update(f"connecting to {port} ...")
         self.query_one("#ports", OptionList).disabled = True
         self._open(port)
@@ -64,7 +64,7 @@ class ConnectScreen(Screen[None]):
     @work(thread=True, exclusive=True, group="connect")
     def _open(self, port: str | None) -> None:
         try:
-            session = open_session(self.app.config, port)
+            session = open_session(self.station.config, port)
         except (DriverError, OSError) as exc:
             self.post_message(LinkFailed(exc))
             return
@@ -72,7 +72,7 @@ class ConnectScreen(Screen[None]):
 
     def on_snapshot(self, message: Snapshot) -> None:
         session: Session = message.data["session"]
-        self.app.session = session
+        self.station.session = session
         self.show_hint()
         self.show_link()
 
@@ -83,7 +83,7 @@ class ConnectScreen(Screen[None]):
         ports.focus()
 
     def show_link(self) -> None:
-        session = self.app.session
+        session = self.station.session
         if session is None:
             return
         stats = session.device.stats
@@ -100,8 +100,8 @@ class ConnectScreen(Screen[None]):
         self.query_one("#info", Static).update(table)
 
     def action_continue(self) -> None:
-        if self.app.session is not None:
-            self.app.show("live")
+        if self.station.session is not None:
+            self.station.show("live")
 
     def action_choose(self) -> None:
         ports = self.query_one("#ports", OptionList)
@@ -110,14 +110,14 @@ class ConnectScreen(Screen[None]):
 
     def action_protocol(self) -> None:
         names = sorted(DECODERS)
-        config = self.app.config
+        config = self.station.config
         config.protocol = names[(names.index(config.protocol) + 1) % len(names)] if config.protocol in names \
             else names[0]
         self.show_hint()
 
     def show_hint(self) -> None:
-        protocol = self.app.config.protocol
-        if self.app.session is None:
+        protocol = self.station.config.protocol
+        if self.station.session is None:
             text = f"Choose the unit's port and press Enter.   protocol: {protocol} (p: change)"
         else:
             text = f"Connected. Enter: live view · c: another port · p: protocol ({protocol}) · ?: help"

@@ -10,17 +10,17 @@ from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Grid, Horizontal
-from textual.screen import Screen
 from textual.widgets import Footer, Header, Label, Sparkline, Static
 
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.pump import Tail, pump
+from station.tui.screens.station_screen import StationScreen
 
 CHANNELS = ("ax", "ay", "az", "gx", "gy", "gz")
 TAIL_SAMPLES = 400
 
 
-class LiveScreen(Screen[None]):
+class LiveScreen(StationScreen):
     BINDINGS = [Binding("enter", "wizard", "sequence wizard", show=True)]
     DEFAULT_CSS = """
     LiveScreen #values { height: auto; border: round $accent; padding: 0 1; }
@@ -48,7 +48,7 @@ class LiveScreen(Screen[None]):
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
-        device = self.app.session.device
+        device = self.session.device
 
         def on_batch(batch: np.ndarray) -> None:
             rows = np.column_stack([batch["acc"], batch["gyro"], batch["temp"]])
@@ -91,4 +91,4 @@ class LiveScreen(Screen[None]):
         self.query_one("#values", Static).update(f"[red]link lost: {message.error}[/red]")
 
     def action_wizard(self) -> None:
-        self.app.show("wizard")
+        self.station.show("wizard")

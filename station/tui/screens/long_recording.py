@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
-from textual.screen import Screen
 from textual.widgets import Footer, Header, Static
 
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.recording import open_recording
+from station.tui.screens.station_screen import StationScreen
 
 
-class LongRecordingScreen(Screen[None]):
+class LongRecordingScreen(StationScreen):
     """A ``#plots`` panel and a ``#side`` panel over a recording named ``KIND``.
 
     A subclass supplies the texts below, a ``_read`` worker that fills ``self.recording`` and posts
@@ -36,7 +38,7 @@ class LongRecordingScreen(Screen[None]):
 
     def on_mount(self) -> None:
         self.title = f"imu-station · {self.HEADING}"
-        self.recording = open_recording(self.app, self.KIND)
+        self.recording = open_recording(self.session, self.station.config.out, self.KIND)
         self.stopped = False
         self._read()
 
@@ -63,4 +65,20 @@ class LongRecordingScreen(Screen[None]):
         self._fit()
 
     def action_back(self) -> None:
-        self.app.show("live")
+        self.station.show("live")
+
+    # ---- what a subclass supplies -----------------------------------------------------------------
+
+    def _read(self) -> object:
+        """Thread worker: fill ``self.recording`` and post progress snapshots."""
+        raise NotImplementedError
+
+    def _fit(self) -> object:
+        """Thread worker: fit the stopped recording and post ``{"fit": ..., "saved": ...}``."""
+        raise NotImplementedError
+
+    def show_progress(self, data: dict[str, Any]) -> None:
+        raise NotImplementedError
+
+    def show_fit(self, fit: Any, saved: str | None) -> None:
+        raise NotImplementedError

@@ -8,14 +8,13 @@ import io
 from pathlib import Path
 
 import numpy as np
-from rich.console import Group
+from rich.console import Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import VerticalScroll
-from textual.screen import Screen
 from textual.widgets import Footer, Header, Static
 
 from station.acquisition.runner import RunResult
@@ -26,6 +25,7 @@ from station.export.params_file import ParamsFile
 from station.tui.calibrate import calibrate_run
 from station.tui.limits import ACCEL_LIMITS, GYRO_LIMITS, Verdict, evaluate
 from station.tui.messages import LinkFailed, Snapshot
+from station.tui.screens.station_screen import StationScreen
 
 
 def _pm(values: np.ndarray, sigma: object, fmt: str) -> list[str]:
@@ -76,7 +76,7 @@ def verdict_table(verdicts: list[Verdict]) -> Table:
     return table
 
 
-class ResultsScreen(Screen[None]):
+class ResultsScreen(StationScreen):
     BINDINGS = [
         Binding("enter", "save", "save and quit", show=True),
         Binding("e", "export", "exports"),
@@ -121,8 +121,9 @@ class ResultsScreen(Screen[None]):
     def on_snapshot(self, message: Snapshot) -> None:
         report: CalibrationReport = message.data["report"]
         self.report = report
-        parts = [Text(f"method: {report.method}   gravity: {report.gravity:.5f} m/s^2   "
-                      f"run: {self.run.outcome}, {len(self.run.accepted)} of {len(self.run.sequence)} steps")]
+        parts: list[RenderableType] = [
+            Text(f"method: {report.method}   gravity: {report.gravity:.5f} m/s^2   "
+                 f"run: {self.run.outcome}, {len(self.run.accepted)} of {len(self.run.sequence)} steps")]
         self.verdicts = []
         if report.accel is not None:
             parts.append(sensor_table("accelerometer", report.accel, "m/s^2"))
@@ -138,7 +139,7 @@ class ResultsScreen(Screen[None]):
         for warning in report.warnings:
             parts.append(Text(f"warning: {warning}", style="yellow"))
         self.query_one("#tables", Static).update(Group(*parts))
-        self.app.results_failed = not all(v.passed for v in self.verdicts)
+        self.station.results_failed = not all(v.passed for v in self.verdicts)
         self.show_status()
 
     @staticmethod
@@ -162,15 +163,15 @@ class ResultsScreen(Screen[None]):
         return table
 
     def show_status(self, note: str = "") -> None:
-        out = self.app.config.out
+        out = self.station.config.out
         passed = all(v.passed for v in self.verdicts)
         text = Text("PASS" if passed else "FAIL", style="bold green" if passed else "bold red")
         text.append(f"  {note}\n" if note else "\n")
         if self.saved:
             text.append("Enter: quit")
         elif out is not None:
-            text.append(f"Enter: save to {out}" + (f" and export {', '.join(self.app.config.export)}"
-                                                    if self.app.config.export else "") + ", then quit")
+            text.append(f"Enter: save to {out}" + (f" and export {', '.join(self.station.config.export)}"
+                                                    if self.station.config.export else "") + ", then quit")
         else:
             text.append("Enter: quit (no --out given: nothing is saved)")
         self.query_one("#status", Static).update(text)
@@ -178,13 +179,14 @@ class ResultsScreen(Screen[None]):
     def action_save(self) -> None:
         if self.report is None:
             return
-        config = self.app.config
+        config = self.station.config
         if self.saved or config.out is None:
-            self.app.action_quit_app()
+            self.station.action_quit_app()
             return
         try:
             params = ParamsFile.load_or_new(config.out)
-            params.update_device(self.app.session.info if self.app.session else self.run.capture.device)
+            session = self.station.session
+            params.update_device(session.info if session is not None else self.run.capture.device)
             if self.report.accel is not None:
                 params.accel = self.report.accel
             if self.report.gyro is not None:
@@ -195,11 +197,11 @@ class ResultsScreen(Screen[None]):
             self.show_status(f"[could not save: {exc}]")
             return
         self.saved = True
-        self.app.saved = written
+        self.station.saved = written
         self.show_status("saved " + ", ".join(written))
 
     def action_export(self) -> None:
-        config = self.app.config
+        config = self.station.config
         if config.out is None or not Path(config.out).exists():
             self.show_status("save first (Enter): exports are written from the parameter file")
             return
@@ -212,7 +214,7 @@ class ResultsScreen(Screen[None]):
         """Each ``--export`` format through ``imu-station export`` (its report captured, not printed)."""
         from station.commands import export
 
-        config = self.app.config
+        config = self.station.config
         out_dir = config.export_dir or Path(params_path).parent
         files: list[str] = []
         for fmt in config.export:

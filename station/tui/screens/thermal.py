@@ -73,7 +73,7 @@ class ThermalScreen(LongRecordingScreen):
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
-        device = self.app.session.device
+        device = self.session.device
         next_draw = [0.0]
 
         def on_tick() -> None:
@@ -108,10 +108,13 @@ class ThermalScreen(LongRecordingScreen):
     @work(thread=True, exclusive=True, group="fit")
     def _fit(self) -> None:
         samples = self.recording.snapshot()
-        out = self.app.config.out
+        out = self.station.config.out
         params = ParamsFile.load_or_new(out) if out is not None else ParamsFile()
         try:
             capture = samples_to_capture(samples)
+            if capture.temp is None:
+                raise StationError("the recording has no temperature readings; the unit must send its "
+                                   "temperature for a thermal model")
             fit = fit_thermal(capture.t, capture.temp, capture.acc, capture.gyro,
                               accel_cal=params.accel, gyro_cal=params.gyro)
         except (StationError, ValueError) as exc:
@@ -120,7 +123,7 @@ class ThermalScreen(LongRecordingScreen):
         saved = None
         if out is not None:
             params.thermal = fit.model
-            params.update_device(self.app.session.info)
+            params.update_device(self.session.info)
             params.save(out)
             saved = str(out)
         calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}

@@ -8,7 +8,6 @@ from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
-from textual.screen import Screen
 from textual.widgets import Footer, Header, ProgressBar, Static
 
 from station.acquisition.operator import Action, Prompt, SimulatedOperator
@@ -22,12 +21,13 @@ from station.acquisition.runner import (
     State,
     StepRecord,
 )
-from station.acquisition.sequences import Sequence, resolve
+from station.acquisition.sequences import Sequence, Step, resolve
 from station.errors import StationError
 from station.tui.art import bar, step_art, step_instruction
 from station.tui.bridge import RunnerEvent, TuiOperator
 from station.tui.config import TuiConfig
 from station.tui.messages import LinkFailed
+from station.tui.screens.station_screen import StationScreen
 
 MARKS = {"accepted": "[green]✓[/green]", "skipped": "[yellow]↷[/yellow]", "failed": "[red]✗[/red]",
          "aborted": "[red]✗[/red]"}
@@ -41,7 +41,7 @@ def build_sequence(config: TuiConfig) -> Sequence:
                    rotation_rate_dps=config.rotation_rate_dps)
 
 
-class WizardScreen(Screen[None]):
+class WizardScreen(StationScreen):
     BINDINGS = [
         Binding("enter", "answer('default')", "next", show=True),
         Binding("r", "answer('redo')", "redo step"),
@@ -95,9 +95,9 @@ class WizardScreen(Screen[None]):
 
     @work(thread=True, exclusive=True, group="reader")
     def _run(self) -> None:
-        session = self.app.session
+        session = self.session
         operator = self.operator if session.rig is None else SimulatedOperator(session.rig, self.operator)
-        path = self.app.config.capture_path()
+        path = self.station.config.capture_path()
         try:
             recorder = None
             if path is not None:
@@ -128,7 +128,7 @@ class WizardScreen(Screen[None]):
 
     def _on_place(self, event: RunnerEvent) -> None:
         self.current = event.index
-        step = event.payload
+        step: Step = event.payload
         title = Text(f"Step {event.index + 1} of {event.total}: {step.label}\n\n", style="bold")
         title.append(step_instruction(step) + "\n\n", style="")
         title.append(step_art(step))
@@ -161,8 +161,9 @@ class WizardScreen(Screen[None]):
         self.query_one("#capture", ProgressBar).update(progress=s.progress if capturing else 0.0)
 
     def _on_prompt(self, event: RunnerEvent) -> None:
-        self.prompt = event.payload
-        self.show_prompt(self.prompt)
+        prompt: Prompt = event.payload
+        self.prompt = prompt
+        self.show_prompt(prompt)
 
     def _on_answered(self, event: RunnerEvent) -> None:
         self.prompt = None
@@ -174,14 +175,14 @@ class WizardScreen(Screen[None]):
         self.show_steps()
 
     def _on_end(self, event: RunnerEvent) -> None:
-        self.result = event.payload
-        self.app.last_run = self.result
-        accepted = len(self.result.accepted)
-        text = Text(f"Run {self.result.outcome}: {accepted} of {len(self.sequence)} steps captured, "
-                    f"{len(self.result.capture)} samples.", style="bold")
-        if self.result.reason:
-            text.append(f"\n{self.result.reason}")
-        path = self.app.config.capture_path()
+        result: RunResult = event.payload
+        self.result = result
+        self.station.last_run = result
+        text = Text(f"Run {result.outcome}: {len(result.accepted)} of {len(self.sequence)} steps captured, "
+                    f"{len(result.capture)} samples.", style="bold")
+        if result.reason:
+            text.append(f"\n{result.reason}")
+        path = self.station.config.capture_path()
         if path is not None:
             text.append(f"\nCapture saved to {path}")
         text.append("\nEnter: compute the calibration and show the results · q: quit")
@@ -216,7 +217,7 @@ class WizardScreen(Screen[None]):
     def action_answer(self, which: str) -> None:
         if self.result is not None:
             if which == "default":
-                self.app.show_results(self.result)
+                self.station.show_results(self.result)
             return
         prompt = self.prompt
         if which == "default":
