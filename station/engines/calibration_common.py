@@ -62,16 +62,19 @@ def segments(step: np.ndarray) -> list[tuple[str, slice]]:
 
 
 def covariance(jac: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, float]:
-    """Parameter covariance s^2 (J^T J)^-1 with s^2 = r^T r / (m - p), and s^2.
+    """Parameter covariance s^2 d / (d - 2) (J^T J)^-1 with s^2 = r^T r / d, d = m - p; and s^2.
 
     The usual Gauss-Newton estimate at the optimum (e.g. Nocedal & Wright eq. 10.2 with
-    the residual variance estimated from the fit).
+    the residual variance estimated from the fit), times Student's t variance factor d / (d - 2)
+    as in :func:`pooled_scatter`, so that errors over sigma have unit variance with few spare
+    residuals (the factor is 1 + 2/d: negligible for sample-level fits).
     """
     m, p = jac.shape
     dof = m - p
     s2 = float(residual @ residual / dof) if dof > 0 else float("nan")
+    student = dof / (dof - 2) if dof > 2 else float("nan")
     jtj = jac.T @ jac
-    return s2 * np.linalg.pinv(jtj), s2
+    return s2 * student * np.linalg.pinv(jtj), s2
 
 
 def pooled_scatter(residual: np.ndarray, unknowns: int) -> float | None:
