@@ -61,15 +61,19 @@ def segments(step: np.ndarray) -> list[tuple[str, slice]]:
             if labels[a].strip() != ""]
 
 
-def covariance(jac: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, float]:
+def covariance(jac: np.ndarray, residual: np.ndarray,
+               observations: int | None = None) -> tuple[np.ndarray, float]:
     """Parameter covariance s^2 d / (d - 2) (J^T J)^-1 with s^2 = r^T r / d, d = m - p; and s^2.
 
     The usual Gauss-Newton estimate at the optimum (e.g. Nocedal & Wright eq. 10.2 with
     the residual variance estimated from the fit), times Student's t variance factor d / (d - 2)
     as in :func:`pooled_scatter`, so that errors over sigma have unit variance with few spare
-    residuals (the factor is 1 + 2/d: negligible for sample-level fits).
+    residuals (the factor is 1 + 2/d: negligible for sample-level fits). ``observations``: the
+    number m of residual components that carry noise, when fewer than ``len(residual)`` (a
+    difference of unit vectors has two per vector: its component along them is second order).
     """
     m, p = jac.shape
+    m = m if observations is None else observations
     dof = m - p
     s2 = float(residual @ residual / dof) if dof > 0 else float("nan")
     student = dof / (dof - 2) if dof > 2 else float("nan")

@@ -602,7 +602,8 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     model = _GyroModel(blocks)
     jac_g = model.jacobian(sol.x)
     _check_rank(jac_g, GYRO_PARAM_NAMES, "gyroscope")
-    cov_g, _ = covariance(jac_g, sol.fun)
+    # eq. (15) compares unit vectors: two of each block's three residual components carry noise
+    cov_g, _ = covariance(jac_g, sol.fun, observations=2 * len(blocks.spans))
     cov_g += _direction_covariance(model, sol.x, jac_g, acc, intervals, fit.params, cov_a, convention)
     gyro_c = sol.x.reshape(3, 3)
     # The rate is zero in every static interval, so the scatter of their gyro means shows how far
