@@ -2,9 +2,14 @@
 the clear errors for data that cannot determine the parameters.
 
 Simulated sequences use realistic MEMS noise (``UnitTruth.random``: white noise, bias instability
-50 ug / 5 deg/h, rate random walk, 16-bit quantization) at 100 Hz with 60 s holds and 360 deg
-turns at 90 deg/s. The bias tolerance (1e-3 m/s^2) is about twice the drift-limited floor of that
-unit (bias instability and random walk during a 15-minute session).
+50 ug / 5 deg/h, rate random walk, 16-bit quantization) at 100 Hz with 360 deg turns at 90 deg/s.
+That unit's accelerometer bias wanders about its static truth.bias by about 5e-4 m/s^2 (1 sigma,
+Gauss-Markov with a 100 s correlation time, plus the random walk), so the issue's 1e-3 m/s^2 is about
+two sigma of that drift per axis: against the static truth it holds for most captures, not all (the
+Monte Carlo at the end, and benchmarks/calibration.py section 3, measure how often). The fixed-seed
+tests keep that check on one unit each; the Monte Carlo applies the tolerance to the bias the unit
+really had (``Recording.acc_bias``) and the reported 3-sigma, which carries the drift budget, to the
+static truth.
 """
 
 from __future__ import annotations
