@@ -75,9 +75,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--imu-tk", action="store_true",
                         help="free method: imu_tk's detector and cost (101-sample window, first 100 "
                              "samples of each interval, 1/2 sum r^2)")
-    parser.add_argument("--gyro-bias", choices=("still", "intervals"), default="still",
-                        help="free method: gyro bias from the initial still period (default) or, per move, "
-                             "from the static intervals on either side (follows a drifting bias)")
+    parser.add_argument("--gyro-bias", choices=("still", "intervals"),
+                        help="free method: gyro bias from all static intervals, each move de-biased with the "
+                             "intervals on either side (default; follows a drifting bias), or from the "
+                             "initial still period only (imu_tk; the default with --imu-tk)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="the sample rate the device was set to (default: the capture's device "
                              "info, if any); refused if the timestamps disagree")
@@ -112,7 +113,8 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
         return calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
                                    latitude_deg=latitude, rate_hz=rate)
     settings = FreeSettings.imu_tk() if args.imu_tk else FreeSettings(window_s=args.window)
-    settings = dataclasses.replace(settings, gyro_bias=args.gyro_bias)
+    if args.gyro_bias is not None:
+        settings = dataclasses.replace(settings, gyro_bias=args.gyro_bias)
     if rate is not None:
         check_rate(capture.t, rate)
     return calibrate_free(capture.t, capture.acc, capture.gyro, gravity, args.initial_still,
