@@ -244,6 +244,20 @@ def _product(a: np.ndarray) -> np.ndarray:
     return a[:, 0]
 
 
+def _scan(a: np.ndarray, reverse: bool) -> np.ndarray:
+    """Inclusive products along axis 1 by a Hillis-Steele scan (log2(L) vectorised passes): element n
+    is a[:, 0] (x) .. (x) a[:, n], or with ``reverse`` a[:, n] (x) .. (x) a[:, L-1]."""
+    p = a.copy()
+    shift = 1
+    while shift < p.shape[1]:
+        if reverse:
+            p[:, :-shift] = quat.qmul(p[:, :-shift], p[:, shift:])
+        else:
+            p[:, shift:] = quat.qmul(p[:, :-shift], p[:, shift:])
+        shift *= 2
+    return p
+
+
 class _GyroModel:
     """Eq. (15) over all blocks for one C, and its Jacobian.
 
@@ -265,8 +279,8 @@ class _GyroModel:
         self.x0 = blocks.x0[self.mask]
         self.x1 = blocks.x1[self.mask]
         self.dt = blocks.dt[self.mask]
-        block_of = np.nonzero(self.mask)[0]
-        self.member = (block_of[None, :] == np.arange(len(blocks.dt))[:, None]).astype(float)
+        self.block_of = np.nonzero(self.mask)[0]
+        self.member = (self.block_of[None, :] == np.arange(len(blocks.dt))[:, None]).astype(float)
 
     def _forward(self, cflat: np.ndarray) -> None:
         key = np.asarray(cflat, float).tobytes()
@@ -290,16 +304,16 @@ class _GyroModel:
     def jacobian(self, cflat: np.ndarray) -> np.ndarray:
         self._forward(cflat)
         nb, length = self.mask.shape
-        step_matrix = quat.right_matrix(self.a)
-        states = np.empty((nb, length, 4, 1))                  # s_n, before step n
-        states[:, 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        for n in range(length - 1):
-            states[:, n + 1] = step_matrix[:, n] @ states[:, n]
-        lam = np.empty((nb, length, 3, 4))
-        lam[:, -1] = self.dr_dq
-        for n in range(length - 1, 0, -1):
-            lam[:, n - 1] = lam[:, n] @ step_matrix[:, n]
-        u = lam[self.mask] @ quat.left_matrix(states[..., 0][self.mask])           # (S, 3, 4)
+        # s_n = a_0 (x) .. (x) a_{n-1} and, as A_{L-1} .. A_{n+1} = R(a_{n+1} (x) .. (x) a_{L-1}),
+        # lambda_n = (dr/dq) R(a_{n+1} (x) .. (x) a_{L-1}): both by log-depth scans over the steps
+        states = np.empty((nb, length, 4))
+        states[:, 0] = (1.0, 0.0, 0.0, 0.0)
+        states[:, 1:] = _scan(self.a[:, :-1], reverse=False)
+        after = np.empty((nb, length, 4))
+        after[:, -1] = (1.0, 0.0, 0.0, 0.0)
+        after[:, :-1] = _scan(self.a[:, 1:], reverse=True)
+        lam = self.dr_dq[self.block_of] @ quat.right_matrix(after[self.mask])        # (S, 3, 4)
+        u = lam @ quat.left_matrix(states[self.mask])
         da0, da1 = quat.rk4_step_derivative(self.dt, self.stages)                   # (S, 3, 4) each
         g0 = u @ np.swapaxes(da0, -1, -2)                                           # (S, 3 res, 3 w)
         g1 = u @ np.swapaxes(da1, -1, -2)

@@ -28,26 +28,32 @@ def omega_matrix(w: np.ndarray) -> np.ndarray:
 
 def qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Hamilton product p (x) q of quaternion arrays (..., 4)."""
-    pw, px, py, pz = np.moveaxis(np.asarray(p, float), -1, 0)
-    qw, qx, qy, qz = np.moveaxis(np.asarray(q, float), -1, 0)
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
+    p = np.asarray(p, float)
+    q = np.asarray(q, float)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(np.broadcast_shapes(p.shape, q.shape))
+    out[..., 0] = pw * qw - px * qx - py * qy - pz * qz
+    out[..., 1] = pw * qx + px * qw + py * qz - pz * qy
+    out[..., 2] = pw * qy - px * qz + py * qw + pz * qx
+    out[..., 3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
+
+
+# R(p) and L(p) entry (j, k) is sign[j, k] * p[_INDEX[j, k]].
+_INDEX = np.array([[0, 1, 2, 3], [1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
+_RIGHT_SIGN = np.array([[1, -1, -1, -1], [1, 1, 1, -1], [1, -1, 1, 1], [1, 1, -1, 1]], float)
+_LEFT_SIGN = np.array([[1, -1, -1, -1], [1, 1, -1, 1], [1, 1, 1, -1], [1, -1, 1, 1]], float)
 
 
 def right_matrix(p: np.ndarray) -> np.ndarray:
     """R(p) with R(p) q = q (x) p, shape (..., 4, 4); Omega(w) of eq. (1) is R((0, w))."""
-    w, x, y, z = np.moveaxis(np.asarray(p, float), -1, 0)
-    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, z, -y], -1),
-                     np.stack([y, -z, w, x], -1), np.stack([z, y, -x, w], -1)], -2)
+    return np.asarray(p, float)[..., _INDEX] * _RIGHT_SIGN
 
 
 def left_matrix(p: np.ndarray) -> np.ndarray:
     """L(p) with L(p) q = p (x) q, shape (..., 4, 4)."""
-    w, x, y, z = np.moveaxis(np.asarray(p, float), -1, 0)
-    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, -z, y], -1),
-                     np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], -2)
+    return np.asarray(p, float)[..., _INDEX] * _LEFT_SIGN
 
 
 def _pure(v: np.ndarray) -> np.ndarray:
@@ -97,29 +103,32 @@ def rk4_step_matrices(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> np.ndar
 def rk4_step_derivative(dt: np.ndarray, stages: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
     """da/dw0_i and da/dw1_i of eq. (3) by the product rule, each (..., 3, 4) (i = x, y, z).
 
-    For w0: dh0 = e_i/2, dhm = e_i/4, dh1 = 0; for w1: dh0 = 0, dhm = e_i/4, dh1 = e_i/2, with
-    e_i = (0, unit vector i). Products with e_i are the constant matrices L(e_i), R(e_i).
+    With E = [e_x e_y e_z] (4 x 3, pure unit quaternions as columns), x (x) hm = R(hm) x and
+    h0 (x) y = L(h0) y, the derivatives along all three components at once are the 4 x 3 matrices
+
+        D2 = beta E + dt/2 (alpha R(hm) E + beta L(h0) E)
+        D3 = beta E + dt/2 (R(hm) D2 + beta L(b2) E)
+        D4 = gamma E + dt (R(h1) D3 + gamma L(b3) E)
+        Da = dt/6 (alpha E + 2 D2 + 2 D3 + D4)
+
+    with (alpha, beta, gamma) = (1/2, 1/4, 0) for w0 (dh0 = e/2, dhm = e/4) and (0, 1/4, 1/2) for w1.
     """
     h0, hm, h1, b2, b3 = stages
     dt = np.asarray(dt, float)[..., None, None]
-    unit = _pure(np.eye(3))                                 # (3, 4): e_i
-    left_unit = left_matrix(unit)                           # (3, 4, 4): L(e_i)
-    right_unit = right_matrix(unit)                         # (3, 4, 4): R(e_i)
-
-    def times_unit(q: np.ndarray, mats: np.ndarray) -> np.ndarray:
-        return np.einsum("ikm,...m->...ik", mats, q)        # (..., 3, 4)
-
-    e_hm = times_unit(hm, left_unit)                        # e_i (x) hm
-    h0_e = times_unit(h0, right_unit)                       # h0 (x) e_i
-    b2_e = times_unit(b2, right_unit)                       # b2 (x) e_i
-    b3_e = times_unit(b3, right_unit)                       # b3 (x) e_i
-    hm_, h1_ = hm[..., None, :], h1[..., None, :]
+    unit = np.zeros((4, 3))
+    unit[1:] = np.eye(3)
+    right_hm = right_matrix(hm)
+    right_h1 = right_matrix(h1)
+    hm_e = right_hm[..., 1:]                                # R(hm) E
+    h0_e = left_matrix(h0)[..., 1:]                         # L(h0) E
+    b2_e = left_matrix(b2)[..., 1:]
+    b3_e = left_matrix(b3)[..., 1:]
 
     def derivative(alpha: float, beta: float, gamma: float) -> np.ndarray:
-        db2 = beta * unit + 0.5 * dt * (alpha * e_hm + beta * h0_e)
-        db3 = beta * unit + 0.5 * dt * (qmul(db2, hm_) + beta * b2_e)
-        db4 = gamma * unit + dt * (qmul(db3, h1_) + gamma * b3_e)
-        return dt / 6.0 * (alpha * unit + 2.0 * db2 + 2.0 * db3 + db4)
+        d2 = beta * unit + 0.5 * dt * (alpha * hm_e + beta * h0_e)
+        d3 = beta * unit + 0.5 * dt * (right_hm @ d2 + beta * b2_e)
+        d4 = gamma * unit + dt * (right_h1 @ d3 + gamma * b3_e)
+        return np.swapaxes(dt / 6.0 * (alpha * unit + 2.0 * d2 + 2.0 * d3 + d4), -1, -2)
 
     return derivative(0.5, 0.25, 0.0), derivative(0.0, 0.25, 0.5)
 
