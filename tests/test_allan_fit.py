@@ -1,4 +1,5 @@
-"""Noise identification: terms injected into simulated records are recovered within stated tolerances."""
+"""Noise identification: terms injected into simulated records are recovered within stated tolerances; the
+exact likelihood of N and K is checked against a brute-force dense Gaussian likelihood and its own scatter."""
 
 from __future__ import annotations
 
@@ -6,15 +7,22 @@ import math
 
 import numpy as np
 import pytest
+from scipy import optimize, stats
 
 from mocks.rig import Static, simulate
 from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
 from station.engines.allan import allan_curve, integrate_rates
 from station.engines.allan_fit import B_FACTOR, TERMS, fit_axis, identify_noise, model_avar
+from station.engines.allan_ml import autocovariance, block_length, negative_log_likelihood, white_walk_ml
+from station.export.allan_report import noise_section
+
+ML = "maximum likelihood"
 
 
 def analyse(y: np.ndarray, rate: float, axes: tuple[str, ...] = ("gx",)):
-    return identify_noise(allan_curve(integrate_rates(y, rate), rate, axes))
+    """The command's pipeline: cumulative sums, curve, IEEE 952 fit, then the likelihood of K."""
+    phase = integrate_rates(y, rate)
+    return identify_noise(allan_curve(phase, rate, axes), phase)
 
 
 def white_and_walk(rng: np.random.Generator, n: int, rate: float, n_density: float, k_density: float,
@@ -25,16 +33,29 @@ def white_and_walk(rng: np.random.Generator, n: int, rate: float, n_density: flo
     return white + walk
 
 
-def test_monte_carlo_white_noise_and_random_walk():
-    """20 records of 2 h at 200 Hz whose white-noise and random-walk lines cross at 170 s.
+# Both readings of "the white-noise and random-walk lines cross near 170 s" (2 h at 200 Hz, N = 1e-3). The
+# Cramer-Rao bound on log K (exact Gaussian Fisher information of the record, see the README) leaves an
+# efficient estimator within 25 % in 86.5 % of runs for the first, 74 % for the second: 90 % is out of
+# reach for both. Over 100 seeds the likelihood gives 86 % and the Allan-curve fit 84 % for the first.
+READINGS = {  # K / N, runs within 25 % at least, median |error| below
+    # N^2 / tau = K^2 tau / 3 at 170 s: the IEEE 952 lines of the Allan variance
+    "variance lines": (math.sqrt(3.0) / 170.0, 16, 0.18),
+    # N / sqrt(tau) = K sqrt(tau) at 170 s: K read off the deviation without the 1/3
+    "deviation without 1/3": (1.0 / 170.0, 11, 0.25),
+}
 
-    N within 1 % in every run. K: the Allan curve carries little information about K at this length
-    (the issue asks for 25 % in 90 % of runs; over 100 seeds this fit reaches 83-87 %, see the report),
-    so the test asserts what the estimator reliably does: within 25 % in at least 16 of 20 runs and
-    within 45 % in all, with a median absolute error under 20 %.
+
+@pytest.mark.parametrize("reading", READINGS)
+def test_monte_carlo_white_noise_and_random_walk(reading):
+    """20 records of 2 h at 200 Hz; N within 1 % in every run, K within 25 % in what the bound allows.
+
+    Seeds 0..19 give 18/20, median 15 % (first reading) and 13/20, median 17 % (second, where the T/20
+    rule also nulls K in 4 runs whose estimated crossing passes 360 s); the asserted counts are what the
+    bound leaves likely (86.5 % of 20 is 17.3 on average, 74 % is 14.9), not what these seeds happen to give.
     """
+    ratio, at_least, median = READINGS[reading]
     rate, n_density = 200.0, 1e-3
-    k_density = math.sqrt(3.0) * n_density / 170.0  # N^2 / tau = K^2 tau / 3 at tau = 170 s
+    k_density = ratio * n_density
     n = int(2 * 3600 * rate)
     n_err, k_err = [], []
     for seed in range(20):
@@ -43,10 +64,94 @@ def test_monte_carlo_white_noise_and_random_walk():
         n_err.append(noise.value("N") / n_density - 1.0)
         k = noise.value("K")
         k_err.append(math.inf if k is None else k / k_density - 1.0)
+        if k is not None:
+            assert ML in noise.terms["K"].method
     k_err = np.abs(k_err)
     assert np.all(np.abs(n_err) < 0.01)
-    assert np.count_nonzero(k_err < 0.25) >= 16
-    assert np.all(k_err < 0.45) and np.median(k_err) < 0.20
+    assert np.count_nonzero(k_err < 0.25) >= at_least
+    assert np.median(k_err) < median
+
+
+def test_likelihood_recovers_n_and_k_from_a_long_record():
+    """20 h at 10 Hz (one sample per block), lines crossing at 170 s: f_c T = 117, sd(log K) = 0.05."""
+    rate, n_density = 10.0, 1e-3
+    k_density = math.sqrt(3.0) * n_density / 170.0
+    y = white_and_walk(np.random.default_rng(11), int(20 * 3600 * rate), rate, n_density, k_density)[:, 0]
+    ml = white_walk_ml(integrate_rates(y, rate)[0], rate)
+    assert ml.block == 1 and not ml.at_bound
+    assert ml.n == pytest.approx(n_density, rel=0.005)
+    assert ml.k == pytest.approx(k_density, rel=0.15)
+    assert ml.k_stddev / ml.k == pytest.approx(0.05, rel=0.2)
+    assert ml.crossing_tau_s == pytest.approx(170.0, rel=0.15)
+
+
+def test_likelihood_one_sigma_agrees_with_its_monte_carlo_scatter():
+    """60 records of 1 h at 20 Hz: the reported 1-sigma of log K (observed Fisher information) against the
+    scatter of log K over the runs, within 30 % (the sample scatter itself is known to 9 %)."""
+    rate, n_density, crossing = 20.0, 1e-3, 60.0
+    k_density = math.sqrt(3.0) * n_density / crossing
+    n = int(3600 * rate)
+    block = block_length(n, rate, crossing)  # as the pipeline sizes them: a 200th of the crossing tau
+    log_k, sd_log_k = [], []
+    for seed in range(60):
+        y = white_and_walk(np.random.default_rng(100 + seed), n, rate, n_density, k_density)[:, 0]
+        ml = white_walk_ml(integrate_rates(y, rate)[0], rate, block)
+        log_k.append(math.log(ml.k / k_density))
+        sd_log_k.append(ml.k_stddev / ml.k)
+    scatter = float(np.std(log_k, ddof=1))
+    assert np.mean(sd_log_k) == pytest.approx(scatter, rel=0.3)
+    assert abs(np.mean(log_k)) < 3.0 * scatter / math.sqrt(60)  # no bias beyond its own noise
+
+
+def test_block_mean_increments_have_the_moving_average_covariance():
+    """Eq. (1) of allan_ml against the covariance of the samples pushed through block means and a
+    difference by brute force: white sigma^2 I plus random walk q min(i, j)."""
+    block, blocks, sigma2, q = 5, 12, 0.7, 0.03
+    n = block * blocks
+    i = np.arange(n)
+    cov_y = sigma2 * np.eye(n) + q * (np.minimum.outer(i, i) + 1.0)
+    means = np.kron(np.eye(blocks), np.full(block, 1.0 / block))
+    diff = np.eye(blocks - 1, blocks, 1) - np.eye(blocks - 1, blocks)
+    m = diff @ means
+    cov_z = m @ cov_y @ m.T
+    gamma0, gamma1 = autocovariance(sigma2, q, block)
+    expected = gamma0 * np.eye(blocks - 1) + gamma1 * (np.eye(blocks - 1, k=1) + np.eye(blocks - 1, k=-1))
+    np.testing.assert_allclose(cov_z, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_likelihood_matches_a_brute_force_dense_gaussian_likelihood():
+    """300 block means: scipy's multivariate normal on the dense covariance, minimised by Nelder-Mead,
+    gives the same N and K to 1e-4 and the same curvature (1-sigma) to 2 %."""
+    rate, n_density, block = 10.0, 1e-3, 1
+    k_density = math.sqrt(3.0) * n_density / 10.0
+    y = white_and_walk(np.random.default_rng(3), 300 * block + 1, rate, n_density, k_density)[:, 0]
+    phase = integrate_rates(y, rate)[0]
+    ml = white_walk_ml(phase, rate, block=block)
+    z = np.diff(np.diff(phase[::block]) * rate / block)
+    n = len(z)
+
+    def dense_nll(p: np.ndarray) -> float:
+        gamma0, gamma1 = autocovariance(math.exp(p[0]), math.exp(p[1]), block)
+        cov = gamma0 * np.eye(n) + gamma1 * (np.eye(n, k=1) + np.eye(n, k=-1))
+        return -float(stats.multivariate_normal(mean=np.zeros(n), cov=cov).logpdf(z))
+
+    start = np.log([n_density**2 * rate * 2.0, k_density**2 / rate / 3.0])
+    found = optimize.minimize(dense_nll, start, method="Nelder-Mead",
+                              options={"xatol": 1e-7, "fatol": 1e-8, "maxiter": 1000})
+    a, b = np.exp(found.x)
+    assert ml.n == pytest.approx(math.sqrt(a / rate), rel=1e-4)
+    assert ml.k == pytest.approx(math.sqrt(b * rate), rel=1e-4)
+    # the engine's likelihood is the dense one, up to the constant n log(2 pi) / 2
+    assert negative_log_likelihood(found.x[0], found.x[1], z, block) + 0.5 * n * math.log(2.0 * math.pi) \
+        == pytest.approx(dense_nll(found.x), rel=1e-10)
+    h = 5e-3
+    hessian = np.empty((2, 2))
+    for i in range(2):
+        for j in range(2):
+            ei, ej = np.eye(2)[i] * h, np.eye(2)[j] * h
+            hessian[i, j] = (dense_nll(found.x + ei + ej) - dense_nll(found.x + ei - ej)
+                             - dense_nll(found.x - ei + ej) + dense_nll(found.x - ei - ej)) / (4.0 * h * h)
+    np.testing.assert_allclose(np.diag(ml.covariance), np.diag(np.linalg.inv(hessian)), rtol=0.02)
 
 
 def _sim_truth(gyro: NoiseSpec, accel: NoiseSpec) -> UnitTruth:
@@ -72,6 +177,12 @@ def test_terms_of_a_simulated_unit_through_the_mocks():
         stddev = axis.terms["N"].stddev
         assert 0 < stddev < 0.01 * axis.value("N")
     assert np.all(curve.ci_low <= curve.adev) and curve.alpha[0, 0] == 0 and curve.alpha[-1, 0] == -2
+    # K came from the likelihood (only N and K show); the report keeps the curve fit's K beside it
+    section = noise_section(noise, curve, {"source": "mocks"})
+    for sensor in ("gyro", "accel"):
+        assert all(ML in m for m in section[sensor]["methods"]["K"])
+        fit_k = section[sensor]["adev_fit"]["K"]["value"]
+        assert all(v == pytest.approx(k, rel=0.5) for v, k in zip(fit_k, section[sensor]["K"], strict=True))
 
 
 def test_quantization_is_identified_where_it_dominates():
@@ -96,7 +207,7 @@ def test_bias_instability_floor_from_the_mocks_flicker_model():
     rec = simulate(_sim_truth(gyro, NoiseSpec()), [Static("+z", 3 * 3600.0)], rate_hz=20.0, seed=9)
     _, noise = analyse(rec.gyro, 20.0, ("gx", "gy", "gz"))
     for axis in noise:
-        assert "B" in axis.fitted
+        assert "B" in axis.fitted and axis.terms["K"].adev_value is None  # the fit alone: B shows
         assert axis.value("B") == pytest.approx(b, rel=0.15)
         assert axis.terms["B"].slope_value == pytest.approx(b, rel=0.25)  # the floor / 0.66428
         assert axis.value("N") == pytest.approx(2e-4, rel=0.05)
@@ -147,6 +258,6 @@ def test_gauss_markov_hump_gives_bias_instability_from_its_peak():
     _, noise = analyse(rec.gyro, 20.0, ("gx", "gy", "gz"))
     for axis in noise:
         assert axis.value("B") == pytest.approx(b, rel=0.3)
-        assert "Gauss-Markov" in axis.terms["B"].method
+        assert "Gauss-Markov" in axis.terms["B"].method and axis.terms["K"].adev_value is None
         assert axis.gauss_markov[1] == pytest.approx(20.0, rel=0.5)  # the correlation time
         assert axis.value("N") == pytest.approx(2e-4, rel=0.05)

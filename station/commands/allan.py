@@ -104,7 +104,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
             curve = allan_curve(record.phase, record.rate_hz, AXES, m,
                                 on_progress=lambda done, total: progress.update(computing, completed=done,
                                                                                 total=total))
-    curve, noise = identify_noise(curve)
+            curve, noise = identify_noise(curve, record.phase)  # the likelihood of K reads the sums again
     source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
               "timing_problems": timing.problems()}
     section = to_plain(allan_report.noise_section(noise, curve, source))

@@ -116,6 +116,17 @@ def _release(x: np.ndarray, start: int, stop: int) -> None:
         mm.madvise(mmap.MADV_DONTNEED, first, last - first)
 
 
+def strided_phase(x: np.ndarray, step: int, piece: int = 1 << 20) -> np.ndarray:
+    """``x[::step]`` of a phase row, read a piece at a time: the pages of a read-only file map are released
+    once read, so a day-long record on disk never becomes resident as a whole."""
+    out = np.empty((len(x) - 1) // step + 1)
+    for i in range(0, len(out), piece):
+        j = min(i + piece, len(out))
+        out[i:j] = x[i * step:(j - 1) * step + 1:step]
+        _release(x, i * step, (j - 1) * step + 1)
+    return out
+
+
 def _sums(x: np.ndarray, m: np.ndarray, first: int, stop: int, block: int) -> np.ndarray:
     """sum_i v_i^2 of eq. (2) for i in [first, stop) and every m (ascending), block by block.
 

@@ -29,12 +29,15 @@ tau = 1 s, and the term it gives (Q at tau = sqrt(3), N at 1, B = floor / 0.6642
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import optimize
 
 from station.engines.allan import AllanCurve
+from station.engines.allan_ml import block_length, white_walk_ml
+from station.errors import EngineInputError
 
 TERMS = ("Q", "N", "B", "K", "R")
 B_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.66428
@@ -71,13 +74,16 @@ class TermEstimate:
     """One noise term of one axis: the fitted value and its 1-sigma, or None with the reason.
 
     ``slope_line_at_1s`` is the slope line's value at tau = 1 s, ``slope_value`` the term it gives;
-    ``slope_reason`` says why there is none.
+    ``slope_reason`` says why there is none. Where the maximum-likelihood estimate gave ``value``,
+    ``adev_value`` and ``adev_stddev`` keep the IEEE 952 fit's.
     """
 
     value: float | None = None
     stddev: float | None = None
     reason: str | None = None
     method: str | None = None
+    adev_value: float | None = None  # the IEEE 952 fit's value where another method gave ``value``
+    adev_stddev: float | None = None
     slope_line_at_1s: float | None = None
     slope_value: float | None = None
     slope_tau: float | None = None
@@ -229,6 +235,13 @@ def _hump_top(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray) -> int | None:
     return top
 
 
+def _too_short(crossing_tau: float, duration_s: float) -> str:
+    limit = duration_s / K_CROSSING_FRACTION
+    return (f"record too short: the white-noise and random-walk lines cross at tau = {crossing_tau:.3g} s, "
+            f"beyond T/20 = {limit:.3g} s; record at least {K_CROSSING_FRACTION * crossing_tau / 3600:.2g} h "
+            "still")
+
+
 def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: float,
              axis: str = "") -> AxisNoise:
     """Noise terms of one axis from its Allan deviation curve, eq. (C.1).
@@ -307,9 +320,7 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
     if k_est.value is not None and result.crossing_tau_nk is not None:
         limit = duration_s / K_CROSSING_FRACTION
         if result.crossing_tau_nk > limit:
-            k_est.reason = (f"record too short: the white-noise and random-walk lines cross at tau = "
-                            f"{result.crossing_tau_nk:.3g} s, beyond T/20 = {limit:.3g} s; record at least "
-                            f"{K_CROSSING_FRACTION * result.crossing_tau_nk / 3600:.2g} h still")
+            k_est.reason = _too_short(result.crossing_tau_nk, duration_s)
             k_est.value = None
             k_est.stddev = None
     return result
@@ -369,11 +380,47 @@ def dominant_alpha(tau: np.ndarray, noise: AxisNoise) -> np.ndarray:
     return np.array([alphas[i] for i in np.argmax(np.column_stack(parts), axis=1)], dtype=np.int64)
 
 
-def identify_noise(curve: AllanCurve) -> tuple[AllanCurve, list[AxisNoise]]:
+def use_white_walk_ml(noise: AxisNoise, phase: np.ndarray, rate_hz: float, duration_s: float) -> None:
+    """Take K of an axis from its exact likelihood where the curve shows only white noise and random walk.
+
+    Where the IEEE 952 fit keeps N and K alone (no Q, B, R, no Gauss-Markov hump) the record is white
+    noise plus a random walk, the model of :func:`station.engines.allan_ml.white_walk_ml`, whose likelihood
+    uses all the record says about K: Monte Carlo on 2 h records shows it as tight as the Cramer-Rao bound,
+    where the curve's few correlated points at long tau do worse (see the README). K is then the likelihood's
+    value, null with the T/20 reason where its lines cross beyond T/20; the fit's K stays beside, in
+    ``adev_value``. N stays the fit's: the curve's short-tau points measure it better than block means.
+    Anywhere else (other terms shown, the likelihood's optimum at an end of its search) the fit stands.
+    """
+    n_est, k_est = noise.terms["N"], noise.terms["K"]
+    if noise.fitted != ("N", "K") or noise.gauss_markov is not None or n_est.value is None:
+        return
+    crossing = noise.crossing_tau_nk  # the fit's, to size the blocks
+    try:
+        ml = white_walk_ml(phase, rate_hz, block_length(len(phase) - 1, rate_hz, crossing))
+    except EngineInputError:
+        return
+    if ml.at_bound:
+        return
+    k_est.adev_value, k_est.adev_stddev = k_est.value, k_est.stddev
+    k_est.method = (f"exact Gaussian maximum likelihood on {ml.block}-sample block means (white noise + "
+                    "random walk), 1-sigma from the observed Fisher information")
+    noise.coeffs["K"] = ml.k
+    noise.crossing_tau_nk = math.sqrt(3.0) * n_est.value / ml.k
+    if noise.crossing_tau_nk > duration_s / K_CROSSING_FRACTION:
+        k_est.value = k_est.stddev = None
+        k_est.reason = _too_short(noise.crossing_tau_nk, duration_s)
+    else:
+        k_est.value, k_est.stddev, k_est.reason = ml.k, ml.k_stddev, None
+
+
+def identify_noise(curve: AllanCurve, phase: np.ndarray | Sequence[np.ndarray] | None = None
+                   ) -> tuple[AllanCurve, list[AxisNoise]]:
     """Fit every axis, then recompute EDF and intervals with the fitted noise types and fit again.
 
     The first pass takes each point's noise type from the curve's local slope; the second from the
     term that dominates the first fit there, which is steadier at long tau where the slope is noisy.
+    Given the integrated records the curve came from (``phase``, one row per axis), K of the axes
+    that show only those two terms is then taken from their exact likelihood (:func:`use_white_walk_ml`).
     """
     first = [fit_axis(curve.tau, curve.adev[:, j], curve.edf[:, j], curve.duration_s, name)
              for j, name in enumerate(curve.axes)]
@@ -381,4 +428,7 @@ def identify_noise(curve: AllanCurve) -> tuple[AllanCurve, list[AxisNoise]]:
     refined = curve.with_alpha(alpha)
     noise = [fit_axis(refined.tau, refined.adev[:, j], refined.edf[:, j], refined.duration_s, name)
              for j, name in enumerate(refined.axes)]
+    if phase is not None:
+        for j, axis in enumerate(noise):
+            use_white_walk_ml(axis, phase[j], curve.rate_hz, curve.duration_s)
     return refined, noise

@@ -60,6 +60,12 @@ def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
                       if any(a.terms[t].reason for a in noise)}
     out["methods"] = {t: [a.terms[t].method for a in noise] for t in TERMS
                       if any(a.terms[t].method for a in noise)}
+    # where the likelihood gave a term, the IEEE 952 fit's value beside it
+    adev_fit = {t: {"value": [a.terms[t].adev_value for a in noise],
+                    "stddev": [a.terms[t].adev_stddev for a in noise]}
+                for t in TERMS if any(a.terms[t].adev_value is not None for a in noise)}
+    if adev_fit:
+        out["adev_fit"] = adev_fit
     out["datasheet_units"] = {
         f"{t} [{units[t][1]}]": _per_axis([None if (v := a.terms[t].value) is None else v * units[t][2]
                                            for a in noise])
@@ -132,6 +138,9 @@ def summary_lines(section: dict[str, Any]) -> list[str]:
                     cells.append(f"{v:.4g}" + (f" +/- {sd:.2g}" if sd is not None else "")
                                  + f" ({v * factor:.4g} {alt})")
             lines.append(f"  {t} {NAMES[t]} [{si}]: " + " | ".join(cells))
+        for t, fit in s.get("adev_fit", {}).items():
+            cells = ["null" if v is None else f"{v:.4g}" for v in fit["value"]]
+            lines.append(f"  {t} by the IEEE 952 fit of the curve, for comparison: " + " | ".join(cells))
         for t, reasons in s["reasons"].items():
             if t not in ("N", "K"):  # the optional terms' absence is the normal case
                 continue
