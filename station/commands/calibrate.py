@@ -203,7 +203,8 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
     rotations = [p for p in report.poses if "angle_error_deg" in p]
     fig, axes = plt.subplots(2 if rotations else 1, 1, figsize=(9, 6 if rotations else 3.5), squeeze=False)
     ax = axes[0, 0]
-    values = [p.get("norm_error", p.get("residual")) for p in statics]
+    # |a| - g per hold (turntable) or g - |a| per interval (free): one number a pose either way
+    values = [float(p["norm_error"] if "norm_error" in p else p["residual"]) for p in statics]
     if report.method == "free":
         values = [-v for v in values]
     ax.bar(range(len(values)), values, color="tab:blue")

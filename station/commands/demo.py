@@ -284,7 +284,7 @@ def calibrate_unit(ctx: DemoContext) -> None:
     rate = capture.device.get("rate_hz")
     # A capture without step labels is refused by calibrate_turntable itself (its annotation omits None).
     ctx.report = calibrate_turntable(capture.t, capture.acc, capture.gyro,
-                                     capture.step,  # type: ignore[arg-type]
+                                     capture.step,
                                      gravity, rate_hz=float(rate) if rate is not None else None)
     report = ctx.report
     accel, gyro = _both_triads(report.accel, report.gyro, "the turntable calibration")

@@ -565,7 +565,7 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     min_len = max(2, int(round(settings.min_interval_s * rate)))
 
     trials: list[ThresholdTrial] = []
-    best: tuple[ThresholdTrial, AccFit, np.ndarray] | None = None
+    best: tuple[ThresholdTrial, AccFit, np.ndarray, np.ndarray] | None = None
     for k in settings.multipliers:
         intervals = static_intervals(vnorm, k * base, half)
         samples, valid = _interval_samples(acc, intervals, settings, min_len)
@@ -577,14 +577,14 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
         fit.n_intervals = len(valid)
         trial.cost, trial.params = fit.cost, fit.params
         if best is None or fit.cost < best[1].cost:
-            best = (trial, fit, samples)
+            best = (trial, fit, samples, valid)
     if best is None:
         found = ", ".join(f"k={tr.multiplier:g}: {tr.n_intervals}" for tr in trials)
         raise EngineInputError(
             f"too few static intervals ({found}; at least {settings.min_intervals} needed): hold the unit "
             f"still for {max(settings.interval_samples or 0, min_len) / rate:.1f} s or more in each of "
             f"{settings.min_intervals}+ orientations")
-    trial, fit, samples = best
+    trial, fit, samples, intervals = best
     _check_rank(fit.jacobian, ACC_PARAM_NAMES[convention], "accelerometer")
     acc_c = acc_correction(fit.params, convention)
     acc_b = fit.params[6:9]
@@ -594,7 +594,6 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
         return np.linalg.inv(acc_correction(p, convention)), p[6:9]
 
     calibrated = (acc - acc_b) @ acc_c.T
-    intervals = trial.intervals
     # Gravity directions: means over each whole interval (imu_tk).
     directions = np.array([calibrated[a:b + 1].mean(axis=0) for a, b in intervals])
     warnings += _coverage_warnings(directions, "accelerometer")

@@ -86,8 +86,9 @@ def _shows_noise(x: np.ndarray, statics: list[tuple[str, slice]]) -> np.ndarray:
     return spread > 1e-9 * np.maximum(1.0, np.abs(x).max(axis=0))
 
 
-def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: np.ndarray, gravity: float,
-                        latitude_deg: float | None = None, rate_hz: float | None = None) -> CalibrationReport:
+def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: np.ndarray | None,
+                        gravity: float, latitude_deg: float | None = None,
+                        rate_hz: float | None = None) -> CalibrationReport:
     """Accelerometer and gyroscope from a capture labelled per ``shared/specs/capture-csv.md``.
 
     Parameters
@@ -197,7 +198,7 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
         rot_labels = [lab for lab, _ in rotations]
         integrals = np.array([integrate(t[sl], gyro[sl]) for _, sl in rotations])
         durations = np.array([t[sl.stop - 1] - t[sl.start] for _, sl in rotations])
-        info = [rotation_of(lab) for lab in rot_labels]
+        info = [r for r in map(rotation_of, rot_labels) if r is not None]  # every label is a rotation's
         axes = np.array([i[0] for i in info])
         angles = np.array([i[1] for i in info])
         for label, sl in rotations:

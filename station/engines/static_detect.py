@@ -64,8 +64,8 @@ def static_intervals(vnorm: np.ndarray, threshold: float, half: int) -> np.ndarr
     if len(still) == 0:
         return np.zeros((0, 2), dtype=int)
     edges = np.diff(still.astype(np.int8))
-    starts = list(np.flatnonzero(edges == 1) + 1)
-    ends = list(np.flatnonzero(edges == -1))
+    starts = [int(i) for i in np.flatnonzero(edges == 1) + 1]
+    ends = [int(i) for i in np.flatnonzero(edges == -1)]
     if still[0]:
         starts.insert(0, 0)
     if still[-1]:

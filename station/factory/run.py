@@ -418,7 +418,7 @@ class UnitRun:
         # The runner labels every sample; calibrate_turntable refuses an unlabelled capture itself
         # (its annotation omits None).
         report = calibrate_turntable(capture.t, capture.acc, capture.gyro,
-                                     capture.step,  # type: ignore[arg-type]
+                                     capture.step,
                                      gravity, latitude_deg=plan.latitude, rate_hz=float(plan.rate_hz))
         phase.measurements += measure(plan, CALIBRATION_QUANTITIES, report, self._link)
         phase.notes += list(report.warnings)
