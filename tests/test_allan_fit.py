@@ -12,11 +12,11 @@ from scipy import optimize, stats
 from mocks.rig import Static, simulate
 from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
 from station.engines.allan import allan_curve, integrate_rates
-from station.engines.allan_fit import B_FACTOR, TERMS, fit_axis, identify_noise, model_avar
+from station.engines.allan_fit import B_FACTOR, ML_METHOD, TERMS, fit_axis, identify_noise, model_avar
 from station.engines.allan_ml import autocovariance, block_length, negative_log_likelihood, white_walk_ml
 from station.export.allan_report import noise_section
 
-ML = "maximum likelihood"
+ML = ML_METHOD
 
 
 def analyse(y: np.ndarray, rate: float, axes: tuple[str, ...] = ("gx",)):

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from station.engines.allan import AllanCurve
-from station.engines.allan_fit import TERMS, AxisNoise
+from station.engines.allan_fit import ML_METHOD, TERMS, AxisNoise
 from station.files import atomic_write_text
 
 METHOD = ("overlapping Allan deviation (demeaned cumulative sum), IEEE 952 model fitted with weights from "
@@ -49,6 +49,10 @@ def _per_axis(values: list[float | None]) -> list[float | None] | None:
     return None if all(v is None for v in values) else values
 
 
+def _by_likelihood(axis: AxisNoise, term: str) -> bool:
+    return (axis.terms[term].method or "").startswith(ML_METHOD)
+
+
 def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
     """The ``noise.gyro`` / ``noise.accel`` mapping of params-file.md, with stddev, reasons and readings."""
     units = UNITS[sensor]
@@ -60,10 +64,13 @@ def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
                       if any(a.terms[t].reason for a in noise)}
     out["methods"] = {t: [a.terms[t].method for a in noise] for t in TERMS
                       if any(a.terms[t].method for a in noise)}
-    # where the likelihood gave a term, the IEEE 952 fit's value beside it
-    adev_fit = {t: {"value": [a.terms[t].adev_value for a in noise],
-                    "stddev": [a.terms[t].adev_stddev for a in noise]}
-                for t in TERMS if any(a.terms[t].adev_value is not None for a in noise)}
+    # where the likelihood gave a term, the IEEE 952 fit's value beside it (the term itself elsewhere)
+    adev_fit = {}
+    for t in TERMS:
+        if any(_by_likelihood(a, t) for a in noise):
+            fit = [(a.terms[t].adev_value, a.terms[t].adev_stddev) if _by_likelihood(a, t)
+                   else (a.terms[t].value, a.terms[t].stddev) for a in noise]
+            adev_fit[t] = {"value": [v for v, _ in fit], "stddev": [sd for _, sd in fit]}
     if adev_fit:
         out["adev_fit"] = adev_fit
     out["datasheet_units"] = {
