@@ -244,16 +244,13 @@ def _product(a: np.ndarray) -> np.ndarray:
     return a[:, 0]
 
 
-def _scan(a: np.ndarray, reverse: bool) -> np.ndarray:
-    """Inclusive products along axis 1 by a Hillis-Steele scan (log2(L) vectorised passes): element n
-    is a[:, 0] (x) .. (x) a[:, n], or with ``reverse`` a[:, n] (x) .. (x) a[:, L-1]."""
+def _scan(a: np.ndarray) -> np.ndarray:
+    """Inclusive products along axis 1, element n = a[:, 0] (x) .. (x) a[:, n], by a Hillis-Steele
+    scan: log2(L) vectorised passes instead of L sequential ones."""
     p = a.copy()
     shift = 1
     while shift < p.shape[1]:
-        if reverse:
-            p[:, :-shift] = quat.qmul(p[:, :-shift], p[:, shift:])
-        else:
-            p[:, shift:] = quat.qmul(p[:, :-shift], p[:, shift:])
+        p[:, shift:] = quat.qmul(p[:, :-shift], p[:, shift:])
         shift *= 2
     return p
 
@@ -280,7 +277,14 @@ class _GyroModel:
         self.x1 = blocks.x1[self.mask]
         self.dt = blocks.dt[self.mask]
         self.block_of = np.nonzero(self.mask)[0]
-        self.member = (self.block_of[None, :] == np.arange(len(blocks.dt))[:, None]).astype(float)
+        self.first = np.searchsorted(self.block_of, np.arange(len(blocks.dt)))   # each block's first step
+        self.empty = self.mask.sum(axis=1) == 0
+
+    def _block_sums(self, per_step: np.ndarray) -> np.ndarray:
+        """Sums of ``per_step`` (S, ...) over each block's steps (zero for a block without steps)."""
+        sums = np.add.reduceat(per_step, np.minimum(self.first, len(per_step) - 1), axis=0)
+        sums[self.empty] = 0.0
+        return sums
 
     def _forward(self, cflat: np.ndarray) -> None:
         key = np.asarray(cflat, float).tobytes()
@@ -304,23 +308,21 @@ class _GyroModel:
     def jacobian(self, cflat: np.ndarray) -> np.ndarray:
         self._forward(cflat)
         nb, length = self.mask.shape
-        # s_n = a_0 (x) .. (x) a_{n-1} and, as A_{L-1} .. A_{n+1} = R(a_{n+1} (x) .. (x) a_{L-1}),
-        # lambda_n = (dr/dq) R(a_{n+1} (x) .. (x) a_{L-1}): both by log-depth scans over the steps
+        # s_n = P_{n-1} with P_n = a_0 (x) .. (x) a_n (a log-depth scan), and as A_{L-1} .. A_{n+1} =
+        # R(a_{n+1} (x) .. (x) a_{L-1}) = R(P_n^-1 (x) q_final), lambda_n = (dr/dq) R(P_n^-1 (x) q_final)
+        prefix = _scan(self.a)
         states = np.empty((nb, length, 4))
         states[:, 0] = (1.0, 0.0, 0.0, 0.0)
-        states[:, 1:] = _scan(self.a[:, :-1], reverse=False)
-        after = np.empty((nb, length, 4))
-        after[:, -1] = (1.0, 0.0, 0.0, 0.0)
-        after[:, :-1] = _scan(self.a[:, 1:], reverse=True)
-        lam = self.dr_dq[self.block_of] @ quat.right_matrix(after[self.mask])        # (S, 3, 4)
+        states[:, 1:] = prefix[:, :-1]
+        inverse = prefix * (np.array([1.0, -1.0, -1.0, -1.0]) / np.sum(prefix**2, axis=-1, keepdims=True))
+        after = quat.qmul(inverse[self.mask], self.final[self.block_of])
+        lam = self.dr_dq[self.block_of] @ quat.right_matrix(after)                   # (S, 3, 4)
         u = lam @ quat.left_matrix(states[self.mask])
-        da0, da1 = quat.rk4_step_derivative(self.dt, self.stages)                   # (S, 3, 4) each
-        g0 = u @ np.swapaxes(da0, -1, -2)                                           # (S, 3 res, 3 w)
-        g1 = u @ np.swapaxes(da1, -1, -2)
+        g0, g1 = quat.rk4_step_gradients(u, self.dt, self.stages)                   # (S, 3 res, 3 w)
         # dr/dw summed over each block: a constant rate offset d (a bias error) moves r by this @ d
-        self.rate_gradient = (self.member @ (g0 + g1).reshape(len(self.dt), 9)).reshape(-1, 3, 3)
+        self.rate_gradient = self._block_sums(g0 + g1)
         per_step = g0[..., None] * self.x0[:, None, None, :] + g1[..., None] * self.x1[:, None, None, :]
-        return (self.member @ per_step.reshape(len(self.dt), 27)).reshape(-1, 9)
+        return self._block_sums(per_step).reshape(-1, 9)
 
 
 def gyro_residual(cflat: np.ndarray, blocks: GyroBlocks) -> np.ndarray:
@@ -497,7 +499,8 @@ def _check_gyro_saturation(t: np.ndarray, gyro: np.ndarray, n_still: int) -> Non
 def _check_rank(jac: np.ndarray, names: list[str], what: str) -> None:
     scale = np.linalg.norm(jac, axis=0)
     scale[scale == 0] = 1.0
-    sv, vt = np.linalg.svd(jac / scale, full_matrices=False)[1:]
+    # the tall Jacobian's singular values and directions are those of its QR factor R (p x p)
+    sv, vt = np.linalg.svd(np.linalg.qr(jac / scale, mode="r"))[1:]
     if sv[-1] < 1e-9 * sv[0]:
         raise EngineInputError(
             f"the {what} poses cannot determine all parameters (rank deficient); the combination "

@@ -100,37 +100,36 @@ def rk4_step_matrices(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> np.ndar
     return right_matrix(rk4_step(w0, w1, dt)[0])
 
 
-def rk4_step_derivative(dt: np.ndarray, stages: tuple[np.ndarray, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """da/dw0_i and da/dw1_i of eq. (3) by the product rule, each (..., 3, 4) (i = x, y, z).
+def rk4_step_gradients(u: np.ndarray, dt: np.ndarray, stages: tuple[np.ndarray, ...]
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Row vectors ``u`` (..., m, 4) times da/dw0 and da/dw1 of eq. (3): each (..., m, 3).
 
     With E = [e_x e_y e_z] (4 x 3, pure unit quaternions as columns), x (x) hm = R(hm) x and
-    h0 (x) y = L(h0) y, the derivatives along all three components at once are the 4 x 3 matrices
+    h0 (x) y = L(h0) y, the derivatives along the three rate components are the 4 x 3 matrices
 
         D2 = beta E + dt/2 (alpha R(hm) E + beta L(h0) E)
         D3 = beta E + dt/2 (R(hm) D2 + beta L(b2) E)
         D4 = gamma E + dt (R(h1) D3 + gamma L(b3) E)
-        Da = dt/6 (alpha E + 2 D2 + 2 D3 + D4)
+        Da = dt/6 (alpha E + 2 D2 + 2 D3 + D4)                                           (4)
 
     with (alpha, beta, gamma) = (1/2, 1/4, 0) for w0 (dh0 = e/2, dhm = e/4) and (0, 1/4, 1/2) for w1.
+    u Da is accumulated backwards (reverse mode), which shares the row vectors
+    v3 = 2 u + dt u R(h1) and v2 = 2 u + dt/2 v3 R(hm) between w0 and w1:
+
+        6/dt u Da = (alpha + gamma) u E + gamma dt u L(b3) E + beta (v3 + v2) E
+                    + dt/2 (beta v3 L(b2) E + alpha v2 R(hm) E + beta v2 L(h0) E).
     """
     h0, hm, h1, b2, b3 = stages
+    u = np.asarray(u, float)
     dt = np.asarray(dt, float)[..., None, None]
-    unit = np.zeros((4, 3))
-    unit[1:] = np.eye(3)
     right_hm = right_matrix(hm)
-    right_h1 = right_matrix(h1)
-    hm_e = right_hm[..., 1:]                                # R(hm) E
-    h0_e = left_matrix(h0)[..., 1:]                         # L(h0) E
-    b2_e = left_matrix(b2)[..., 1:]
-    b3_e = left_matrix(b3)[..., 1:]
-
-    def derivative(alpha: float, beta: float, gamma: float) -> np.ndarray:
-        d2 = beta * unit + 0.5 * dt * (alpha * hm_e + beta * h0_e)
-        d3 = beta * unit + 0.5 * dt * (right_hm @ d2 + beta * b2_e)
-        d4 = gamma * unit + dt * (right_h1 @ d3 + gamma * b3_e)
-        return np.swapaxes(dt / 6.0 * (alpha * unit + 2.0 * d2 + 2.0 * d3 + d4), -1, -2)
-
-    return derivative(0.5, 0.25, 0.0), derivative(0.0, 0.25, 0.5)
+    v3 = 2.0 * u + dt * (u @ right_matrix(h1))
+    v2 = 2.0 * u + 0.5 * dt * (v3 @ right_hm)
+    common = (0.5 * u[..., 1:] + 0.25 * (v3[..., 1:] + v2[..., 1:])
+              + 0.125 * dt * (v3 @ left_matrix(b2)[..., 1:] + v2 @ left_matrix(h0)[..., 1:]))
+    g0 = dt / 6.0 * (common + 0.25 * dt * (v2 @ right_hm[..., 1:]))
+    g1 = dt / 6.0 * (common + 0.5 * dt * (u @ left_matrix(b3)[..., 1:]))
+    return g0, g1
 
 
 def to_rotation(q: np.ndarray) -> np.ndarray:
