@@ -390,8 +390,8 @@ def use_white_walk_ml(noise: AxisNoise, phase: np.ndarray, rate_hz: float) -> No
     likelihood's optimum at an end of its search) the fit stands, and where the two K differ by more
     than ML_AGREEMENT. On white noise plus random walk the two differ by 7 % (1-sigma, Monte Carlo, 2 h
     records); a Gauss-Markov bias that the curve does not resolve (its hump hidden under the random
-    walk's rise) raises both, the likelihood's more (by 1.0x to 1.9x on the mocks' 100 s bias), and a
-    larger gap keeps the fit's value, so such records get no worse a K than the fit gives.
+    walk's rise) raises both, the likelihood's more (1.0x to 1.9x the fit's on the mocks' 100 s bias): a
+    larger gap keeps the fit's value, so such a record's K moves by 15 % at most.
     """
     n_est, k_est = noise.terms["N"], noise.terms["K"]
     if (noise.fitted != ("N", "K") or noise.gauss_markov is not None or n_est.value is None
