@@ -576,7 +576,9 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
         trials.append(trial)
         if len(valid) < settings.min_intervals:
             continue
-        fit = fit_accelerometer(samples, gravity, convention, settings.cost)
+        # thresholds close to each other find nearly the same intervals: start from the best fit so far
+        fit = fit_accelerometer(samples, gravity, convention, settings.cost,
+                                start=None if best is None else best[1].params)
         fit.n_intervals = len(valid)
         trial.cost, trial.params = fit.cost, fit.params
         if best is None or fit.cost < best[1].cost:
