@@ -146,7 +146,7 @@ def _irls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: int = 6
         cn, _ = optimize.nnls(an * w[:, None], avar * w, maxiter=50 * a.shape[1])
         c = cn / scale
         new_model = a @ c
-        if np.allclose(new_model, model, rtol=1e-9):
+        if np.allclose(new_model, model, rtol=1e-9, atol=0.0):  # variances are tiny: no absolute floor
             break
         model = np.where(new_model > 0, new_model, avar)
     w2 = (edf / 2.0) / np.maximum(model, np.finfo(float).tiny) ** 2
