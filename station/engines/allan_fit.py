@@ -382,8 +382,9 @@ def use_white_walk_ml(noise: AxisNoise, phase: np.ndarray, rate_hz: float) -> No
 
     Where the IEEE 952 fit keeps N and K alone (no Q, B, R, no Gauss-Markov hump) and shows K, the
     record is white noise plus a random walk, the model of :func:`station.engines.allan_ml.white_walk_ml`,
-    whose likelihood uses all the record says about K: on 2 h records it reaches the Cramer-Rao bound,
-    where the curve's few correlated points at long tau do worse (see the README). K is then the
+    whose likelihood uses all the record says about K: on 2 h records its scatter of log K is within
+    8 % of the Cramer-Rao bound (0.181 against 0.168), where the curve's few correlated points at long
+    tau do worse (median error 11 % against 15 %, see the README). K is then the
     likelihood's value (whether the record shows K at all stays the fit's decision, T/20 rule
     included); the fit's K stays beside, in ``adev_value``. N stays the fit's: the curve's short-tau
     points measure it better than block means. Anywhere else (other terms shown, K null, the
