@@ -152,6 +152,8 @@ def white_walk_ml(phase: np.ndarray, rate_hz: float, block: int | None = None) -
     if len(z) < MIN_BLOCKS:
         raise EngineInputError(f"{n_samples} samples make {len(means)} block means of {block}: too few "
                                f"for the likelihood of N and K; record at least {MIN_BLOCKS + 2} blocks")
+    if not np.any(z):
+        raise EngineInputError("the record's block means do not change: no noise to estimate N and K from")
     n = len(z)
     # search over the crossing frequency lambda_c of the two spectra, a g = b h, i.e. rho = g / h there,
     # with g = (4 / L) sin^2(lambda / 2) and h = L - (2 (L^2 - 1) / (3 L)) sin^2(lambda / 2)
@@ -165,8 +167,7 @@ def white_walk_ml(phase: np.ndarray, rate_hz: float, block: int | None = None) -
     rho = math.exp(float(found.x))
     a = _logdet_and_form(z, *autocovariance(1.0, rho, block))[1] / n
     b = rho * a
-    with np.errstate(all="ignore"):
-        cov = np.linalg.inv(_hessian(math.log(a), math.log(b), z, block))
+    cov = np.linalg.pinv(_hessian(math.log(a), math.log(b), z, block))  # pinv: flat at an end of the search
     sd_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
     n_density = math.sqrt(a / rate_hz)
     k_density = math.sqrt(b * rate_hz)
