@@ -265,3 +265,23 @@ def test_gauss_markov_hump_gives_bias_instability_from_its_peak():
         assert "Gauss-Markov" in axis.terms["B"].method and axis.terms["K"].adev_value is None
         assert axis.gauss_markov[1] == pytest.approx(20.0, rel=0.5)  # the correlation time
         assert axis.value("N") == pytest.approx(2e-4, rel=0.05)
+
+
+def test_likelihood_keeps_within_15_percent_of_the_fit_under_an_unresolved_gauss_markov_bias():
+    """The mocks' 100 s Gauss-Markov bias (3 deg/h) under a random walk, 2 h at 20 Hz: the curve shows N
+    and K only (the hump hides under the walk's rise). The likelihood's K is used only within 15 % of the
+    fit's; on gz it is further and the fit's value stands, the method saying why."""
+    deg = math.pi / 180.0
+    gyro = NoiseSpec(N=[0.01 * deg] * 3, B=[3.0 * deg / 3600.0] * 3, K=[10.0 * deg / 3600.0 / 60.0] * 3,
+                     b_corr_time_s=100.0)
+    rec = simulate(_sim_truth(gyro, NoiseSpec()), [Static("+z", 7200.0)], rate_hz=20.0, seed=0)
+    _, noise = analyse(rec.gyro, 20.0, ("gx", "gy", "gz"))
+    for axis in noise:
+        assert axis.fitted == ("N", "K") and axis.gauss_markov is None
+        k = axis.terms["K"]
+        if k.method.startswith(ML_METHOD):
+            assert 1.0 / 1.15 <= k.value / k.adev_value <= 1.15
+        else:
+            assert k.method.startswith("IEEE 952 fit; the likelihood") and k.adev_value is None
+            assert k.value == pytest.approx(axis.coeffs["K"], rel=1e-12)
+    assert not noise[2].terms["K"].method.startswith(ML_METHOD)
