@@ -1,6 +1,7 @@
 """Allan engine against allantools.oadev: time and peak memory on the same 10,000,000-sample series.
 
     .venv/bin/python benchmarks/allan.py [--samples 10000000] [--repeats 3]
+    .venv/bin/python benchmarks/allan.py --k-monte-carlo 100
 
 Both compute the overlapping Allan deviation of the same float64 rate series at the same cluster sizes
 (station.engines.allan.cluster_sizes: 10 per decade up to N/4), the engine also on one worker thread
@@ -8,12 +9,15 @@ Both compute the overlapping Allan deviation of the same float64 rate series at 
 peak memory is measured in a fresh subprocess per implementation (VmHWM, with the input series
 included, and above the baseline after making the series). A last part streams 6-axis records of two
 lengths through the on-disk cumulative sums to show that memory does not grow with the record (the path
-day-long recordings take).
+day-long recordings take). ``--k-monte-carlo RUNS`` measures instead how well K comes out of simulated
+2 h records (white noise and random walk crossing near 170 s, both readings) against the Cramer-Rao
+bound.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import resource
 import statistics
@@ -108,6 +112,57 @@ def child_stream(hours: float) -> None:
     print(f"{maxrss_mb():.1f} {time.perf_counter() - start:.1f}")
 
 
+def k_bound(k_over_n: float, hours: float = 2.0, rate: float = 200.0, block: int = 20) -> float:
+    """Cramer-Rao bound on sd(log K) for N = 1: the asymptotic Fisher information of the block-mean
+    increments, sum over the Fourier frequencies 0 < k < n / 2 of u u^T with u = (a g, b h) / S, where
+    S = a g + b h is their spectral density (allan_ml eq. 1 as a spectrum: g = (4 / L) s^2,
+    h = L - (2 (L^2 - 1) / (3 L)) s^2, s = sin(pi k / n)), inverted."""
+    a, b = rate, k_over_n**2 / rate
+    n = int(hours * 3600 * rate) // block - 1
+    s2 = np.sin(np.pi * np.arange(1, (n + 1) // 2) / n) ** 2
+    g, h = 4.0 * s2 / block, block - 2.0 * (block * block - 1.0) / (3.0 * block) * s2
+    u = np.stack([a * g, b * h]) / (a * g + b * h)
+    return 0.5 * float(np.sqrt(np.linalg.inv(u @ u.T)[1, 1]))
+
+
+def k_monte_carlo(runs: int) -> None:
+    """K over ``runs`` seeds of 2 h at 200 Hz (N = 1e-3), both readings of "the lines cross at 170 s":
+    the IEEE 952 fit of the curve, the reported K (likelihood where it applies), the likelihood alone."""
+    from scipy import stats
+
+    from station.engines.allan import allan_curve, integrate_rates
+    from station.engines.allan_fit import ML_METHOD, identify_noise
+    from station.engines.allan_ml import white_walk_ml
+
+    rate, n_density, n = 200.0, 1e-3, int(2 * 3600 * 200.0)
+    readings = {"N^2/tau = K^2 tau/3 at 170 s (K = sqrt(3) N/170)": math.sqrt(3.0) / 170.0,
+                "N/sqrt(tau) = K sqrt(tau) at 170 s (K = N/170)": 1.0 / 170.0}
+    for name, ratio in readings.items():
+        k_true = ratio * n_density
+        errors: dict[str, list[float]] = {"IEEE 952 fit": [], "reported": [], "likelihood alone": []}
+        n_err = []
+        for seed in range(runs):
+            rng = np.random.default_rng(seed)
+            y = (rng.standard_normal(n) * n_density * math.sqrt(rate)
+                 + np.cumsum(rng.standard_normal(n) * k_true / math.sqrt(rate)))
+            x = integrate_rates(y, rate)
+            _, (axis,) = identify_noise(allan_curve(x, rate, ("gx",)), x)
+            k = axis.terms["K"]
+            fit = k.adev_value if (k.method or "").startswith(ML_METHOD) else k.value
+            for key, value in (("IEEE 952 fit", fit), ("reported", k.value),
+                               ("likelihood alone", white_walk_ml(x[0], rate).k)):
+                errors[key].append(abs(value / k_true - 1.0) if value else math.inf)
+            n_err.append(abs(axis.value("N") / n_density - 1.0))
+        sd = k_bound(ratio)
+        bound = stats.norm.cdf(math.log(1.25) / sd) - stats.norm.cdf(math.log(0.75) / sd)
+        print(f"{name}: {runs} runs; bound sd(log K) {sd:.3f}, within 25 % {bound:.1%}; "
+              f"N max |error| {max(n_err):.2%}")
+        for key, e in errors.items():
+            err = np.array(e)
+            print(f"  {key}: K within 25 % {np.mean(err < 0.25):.0%}, median |error| {np.median(err):.1%}, "
+                  f"null {np.mean(np.isinf(err)):.0%}")
+
+
 def measure(args: list[str]) -> list[float]:
     out = subprocess.run([sys.executable, __file__, *args], check=True, capture_output=True, text=True)
     return [float(v) for v in out.stdout.split()]
@@ -120,7 +175,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--child", choices=["ours", "allantools"])
     parser.add_argument("--stream-hours", type=float)
+    parser.add_argument("--k-monte-carlo", type=int, metavar="RUNS",
+                        help="instead: K over RUNS simulated 2 h records, against the Cramer-Rao bound")
     args = parser.parse_args()
+    if args.k_monte_carlo:
+        k_monte_carlo(args.k_monte_carlo)
+        return
     if args.child:
         child(args.child, args.samples)
         return
