@@ -95,7 +95,8 @@ class AllanScreen(LongRecordingScreen):
                 raise StationError(f"{len(samples)} samples are too few for an Allan fit; record longer")
             rates = np.column_stack([samples["gyro"], samples["acc"]]).astype(np.float64)
             rate = Recording.rate_hz(samples)
-            curve, noise = identify_noise(allan_curve(integrate_rates(rates, rate), rate, AXES))
+            phase = integrate_rates(rates, rate)
+            curve, noise = identify_noise(allan_curve(phase, rate, AXES), phase)  # as the allan command
             section = to_plain(allan_report.noise_section(noise, curve, {"source": self.session.name}))
         except StationError as exc:
             self.post_message(LinkFailed(exc))
