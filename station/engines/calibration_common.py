@@ -77,8 +77,12 @@ def covariance(jac: np.ndarray, residual: np.ndarray,
     dof = m - p
     s2 = float(residual @ residual / dof) if dof > 0 else float("nan")
     student = dof / (dof - 2) if dof > 2 else float("nan")
-    jtj = jac.T @ jac
-    return s2 * student * np.linalg.pinv(jtj), s2
+    # columns scaled to unit norm first: parameters of very different sizes (a bias in counts beside
+    # a scale in g per count) would otherwise make the pseudo-inverse drop the small directions
+    norm = np.linalg.norm(jac, axis=0)
+    norm[norm == 0] = 1.0
+    scaled = jac / norm
+    return s2 * student * np.linalg.pinv(scaled.T @ scaled) / np.outer(norm, norm), s2
 
 
 def pooled_scatter(residual: np.ndarray, unknowns: int) -> float | None:

@@ -652,7 +652,9 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     acc_sd = stddev_from(acc_forward, fit.params, cov_a)
     # Bias drift during the session is correlated in time, so the pose-to-pose scatter of the
     # residuals is added to the bias uncertainty without dividing it by the number of poses.
-    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + np.mean(np.asarray(pose_res) ** 2))
+    # (pose_res is in m/s^2: an offset of that size in the true frame is M times it in raw units)
+    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2
+                             + np.mean(np.asarray(pose_res) ** 2) * np.sum(np.linalg.inv(acc_c) ** 2, axis=1))
     gyro_sd = stddev_from(gyro_forward, sol.x, cov_g)
     gyro_sd["bias"] = bias_sd
     method = f"free (Tedaldi 2014), {convention}-triangular accel misalignment"

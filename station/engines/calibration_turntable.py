@@ -47,6 +47,16 @@ SATURATION_RUN = 5
 RATE_TOLERANCE = 0.02
 
 
+# A static pose whose calibrated gravity direction is further than this from its label's is mislabelled
+# (the nearest distinct labels of the spec are 35 deg apart; fixture errors are a few degrees).
+LABEL_ANGLE_DEG = 10.0
+# A rotation step whose axis is further than this from the vertical was not the labelled axis.
+AXIS_ANGLE_DEG = 20.0
+# A rotation whose calibrated angle misses its label by more than this (deg, or fraction of the angle).
+ROTATION_ERROR_DEG = 5.0
+ROTATION_ERROR_FRACTION = 0.02
+
+
 def _span(t: np.ndarray, sl: slice) -> str:
     return f"t = {t[sl.start]:.2f}..{t[sl.stop - 1]:.2f} s"
 
@@ -84,6 +94,94 @@ def _shows_noise(x: np.ndarray, statics: list[tuple[str, slice]]) -> np.ndarray:
     """Per axis: do the static steps scatter (beyond floating-point rounding of a constant)?"""
     spread = np.median([x[sl].std(axis=0) for _, sl in statics], axis=0)
     return spread > 1e-9 * np.maximum(1.0, np.abs(x).max(axis=0))
+
+
+def nearest_label(direction: np.ndarray) -> str:
+    """The pose label (``shared/specs/capture-csv.md``) nearest a direction: +x, -y+z, ..."""
+    v = np.asarray(direction, float)
+    big = np.abs(v) > 0.5 * np.abs(v).max()
+    return "".join(f"{'+' if v[i] > 0 else '-'}{axis}" for i, axis in enumerate("xyz") if big[i])
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles (deg) between the rows of a and of b (rows of any length, non-zero)."""
+    cos = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def _check_pose_labels(means: np.ndarray, up: np.ndarray, gravity: float, m_acc: np.ndarray,
+                       b_acc: np.ndarray, statics: list[tuple[str, slice]], t: np.ndarray) -> None:
+    """Refuse static steps whose readings contradict their labels (eq. 1 of ``calibration_static``).
+
+    An accelerometer axis that reads -g under its '+' label means the '+' and '-' steps of that
+    axis were swapped (the spec's labels name the axes that point up, where the accelerometer
+    reads +g). Otherwise the calibrated gravity direction of every pose must lie within
+    ``LABEL_ANGLE_DEG`` of its label's; where it does not, the step named is the one that
+    disagrees most with a fit of the other poses (leave-one-out), so that a single mislabelled
+    step is named even though it distorted the fit of all of them.
+    """
+    labels = [lab for lab, _ in statics]
+    scale = np.diag(m_acc)
+    for i, axis in enumerate("xyz"):
+        if scale[i] < 0:
+            on_axis = [lab for lab, u in zip(labels, up, strict=True) if abs(u[i]) > 0.5]
+            raise EngineInputError(
+                f"the accelerometer {axis} axis reads -g where the labels put +{axis} up (steps "
+                f"{', '.join(on_axis)}): the steps +{axis} and -{axis} are swapped, or the {axis} axis is "
+                f"mounted reversed; check the step labels (they name the axes that point up)")
+    correction = np.linalg.pinv(m_acc)
+    angles = _angle_deg((means - b_acc) @ correction.T, up)
+    if angles.max() <= LABEL_ANGLE_DEG:
+        return
+    design = np.hstack([gravity * up, np.ones((len(up), 1))])
+    loo = np.zeros(len(up))
+    seen = [None] * len(up)
+    for p in range(len(up)):
+        keep = np.arange(len(up)) != p
+        if np.linalg.matrix_rank(design[keep], tol=1e-9) < 4:
+            continue
+        theta, *_ = np.linalg.lstsq(design[keep], means[keep], rcond=None)
+        seen[p] = np.linalg.pinv(theta[:3].T) @ (means[p] - theta[3])
+        loo[p] = _angle_deg(seen[p], up[p])
+    worst = int(np.argmax(loo)) if loo.max() > LABEL_ANGLE_DEG else int(np.argmax(angles))
+    label, sl = statics[worst]
+    direction = seen[worst] if seen[worst] is not None else correction @ (means[worst] - b_acc)
+    raise EngineInputError(
+        f"static step '{label}' ({_span(t, sl)}) disagrees with its label: its gravity direction is "
+        f"{max(loo[worst], angles[worst]):.0f} deg from '{label}' up (it reads nearest "
+        f"'{nearest_label(direction)}' up); check the step labels (after calibration the poses' directions "
+        f"differ from their labels by up to {angles.max():.0f} deg, {LABEL_ANGLE_DEG:g} deg allowed)")
+
+
+def _check_rotation_axes(acc: np.ndarray, rotations: list[tuple[str, slice]], axes: np.ndarray,
+                         m_acc: np.ndarray, b_acc: np.ndarray, t: np.ndarray) -> None:
+    """Refuse a rotation step whose labelled axis was not vertical (the spec: it is, during the step),
+    as the calibrated accelerometer shows it."""
+    correction = np.linalg.inv(m_acc)
+    for (label, sl), axis in zip(rotations, axes, strict=True):
+        up = correction @ (acc[sl].mean(axis=0) - b_acc)
+        tilt = min(float(_angle_deg(up, axis)), float(_angle_deg(up, -axis)))
+        if tilt > AXIS_ANGLE_DEG:
+            raise EngineInputError(
+                f"rotation step '{label}' ({_span(t, sl)}): its axis was {tilt:.0f} deg from the vertical "
+                f"(the accelerometer reads nearest '{nearest_label(up)}' up), so it was not a turn about the "
+                f"labelled axis; check the step labels")
+
+
+def _check_rotation_angles(angle_error: np.ndarray, angles: np.ndarray,
+                           rotations: list[tuple[str, slice]], t: np.ndarray) -> None:
+    """Refuse rotations whose calibrated angles contradict their labels (the fit of eq. 1 of
+    ``calibration_rotation`` cannot make them agree: a wrong sign or angle in a label)."""
+    limit = np.maximum(np.radians(ROTATION_ERROR_DEG), ROTATION_ERROR_FRACTION * np.abs(angles))
+    excess = np.abs(angle_error) / limit
+    worst = int(np.argmax(excess))
+    if excess[worst] > 1:
+        label, sl = rotations[worst]
+        raise EngineInputError(
+            f"rotation step '{label}' ({_span(t, sl)}): the calibrated gyroscope turned "
+            f"{np.degrees(angles[worst] + angle_error[worst]):.1f} deg where the label says "
+            f"{np.degrees(angles[worst]):.1f} deg, and no scale and misalignment make the rotations agree: "
+            "check the rotation labels (sign, axis and angle)")
 
 
 def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: np.ndarray | None,
@@ -162,6 +260,7 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
         by_label = dict(zip(labels, means, strict=True))
         m_acc, b_acc = six_position(by_label, gravity)
         acc_cov = six_position_cov(by_label, gravity, pose.sigma2)
+    _check_pose_labels(means, up, gravity, m_acc, b_acc, statics, t)
     for i, axis in enumerate("xyz"):
         if up[:, i].max() < 0.5 or up[:, i].min() > -0.5:
             warnings.append(f"accelerometer: the {axis} axis was never held near both up and down; its bias "
@@ -207,6 +306,7 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
                 raise EngineInputError(f"rotation step '{label}' ({_span(t, sl)}) has a gap of "
                                        f"{gaps.max():.3f} s in its timestamps (lost samples): the integrated "
                                        "angle would be wrong; repeat the rotation")
+        _check_rotation_axes(acc, rotations, axes, m_acc, b_acc, t)
         static_var = static_gyro.var(axis=0, ddof=1)
         noise_var = np.array([static_var * np.sum(np.diff(t[sl]) ** 2) for _, sl in rotations])
         earth = None
@@ -224,7 +324,13 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
             if not bias_solved:
                 rot, _ = fit_rotations(integrals, angles, axes, durations, noise_var, rot_labels,
                                        gyro_mean, earth)
+        _check_rotation_angles(rot.angle_error, angles, rotations, t)
         m_g = rot.matrix
+        for i, axis in enumerate("xyz"):
+            if m_g[i, i] < 0:
+                warnings.append(f"gyroscope: the {axis} axis turns opposite to the labels (scale "
+                                f"{m_g[i, i]:.4g}): mounted reversed (the correction undoes it), unless the "
+                                f"steps rot+{axis} and rot-{axis} were swapped")
         if not bias_solved:
             warnings.append("gyroscope: the rotations turn one way only about each axis, so the bias does "
                             "not cancel; the static bias was subtracted instead (add the opposite turns)")
