@@ -65,8 +65,11 @@ ACC_PARAM_NAMES = {
     "lower": ["t_yx", "t_zx", "t_zy", "k_x", "k_y", "k_z", "b_x", "b_y", "b_z"],
 }
 GYRO_PARAM_NAMES = [f"C_{i}{j}" for i in "xyz" for j in "xyz"]
-# Fewest consecutive samples pinned at an axis's extreme that count as saturation.
+# Fewest consecutive samples, and shortest time, pinned at an axis's extreme that count as saturation:
+# a quantized rate reads one value for a few samples at the smooth peak of a move (about 30 ms at
+# 1 LSB of a 16-bit +-2000 deg/s gyro, 2 rad/s peak); a clipped move stays pinned far longer.
 SATURATION_RUN = 5
+SATURATION_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -467,14 +470,22 @@ def detect_initial_still(t: np.ndarray, acc: np.ndarray, window: int) -> float:
 
 
 def _interval_samples(acc: np.ndarray, intervals: np.ndarray, settings: FreeSettings,
-                      min_len: int) -> tuple[np.ndarray, np.ndarray]:
-    """The fit's samples and the intervals they come from (imu_tk: first n samples; else means)."""
+                      min_len: int, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fit's samples and the intervals they come from (imu_tk: first n samples; else means).
+
+    For means, each interval loses ``half // 2`` samples at either end (``half`` the detector's
+    half window): a move that starts or ends smoothly stays below the variance threshold for
+    part of a window, most at high rates where the per-sample noise is large (1000 Hz: turning at
+    up to 0.1 rad/s inside the detected intervals); those samples then belong to the move, whose
+    integration they complete, and no longer bias the interval's means.
+    """
     if settings.interval_samples:
         n = settings.interval_samples
         valid = intervals[(intervals[:, 1] - intervals[:, 0]) >= n]
         idx = (valid[:, :1] + np.arange(n)).ravel()
         return acc[idx], valid
-    valid = intervals[(intervals[:, 1] - intervals[:, 0]) >= min_len]
+    trimmed = intervals + np.array([half // 2, -(half // 2)])
+    valid = trimmed[(trimmed[:, 1] - trimmed[:, 0]) >= min_len]
     means = np.array([acc[a:b + 1].mean(axis=0) for a, b in valid]).reshape(-1, 3)
     return means, valid
 
@@ -484,12 +495,13 @@ def _check_gyro_saturation(t: np.ndarray, gyro: np.ndarray, n_still: int) -> Non
     too fast for the range and their integrated rotation is wrong. A noiseless (constant) still
     period means the check cannot tell clipping from a steady signal, so it is skipped then."""
     noisy = gyro[:n_still].std(axis=0) > 1e-9 * np.maximum(1.0, np.abs(gyro).max(axis=0))
+    shortest = max(SATURATION_RUN, int(round(SATURATION_S / float(np.median(np.diff(t))))))
     for i, axis in enumerate("xyz"):
         if not noisy[i]:
             continue
         for extreme in (gyro[:, i].max(), gyro[:, i].min()):
             start, run = pinned_run(gyro[:, i], extreme)
-            if run >= SATURATION_RUN:
+            if run >= shortest:
                 raise EngineInputError(
                     f"the gyroscope {axis} axis is saturated at t = {t[start]:.2f} s (held at {extreme:g} "
                     f"for {run} samples): the moves were too fast for its range; move more slowly and "
@@ -571,7 +583,7 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     best: tuple[ThresholdTrial, AccFit, np.ndarray, np.ndarray] | None = None
     for k in settings.multipliers:
         intervals = static_intervals(vnorm, k * base, half)
-        samples, valid = _interval_samples(acc, intervals, settings, min_len)
+        samples, valid = _interval_samples(acc, intervals, settings, min_len, half)
         trial = ThresholdTrial(float(k), float(k * base), len(valid), None, intervals=valid)
         trials.append(trial)
         if len(valid) < settings.min_intervals:
