@@ -508,6 +508,26 @@ def _check_gyro_saturation(t: np.ndarray, gyro: np.ndarray, n_still: int) -> Non
                     "record again")
 
 
+# A time step longer than this many median steps is lost samples.
+GAP_FACTOR = 2.5
+
+
+def _check_gaps(t: np.ndarray, spans: list[tuple[int, int]]) -> None:
+    """Refuse lost samples inside a move: its integrated rotation (eq. 15) would be short. Gaps
+    inside static intervals are harmless (nothing turns there)."""
+    step = float(np.median(np.diff(t)))
+    for a, b in spans:
+        if b <= a:
+            continue
+        gaps = np.diff(t[a:b + 1])
+        k = int(np.argmax(gaps))
+        if gaps[k] > GAP_FACTOR * step:
+            raise EngineInputError(
+                f"the move at t = {t[a]:.2f}..{t[b]:.2f} s has a gap of {gaps[k]:.3f} s in its timestamps "
+                f"(lost samples after t = {t[a + k]:.3f} s): the rotation integrated over it would be wrong; "
+                "record the session again without losing samples")
+
+
 def _check_rank(jac: np.ndarray, names: list[str], what: str) -> None:
     scale = np.linalg.norm(jac, axis=0)
     scale[scale == 0] = 1.0
@@ -564,7 +584,8 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     warnings: list[str] = []
     if initial_still_s is None:
         initial_still_s = detect_initial_still(t, acc, window)
-        if initial_still_s < 3.0:
+        # two detector windows: enough samples for the threshold's variance (imu_tk asks for more)
+        if initial_still_s < 2 * window / rate:
             raise EngineInputError(
                 f"no initial still period found (the unit moved after {initial_still_s:.1f} s): keep it "
                 "still for the first 10 s or more, or give its length with --initial-still S")
@@ -620,6 +641,7 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     _check_gyro_saturation(t, gyro, n_still)
     gyro_bias = gyro[:n_still].mean(axis=0)
     blocks = gyro_blocks(t, gyro - gyro_bias, intervals, directions)
+    _check_gaps(t, blocks.spans)
     if settings.gyro_bias == "intervals":
         means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals]) - gyro_bias
         drift = 0.5 * (means[:-1] + means[1:])[:, None, :] * (blocks.dt > 0)[..., None]

@@ -41,6 +41,9 @@ from station.errors import EngineInputError
 MOTION_FACTOR = 4.0
 # ... and by at least this fraction of the accelerometer's gravity reading (ignores tiny noise).
 MOTION_FLOOR = 0.005
+# A static step whose scatter exceeds this fraction of the gravity reading has moved, whatever the
+# other steps do (labels that all reach into the moves; MEMS noise is below 0.01 even at 1 kHz).
+MOTION_ABSOLUTE = 0.03
 # Fewest consecutive samples pinned at an axis's extreme that count as saturation.
 SATURATION_RUN = 5
 # Largest relative disagreement between a stated sample rate and the timestamps.
@@ -244,6 +247,11 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
                 f"the unit moved during static step '{label}' ({_span(t, sl)}): its accelerometer scatter "
                 f"{s:.4g} is {s / max(typical, 1e-300):.0f} times that of the other static steps; repeat the "
                 "step holding the unit still")
+        if s > MOTION_ABSOLUTE * level:
+            raise EngineInputError(
+                f"the unit moved during static step '{label}' ({_span(t, sl)}): its accelerometer scatter "
+                f"{s:.4g} is {s / level:.1%} of the gravity reading; repeat the step holding the unit still, "
+                "or check that the step labels cover only the holds (not the moves between them)")
         _check_saturation(acc, "accelerometer", t, sl, label, acc_noisy)
     for label, sl in rotations:
         _check_saturation(gyro, "gyroscope", t, sl, label, gyro_noisy)
