@@ -104,6 +104,24 @@ def test_labels_that_reach_into_the_moves_are_refused(labelled) -> None:
         calibrate_turntable(rec.t, rec.acc, rec.gyro, late, truth.gravity)
 
 
+def test_a_steady_turn_under_coarse_resolution_is_not_saturation() -> None:
+    # gyro noise a sixth of its 16-bit step: a steady 90 deg/s turn reads one value for many samples
+    base = UnitTruth.random(45)
+    n = base.gyro.noise
+    quiet = NoiseSpec(N=n.N / 10, B=n.B / 10, K=n.K / 10, b_corr_time_s=n.b_corr_time_s)
+    truth = dataclasses.replace(base, gyro=dataclasses.replace(base.gyro, noise=quiet))
+    rec = simulate(truth, sequence_segments("six-position", True, hold_s=2.0), rate_hz=100.0, seed=45)
+    turn = rec.step == "rot-y"
+    assert _longest_run(rec.gyro[turn, 1]) >= 10
+    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+    assert np.abs(report.gyro.matrix - truth.gyro.matrix).max() < 2e-3
+
+
+def _longest_run(x: np.ndarray) -> int:
+    change = np.flatnonzero(np.diff(x) != 0)
+    return int(np.diff(np.concatenate([[-1], change, [len(x) - 1]])).max())
+
+
 def test_covariance_of_parameters_of_very_different_sizes() -> None:
     # a bias in counts (1e4) beside a scale in SI per count (1e-4): J^T J has a condition number of 1e16
     rng = np.random.default_rng(5)
@@ -160,7 +178,7 @@ def test_a_quantized_smooth_peak_is_not_saturation() -> None:
     t = np.arange(0, 20, 1 / rate)
     rng = np.random.default_rng(6)
     gyro = 1e-5 * rng.standard_normal((len(t), 3))
-    gyro[:500] *= 100.0                             # the still period shows the noise
+    gyro[:500] *= 300.0                             # the still period's noise spans several steps
     lsb = 2000 * DEG / 32768
     # a slow move's rate peaks smoothly near 2.16 rad/s, just below a quantization step's upper edge:
     # quantized, it reads one value for several samples

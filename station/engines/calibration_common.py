@@ -220,6 +220,23 @@ def convert_convention(accel_correction: np.ndarray, gyro_correction: np.ndarray
     return acc_c, gyro_c, q.T
 
 
+def quantum(values: np.ndarray) -> float:
+    """The smallest step between distinct values (the output's resolution, if quantized), or 0."""
+    levels = np.unique(np.asarray(values, float))
+    return float(np.diff(levels).min()) if len(levels) > 1 else 0.0
+
+
+def dithers(spread: np.ndarray, static: np.ndarray) -> np.ndarray:
+    """Per axis: does the noise ``spread`` (3,) of still samples ``static`` (n, 3) exceed their
+    resolution (and floating-point rounding)? Only then does a run of identical samples at an axis's
+    extreme mean clipping: under a resolution much coarser than the noise, a steady rate reads one
+    value for many samples without being clipped."""
+    static = np.asarray(static, float)
+    floor = np.array([max(quantum(static[:, i]), 1e-9 * max(1.0, np.abs(static[:, i]).max()))
+                      for i in range(3)])
+    return np.asarray(spread) > floor
+
+
 def pinned_run(values: np.ndarray, extreme: float) -> tuple[int, int]:
     """The longest run of consecutive samples equal to ``extreme``: (start index, length)."""
     pinned = np.concatenate([[0], (np.asarray(values) == extreme).astype(np.int8), [0]])

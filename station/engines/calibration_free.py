@@ -48,6 +48,7 @@ from station.engines.calibration_common import (
     CalibrationReport,
     covariance,
     describe_null,
+    dithers,
     drift_budget,
     pinned_run,
     stddev_from,
@@ -492,9 +493,10 @@ def _interval_samples(acc: np.ndarray, intervals: np.ndarray, settings: FreeSett
 
 def _check_gyro_saturation(t: np.ndarray, gyro: np.ndarray, n_still: int) -> None:
     """Refuse a session where a gyro axis sits at its extreme for several samples: the moves were
-    too fast for the range and their integrated rotation is wrong. A noiseless (constant) still
-    period means the check cannot tell clipping from a steady signal, so it is skipped then."""
-    noisy = gyro[:n_still].std(axis=0) > 1e-9 * np.maximum(1.0, np.abs(gyro).max(axis=0))
+    too fast for the range and their integrated rotation is wrong. A still period whose noise does
+    not exceed the output's resolution means the check cannot tell clipping from a steady signal, so
+    it is skipped then (``calibration_common.dithers``)."""
+    noisy = dithers(gyro[:n_still].std(axis=0), gyro[:n_still])
     shortest = max(SATURATION_RUN, int(round(SATURATION_S / float(np.median(np.diff(t))))))
     for i, axis in enumerate("xyz"):
         if not noisy[i]:

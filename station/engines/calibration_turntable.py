@@ -24,6 +24,7 @@ import numpy as np
 
 from station.engines.calibration_common import (
     CalibrationReport,
+    dithers,
     drift_budget,
     pinned_run,
     pose_vector,
@@ -94,9 +95,10 @@ def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label:
 
 
 def _shows_noise(x: np.ndarray, statics: list[tuple[str, slice]]) -> np.ndarray:
-    """Per axis: do the static steps scatter (beyond floating-point rounding of a constant)?"""
+    """Per axis: do the static steps scatter by more than the output's resolution
+    (``calibration_common.dithers``)?"""
     spread = np.median([x[sl].std(axis=0) for _, sl in statics], axis=0)
-    return spread > 1e-9 * np.maximum(1.0, np.abs(x).max(axis=0))
+    return dithers(spread, np.concatenate([x[sl] for _, sl in statics]))
 
 
 def nearest_label(direction: np.ndarray) -> str:
