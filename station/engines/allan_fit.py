@@ -11,7 +11,12 @@ weights from the equivalent degrees of freedom: var(sigma_hat^2) = 2 sigma^4 / e
 model's own values (iteratively re-weighted least squares). N and K are always fitted; Q, B and R are added
 only where the record shows them: significant (> 3 standard deviations), improving the weighted
 chi-square by more than 9, and dominating the model at three or more well-measured points (backward
-elimination from the full model). K is null when its line crosses the white-noise line beyond T/20.
+elimination from the full model). Quantization that dominates fewer points but makes a fifth or more of
+the first point stays in the model (else its excess goes into N), reported null with its modelled value.
+K is null when its line crosses the white-noise line beyond T/20.
+
+A sensor's low-pass filter makes the curve start flat or rising before it falls into the white-noise
+line; those points are left out of the fit (see :func:`_filter_settled`, ``AxisNoise.fitted_from_tau``).
 
 A correlated (first-order Gauss-Markov) bias draws a hump: the curve rises, peaks near 1.9 correlation
 times and falls again, which no term of (C.1) can draw. Where the curve visibly falls again after rising
@@ -51,10 +56,14 @@ SIGNIFICANCE = 3.0
 CHI2_GAIN = 9.0
 MIN_DOMINANT_POINTS = 3
 OPTIONAL = ("Q", "B", "R")
+MODELLED_UNSHOWN = ("Q",)  # kept in the fit where significant and material, reported only where shown
+MODELLED_SHARE = 0.2  # material: this share of the Allan variance at the shortest tau or more
 K_CROSSING_FRACTION = 20.0  # K needs the N and K lines to cross before T / 20
 MIN_EDF_SHOWN = 10.0  # points that count as showing a term or a floor
 HUMP_RISE = 0.1
 HUMP_FALL = -0.1
+FILTER_SLOPE = -0.45  # a curve starting above this slope starts with a sensor's filter, not a noise term
+FILTER_MARGIN = 3.0  # the fit starts this factor in tau after the filtered start reaches FILTER_SLOPE
 ML_AGREEMENT = 1.15  # the likelihood's K replaces the curve fit's only within this factor of it
 ML_METHOD = "exact Gaussian maximum likelihood"
 
@@ -103,6 +112,7 @@ class AxisNoise:
     reduced_chi2: float = float("nan")
     crossing_tau_nk: float | None = None
     gauss_markov: tuple[float, float] | None = None  # (sigma, correlation time s) where a hump was fitted
+    fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
 
     def value(self, term: str) -> float | None:
         return self.terms[term].value
@@ -173,6 +183,13 @@ def _fit(tau: np.ndarray, avar: np.ndarray, edf: np.ndarray, terms: tuple[str, .
     return values, var, chi2
 
 
+def _first_share(tau: np.ndarray, c: dict[str, float], term: str) -> float:
+    """Share of ``term`` in the fitted Allan variance at the shortest tau."""
+    parts = {t: basis(tau[:1])[0, TERMS.index(t)] * c[t] for t in c}
+    total = sum(parts.values())
+    return parts[term] / total if total > 0 else 0.0
+
+
 def _shows(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, c: dict[str, float], term: str) -> bool:
     """Whether the curve shows an optional term: it dominates the model at MIN_DOMINANT_POINTS or more
     well-measured points (EDF >= 10) spanning a factor of 3 in tau or more, and the curve itself reaches
@@ -212,6 +229,24 @@ def _slope_reading(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, term: str
     est.slope_tau = float(tau[i])
     est.slope_line_at_1s = float(10.0**b)
     est.slope_value = float(10.0 ** (b + target * math.log10(READ_TAU[term])))
+
+
+def _filter_settled(tau: np.ndarray, adev: np.ndarray) -> int:
+    """Index of the first point the fit uses: 0, unless the curve starts above slope FILTER_SLOPE (flat or
+    rising, then falling into the white-noise line): a sensor's low-pass filter. Its output is a
+    Gauss-Markov process of correlation time T_f whose Allan variance, for tau >> T_f, is
+    N^2 / tau (1 - 3 T_f / (2 tau)) (El-Sheimy et al. 2008, eq. 21, expanded), of slope
+    -1/2 + 3 T_f / (4 tau) in deviation. The slope reaches FILTER_SLOPE near tau = 15 T_f, 10 % below
+    N^2 / tau; the fit starts FILTER_MARGIN times later (3 %). No IEEE 952 term draws this start, and its
+    many-EDF points outweigh the rest of the curve (N null and a spurious B under a 6.7 Hz first-order
+    filter at 400 Hz, benchmarks/allan_sweep.py)."""
+    slope = np.gradient(np.log10(adev), np.log10(tau)) if len(tau) > 1 else np.array([-0.5])
+    if slope[0] <= FILTER_SLOPE:
+        return 0
+    below = np.flatnonzero(slope <= FILTER_SLOPE)
+    if len(below) == 0:
+        return 0
+    return int(np.searchsorted(tau, FILTER_MARGIN * tau[below[0]]))
 
 
 def _hump_top(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray) -> int | None:
@@ -261,6 +296,9 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
     edf = np.asarray(edf, dtype=np.float64)
     ok = np.isfinite(adev) & (adev > 0) & np.isfinite(edf) & (edf > 0)
     tau, adev, edf = tau[ok], adev[ok], edf[ok]
+    start = _filter_settled(tau, adev)
+    settled_tau = float(tau[start]) if start else None
+    tau, adev, edf = tau[start:], adev[start:], edf[start:]
     avar = adev**2
     # Backward elimination: start from the whole model, drop the weakest optional term that the record
     # does not show until every optional term left is significant, shown, and worth its chi-square.
@@ -273,7 +311,13 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
                 continue
             c, sd = values[extra], math.sqrt(var[extra]) if np.isfinite(var[extra]) else math.inf
             without = tuple(t for t in active if t != extra)
-            keep = (c > 0 and c >= SIGNIFICANCE * sd and _shows(tau, adev, edf, values, extra)
+            # quantization stays in the model where it is significant, worth its chi-square and a fifth of
+            # the first point even if it dominates too few points to be reported: dropped, its excess at
+            # the first, many-EDF points goes into N (+26 % where the Q and N lines cross at 1.5 samples,
+            # benchmarks/allan_sweep.py). Below a fifth it is the first points' correlated scatter: white
+            # noise alone shows a "significant" Q of 0.6 % of the first point in 3 of 20 records.
+            material = extra in MODELLED_UNSHOWN and _first_share(tau, values, extra) >= MODELLED_SHARE
+            keep = (c > 0 and c >= SIGNIFICANCE * sd and (material or _shows(tau, adev, edf, values, extra))
                     and _fit(tau, avar, edf, without)[2] - chi2 >= CHI2_GAIN)
             score = c / sd if c > 0 else 0.0
             if not keep and (weakest is None or score < weakest[1]):
@@ -282,7 +326,8 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
             break
         active = weakest[0]
         values, var, chi2 = _fit(tau, avar, edf, active)
-    result = AxisNoise(axis=axis, fitted=active, reduced_chi2=chi2 / max(len(tau) - len(active), 1))
+    result = AxisNoise(axis=axis, fitted=active, reduced_chi2=chi2 / max(len(tau) - len(active), 1),
+                       fitted_from_tau=settled_tau)
     result.coeffs = {t: math.sqrt(values[t]) for t in active if values[t] > 0}
     for term in TERMS:
         est = TermEstimate()
@@ -298,6 +343,9 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
             elif not c >= SIGNIFICANCE * sd_c:
                 est.reason = (f"not significant: {math.sqrt(c):.3g} with a 1-sigma of the variance term of "
                               f"{sd_c / c:.0%}")
+            elif term in MODELLED_UNSHOWN and not _shows(tau, adev, edf, values, term):
+                est.reason = (f"modelled ({math.sqrt(c):.3g}) but not shown: it dominates fewer than "
+                              f"{MIN_DOMINANT_POINTS} points at the shortest tau; a faster rate shows it")
             else:
                 est.value = math.sqrt(c)
                 est.stddev = sd_c / (2.0 * est.value)  # delta method: d sqrt(c) = dc / (2 sqrt(c))
