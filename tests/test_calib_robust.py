@@ -193,3 +193,13 @@ def test_a_quantized_smooth_peak_is_not_saturation() -> None:
     clipped[:, 1] = np.minimum(clipped[:, 1], 1.5)  # pinned for about 0.5 s
     with pytest.raises(EngineInputError, match="gyroscope y axis is saturated"):
         _check_gyro_saturation(t, clipped, 500)
+
+
+def test_short_holds_keep_every_static_interval() -> None:
+    # 2.2 s holds leave intervals of about 1.2 s under a 1 s window: every one is used (trimming the
+    # ends for the means must not drop them below the 1 s minimum)
+    truth = UnitTruth.random(46)
+    rec = simulate(truth, handheld_session(n_poses=16, seed=46, hold_s=2.2, initial_still_s=5.0),
+                   rate_hz=50.0, seed=46)
+    report = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity)
+    assert report.accel.extra["static_intervals"] == 17
