@@ -135,12 +135,12 @@ def _check_pose_labels(means: np.ndarray, up: np.ndarray, gravity: float, m_acc:
                 f"{', '.join(on_axis)}): the steps +{axis} and -{axis} are swapped, or the {axis} axis is "
                 f"mounted reversed; check the step labels (they name the axes that point up)")
     correction = np.linalg.pinv(m_acc)
-    angles = _angle_deg((means - b_acc) @ correction.T, up)
+    seen = (means - b_acc) @ correction.T     # calibrated gravity per pose; leave-one-out below
+    angles = _angle_deg(seen, up)
     if angles.max() <= LABEL_ANGLE_DEG:
         return
     design = np.hstack([gravity * up, np.ones((len(up), 1))])
     loo = np.zeros(len(up))
-    seen = [None] * len(up)
     for p in range(len(up)):
         keep = np.arange(len(up)) != p
         if np.linalg.matrix_rank(design[keep], tol=1e-9) < 4:
@@ -150,7 +150,7 @@ def _check_pose_labels(means: np.ndarray, up: np.ndarray, gravity: float, m_acc:
         loo[p] = _angle_deg(seen[p], up[p])
     worst = int(np.argmax(loo)) if loo.max() > LABEL_ANGLE_DEG else int(np.argmax(angles))
     label, sl = statics[worst]
-    direction = seen[worst] if seen[worst] is not None else correction @ (means[worst] - b_acc)
+    direction = seen[worst]
     raise EngineInputError(
         f"static step '{label}' ({_span(t, sl)}) disagrees with its label: its gravity direction is "
         f"{max(loo[worst], angles[worst]):.0f} deg from '{label}' up (it reads nearest "
