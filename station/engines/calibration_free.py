@@ -474,7 +474,7 @@ def _interval_samples(acc: np.ndarray, intervals: np.ndarray, settings: FreeSett
                       min_len: int, half: int) -> tuple[np.ndarray, np.ndarray]:
     """The fit's samples and the intervals they come from (imu_tk: first n samples; else means).
 
-    For means, each interval loses ``half // 2`` samples at either end (at most a quarter of it;
+    For means, each interval loses ``half // 2`` samples at either end (at most an eighth of it;
     ``half`` the detector's half window), counted once it passes ``min_len``: a move that starts
     or ends smoothly stays below the variance threshold for part of a window, most at high rates
     where the per-sample noise is large (1000 Hz: turning at up to 0.1 rad/s inside the detected
@@ -487,8 +487,8 @@ def _interval_samples(acc: np.ndarray, intervals: np.ndarray, settings: FreeSett
         idx = (valid[:, :1] + np.arange(n)).ravel()
         return acc[idx], valid
     long_enough = intervals[(intervals[:, 1] - intervals[:, 0]) >= min_len]
-    # (at most a quarter of an interval each end, should the window be longer than the intervals)
-    trim = np.minimum(half // 2, (long_enough[:, 1] - long_enough[:, 0]) // 4)
+    # at most an eighth of a short interval each end: its means need the samples
+    trim = np.minimum(half // 2, (long_enough[:, 1] - long_enough[:, 0]) // 8)
     valid = long_enough + np.column_stack([trim, -trim])
     means = np.array([acc[a:b + 1].mean(axis=0) for a, b in valid]).reshape(-1, 3)
     return means, valid
