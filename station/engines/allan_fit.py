@@ -23,7 +23,9 @@ times and falls again, which no term of (C.1) can draw. Where the curve visibly 
 at well-measured points, N, K and a Gauss-Markov term (sigma, T_c) are fitted instead; when that beats
 the IEEE fit by the same chi-square margin, B is the peak of the Gauss-Markov curve divided by 0.66428
 (the convention that makes a flicker floor and a Gauss-Markov peak the same B), K is kept only if still
-significant, and the report says which method gave each term.
+significant, and the report says which method gave each term. Where the curve leaves the white-noise
+line and never visibly falls, the same is tried with correlation times from there on, and taken only
+where the bias explains the whole rise (see :func:`_fit_with_gauss_markov`).
 
 Beside the fit, the classic slope-line reading (IEEE 952 Annex C; e.g. El-Sheimy, Hou and Niu, "Analysis
 and modeling of inertial sensors using Allan variance", IEEE TIM 57(1), 2008): where the curve's
