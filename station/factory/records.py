@@ -16,6 +16,7 @@ import datetime as _dt
 import hashlib
 import json
 import sqlite3
+import time
 import uuid
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
@@ -170,6 +171,21 @@ def _date_bound(text: str, end: bool, what: str) -> str:
     return moment.astimezone(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
+def _enable_wal(conn: sqlite3.Connection, wait_s: float = 30.0) -> None:
+    """Switch to write-ahead logging. While another station creates the same new database, the switch
+    can fail at once with "database is locked" (SQLite does not call the busy handler for it), so it is
+    retried until ``wait_s`` has passed."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            conn.execute("PRAGMA journal_mode=WAL")
+            return
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
 class RecordStore:
     """Where records go: ``RecordStore.open('records.sqlite')`` or ``open('postgresql://...')``."""
 
@@ -191,8 +207,8 @@ class RecordStore:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             conn = sqlite3.connect(path, timeout=30.0, isolation_level=None)
-            conn.execute("PRAGMA journal_mode=WAL")
             conn.execute("PRAGMA busy_timeout=30000")
+            _enable_wal(conn)
         except (sqlite3.Error, OSError) as exc:
             raise StationError(f"--db {path}: cannot open the SQLite record database: {exc}") from None
         store = cls(conn, "?", str(path))
