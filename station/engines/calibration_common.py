@@ -237,6 +237,20 @@ def dithers(spread: np.ndarray, static: np.ndarray) -> np.ndarray:
     return np.asarray(spread) > floor
 
 
+# A time step longer than this many median steps is lost samples.
+GAP_FACTOR = 2.5
+
+
+def lost_samples(t: np.ndarray, step: float) -> tuple[int, float] | None:
+    """The largest time step of ``t`` where it exceeds ``GAP_FACTOR`` x the nominal ``step``:
+    (index of the sample before it, its size in s), or None where no samples were lost."""
+    gaps = np.diff(np.asarray(t, float))
+    if len(gaps) == 0:
+        return None
+    k = int(np.argmax(gaps))
+    return (k, float(gaps[k])) if gaps[k] > GAP_FACTOR * step else None
+
+
 def pinned_run(values: np.ndarray, extreme: float) -> tuple[int, int]:
     """The longest run of consecutive samples equal to ``extreme``: (start index, length)."""
     pinned = np.concatenate([[0], (np.asarray(values) == extreme).astype(np.int8), [0]])

@@ -50,6 +50,7 @@ from station.engines.calibration_common import (
     describe_null,
     dithers,
     drift_budget,
+    lost_samples,
     pinned_run,
     stddev_from,
 )
@@ -513,22 +514,16 @@ def _check_gyro_saturation(t: np.ndarray, gyro: np.ndarray, n_still: int) -> Non
                     "record again")
 
 
-# A time step longer than this many median steps is lost samples.
-GAP_FACTOR = 2.5
-
-
 def _check_gaps(t: np.ndarray, spans: list[tuple[int, int]]) -> None:
     """Refuse lost samples inside a move: its integrated rotation (eq. 15) would be short. Gaps
     inside static intervals are harmless (nothing turns there)."""
     step = float(np.median(np.diff(t)))
     for a, b in spans:
-        if b <= a:
-            continue
-        gaps = np.diff(t[a:b + 1])
-        k = int(np.argmax(gaps))
-        if gaps[k] > GAP_FACTOR * step:
+        lost = lost_samples(t[a:b + 1], step)
+        if lost is not None:
+            k, size = lost
             raise EngineInputError(
-                f"the move at t = {t[a]:.2f}..{t[b]:.2f} s has a gap of {gaps[k]:.3f} s in its timestamps "
+                f"the move at t = {t[a]:.2f}..{t[b]:.2f} s has a gap of {size:.3f} s in its timestamps "
                 f"(lost samples after t = {t[a + k]:.3f} s): the rotation integrated over it would be wrong; "
                 "record the session again without losing samples")
 

@@ -26,6 +26,7 @@ from station.engines.calibration_common import (
     CalibrationReport,
     dithers,
     drift_budget,
+    lost_samples,
     pinned_run,
     pose_vector,
     rotation_of,
@@ -310,11 +311,12 @@ def calibrate_turntable(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, step: 
         info = [r for r in map(rotation_of, rot_labels) if r is not None]  # every label is a rotation's
         axes = np.array([i[0] for i in info])
         angles = np.array([i[1] for i in info])
+        period = float(np.median(np.diff(t)))
         for label, sl in rotations:
-            gaps = np.diff(t[sl])
-            if gaps.max() > 2.5 * np.median(np.diff(t)):
+            lost = lost_samples(t[sl], period)
+            if lost is not None:
                 raise EngineInputError(f"rotation step '{label}' ({_span(t, sl)}) has a gap of "
-                                       f"{gaps.max():.3f} s in its timestamps (lost samples): the integrated "
+                                       f"{lost[1]:.3f} s in its timestamps (lost samples): the integrated "
                                        "angle would be wrong; repeat the rotation")
         _check_rotation_axes(acc, rotations, axes, m_acc, b_acc, t)
         static_var = static_gyro.var(axis=0, ddof=1)
