@@ -6,8 +6,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
+REFERENCE_DATA = Path(__file__).resolve().parent / "data"
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -16,8 +15,6 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 @pytest.fixture(scope="session")
-def shared_data() -> Path:
-    """``../shared/data`` (recordings made by others); tests using it skip where it is absent."""
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"reference recordings not found at {SHARED_DATA} (shared/ is not beside this checkout)")
-    return SHARED_DATA
+def reference_data() -> Path:
+    """``tests/data``: real recordings made by others, with their licences (see its README.md)."""
+    return REFERENCE_DATA

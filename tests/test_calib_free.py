@@ -91,8 +91,8 @@ def _read_imu_tk(path) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def xsens(shared_data):
-    folder = shared_data / "xsens-imu_tk"
+def xsens(reference_data):
+    folder = reference_data / "xsens-imu_tk"
     acc = _read_imu_tk(folder / "xsens_acc.txt.gz")
     gyro = _read_imu_tk(folder / "xsens_gyro.txt.gz")
     assert acc.shape == (51175, 4) and np.array_equal(acc[:, 0], gyro[:, 0])

@@ -208,8 +208,8 @@ def test_refuses_unlabelled_data(short_six) -> None:
         calibrate_turntable(rec.t, rec.acc, rec.gyro, np.full(len(rec.t), "", dtype=object), truth.gravity)
 
 
-def _imucal_session(shared_data):
-    path = shared_data / "imucal-ferraris" / "annotated_session.csv.gz"
+def _imucal_session(reference_data):
+    path = reference_data / "imucal-ferraris" / "annotated_session.csv.gz"
     with gzip.open(path, "rt") as fh:
         header = fh.readline().strip().split(",")
         rows = [line.strip().split(",") for line in fh if line.strip()]
@@ -225,13 +225,13 @@ def _imucal_session(shared_data):
     return values[:, 0] / 204.8, values[:, 1:4], values[:, 4:7], step
 
 
-def test_real_ferraris_session_against_imucal(shared_data) -> None:
-    t, acc, gyr, step = _imucal_session(shared_data)
+def test_real_ferraris_session_against_imucal(reference_data) -> None:
+    t, acc, gyr, step = _imucal_session(reference_data)
     report = calibrate_turntable(t, acc, gyr, step, 9.81, rate_hz=204.8)
     for pose in report.poses:
         if pose["kind"] == "static":
             assert abs(pose["norm_error"]) < 0.01, pose
-    cal = json.loads((shared_data / "imucal-ferraris" / "example_cal.json").read_text())
+    cal = json.loads((reference_data / "imucal-ferraris" / "example_cal.json").read_text())
     k_a, r_a, b_a = (np.asarray(cal[k]) for k in ("K_a", "R_a", "b_a"))
     np.testing.assert_allclose(report.accel.matrix, k_a @ r_a, rtol=1e-9)
     np.testing.assert_allclose(report.accel.bias, b_a, rtol=1e-9)

@@ -57,14 +57,15 @@ def test_explanations_say_what_was_found() -> None:
     assert "VectorNav" not in detect(s["ascii"]).explanation and "vectornav" in detect(s["ascii"]).explanation
 
 
-def test_real_xsens_capture_is_recognised(shared_data: Path) -> None:
-    data = (shared_data / "xsens-mtdata2" / "1" / "output.bin").read_bytes()
+def test_real_xsens_capture_is_recognised(reference_data: Path) -> None:
+    data = (reference_data / "xsens-mtdata2" / "1" / "output.bin").read_bytes()
     found = detect(data[1000:3000])
     assert found.protocol == "xsens" and "Acceleration(float32)" in found.explanation
 
 
-def test_xsens_without_inertial_data_is_recognised_and_the_user_told_what_to_add(shared_data: Path) -> None:
-    data = (shared_data / "xsens-mtdata2" / "5" / "output.bin").read_bytes()
+def test_xsens_without_inertial_data_is_recognised_and_the_user_told_what_to_add(
+        reference_data: Path) -> None:
+    data = (reference_data / "xsens-mtdata2" / "5" / "output.bin").read_bytes()
     found = detect(data[:2000])
     assert found.protocol == "xsens" and found.samples == 0
     assert "none carries Acceleration" in found.explanation and "Temperature(float32)" in found.explanation

@@ -44,9 +44,9 @@ class ReplayPty:
 
 @pytest.mark.parametrize("folder", ["1", "2", "3"])
 @pytest.mark.parametrize("protocol", ["xsens", "auto"])
-def test_real_xsens_capture_through_a_pty_gives_every_golden_sample(shared_data: Path, folder: str,
+def test_real_xsens_capture_through_a_pty_gives_every_golden_sample(reference_data: Path, folder: str,
                                                                      protocol: str) -> None:
-    base = shared_data / "xsens-mtdata2" / folder
+    base = reference_data / "xsens-mtdata2" / folder
     inertial = [b for b in read_golden(base / "output.golden") if "Acceleration" in b]
     pty = ReplayPty()
     try:

@@ -71,8 +71,8 @@ def make_samples(n: int, seed: int = 0, seq0: int = 0, t0_us: int = 0) -> np.nda
 
 
 @pytest.mark.parametrize("folder", GOLDEN_FOLDERS)
-def test_every_inertial_sample_of_the_golden_decode_comes_out(shared_data: Path, folder: str) -> None:
-    base = shared_data / "xsens-mtdata2" / folder
+def test_every_inertial_sample_of_the_golden_decode_comes_out(reference_data: Path, folder: str) -> None:
+    base = reference_data / "xsens-mtdata2" / folder
     blocks = read_golden(base / "output.golden")
     dec = XsensDecoder()
     samples = feed_ragged(dec, (base / "output.bin").read_bytes(), seed=int(folder))
@@ -90,8 +90,8 @@ def test_every_inertial_sample_of_the_golden_decode_comes_out(shared_data: Path,
     assert np.isnan(samples["temp"]).all()  # these captures carry no Temperature item
 
 
-def test_folder_without_inertial_data_decodes_without_error(shared_data: Path) -> None:
-    base = shared_data / "xsens-mtdata2" / "5"
+def test_folder_without_inertial_data_decodes_without_error(reference_data: Path) -> None:
+    base = reference_data / "xsens-mtdata2" / "5"
     blocks = read_golden(base / "output.golden")
     dec = XsensDecoder()
     rng = np.random.default_rng(5)
@@ -133,11 +133,11 @@ def _frames(data: bytes) -> list[tuple[int, bytes]]:
 
 
 @pytest.mark.parametrize("folder", GOLDEN_FOLDERS)
-def test_deltas_alone_give_the_devices_acceleration_and_rate(shared_data: Path, folder: str) -> None:
+def test_deltas_alone_give_the_devices_acceleration_and_rate(reference_data: Path, folder: str) -> None:
     """DeltaV and DeltaQ, with Acceleration and RateOfTurn removed from the real packets, turn
     into the device's own Acceleration and RateOfTurn (the golden values) within 0.2 % and the
     quantization of the format."""
-    base = shared_data / "xsens-mtdata2" / folder
+    base = reference_data / "xsens-mtdata2" / folder
     inertial = [b for b in read_golden(base / "output.golden") if "Acceleration" in b]
     stream = bytearray()
     for mid, payload in _frames((base / "output.bin").read_bytes()):
@@ -281,11 +281,12 @@ _PRECISION_TYPES = {0x0810, 0x2010, 0x2020, 0x2030, 0x4010, 0x4020, 0x4030, 0x40
 
 
 @pytest.mark.parametrize("precision", [3, 2])
-def test_real_packets_in_float64_and_fp1632_with_extended_lengths(shared_data: Path, precision: int) -> None:
+def test_real_packets_in_float64_and_fp1632_with_extended_lengths(reference_data: Path,
+                                                                  precision: int) -> None:
     """Folder 1's packets with every float32 item rewritten in float64 (or 16.32 fixed point), as an
     MTi configured so would send them, and a 120-byte GNSSSatInfo item added to every other one,
     which takes those past 254 bytes into the extended-length form."""
-    base = shared_data / "xsens-mtdata2" / "1"
+    base = reference_data / "xsens-mtdata2" / "1"
     inertial = [b for b in read_golden(base / "output.golden") if "Acceleration" in b]
     stream, extended = bytearray(), 0
     for k, (mid, payload) in enumerate(_frames((base / "output.bin").read_bytes())):
