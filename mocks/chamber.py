@@ -23,11 +23,17 @@ of T and dT alone can follow.
 quantized once, after everything is added, to the unit's resolution. The temperature is read
 through a sensor with Gaussian noise and an optional resolution (real sensors report steps
 of 1/16 or 1/256 degC).
+
+The ``chamber`` scenario of the simulated unit (``mocks.device``, ``sim://?scenario=chamber``,
+``imu-station simulate --scenario chamber``) is :func:`scenario_sweep`: the unit lying flat
+(+z up) from ``t_min`` up to ``t_max`` and back at ``rate_c_per_min``, soaking ``soak_s`` at
+each end, then held at ``t_min``; its samples carry the unit's own thermal bias (eq. (3) of
+``mocks.truth``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -90,10 +96,12 @@ class ChamberSweep:
         return points
 
     def profile(self) -> UnitTemperature:
+        """The unit's true temperature over time, eq. (1), held at the last corner after the end."""
         return UnitTemperature(ramp(self.chamber_points()), self.self_heating_degc, self.self_heating_tau_s)
 
     @property
     def duration_s(self) -> float:
+        """Length of the whole programme, s."""
         return self.chamber_points()[-1][0]
 
     def segments(self) -> list[Segment]:
@@ -110,7 +118,13 @@ class ChamberSweep:
 
 
 class UnitTemperature:
-    """The unit's true temperature, eq. (1), and its exact rate (what the rig passes on as dT)."""
+    """The unit's true temperature, eq. (1), and its exact rate (what the rig passes on as dT).
+
+    Parameters
+    ----------
+    chamber : the chamber air temperature over time.
+    rise_degc, tau_s : the unit's self-heating above the air, and its time constant.
+    """
 
     def __init__(self, chamber: TemperatureProfile, rise_degc: float = 0.0, tau_s: float = 300.0):
         self.chamber = chamber
@@ -118,10 +132,12 @@ class UnitTemperature:
         self.tau = float(tau_s)
 
     def __call__(self, t: np.ndarray) -> np.ndarray:
+        """T(t) of eq. (1), degC, for times ``t`` in s."""
         t = np.asarray(t, float)
         return self.chamber(t) + self.rise * (1.0 - np.exp(-np.maximum(t, 0.0) / self.tau))
 
     def rate(self, t: np.ndarray) -> np.ndarray:
+        """dT/dt of eq. (1), degC/s."""
         t = np.asarray(t, float)
         heating = self.rise / self.tau * np.exp(-np.maximum(t, 0.0) / self.tau)
         return self.chamber.rate(t) + np.where(t >= 0, heating, 0.0)
@@ -144,6 +160,7 @@ class ChamberRun:
     scale_accel: np.ndarray
 
     def to_capture(self):  # -> station.acquisition.capture.Capture (imported lazily)
+        """The recording as the station's capture (what a capture file would hold)."""
         return self.recording.to_capture()
 
 
@@ -247,3 +264,84 @@ def cubic_rate_unit(seed: int, accel_per_degc: float = 0.3e-3 * STANDARD_GRAVITY
 
     return replace(truth, accel=replace(truth.accel, thermal=ThermalTruth(coeffs(accel_per_degc), t_ref)),
                    gyro=replace(truth.gyro, thermal=ThermalTruth(coeffs(gyro_per_degc), t_ref)))
+
+
+# The chamber scenario's options (URL and --chamber names) and their defaults: -20 -> +60 -> -20 degC
+# at 1 degC/min with 10 min soaks, 3 h in all.
+SCENARIO_DEFAULTS: dict[str, float] = {"t_min": -20.0, "t_max": 60.0, "rate_c_per_min": 1.0, "soak_s": 600.0}
+
+
+def scenario_sweep(t_min: float = -20.0, t_max: float = 60.0, rate_c_per_min: float = 1.0,
+                   soak_s: float = 600.0) -> ChamberSweep:
+    """The programme of the simulated unit's ``chamber`` scenario.
+
+    Parameters
+    ----------
+    t_min, t_max : the temperatures the chamber sweeps between, degC; it starts at ``t_min``.
+    rate_c_per_min : ramp speed, degC/min.
+    soak_s : hold at ``t_max`` and then at ``t_min``, s.
+
+    Returns
+    -------
+    ChamberSweep
+        One pose (+z up); up from ``t_min`` to ``t_max``, a soak, down to ``t_min``, a soak.
+
+    Raises
+    ------
+    ValueError
+        Naming the option out of range.
+    """
+    if not t_min < t_max:
+        raise ValueError(f"t_min {t_min:g} must be below t_max {t_max:g}")
+    if not rate_c_per_min > 0:
+        raise ValueError(f"rate_c_per_min {rate_c_per_min:g} must be positive")
+    if not soak_s >= 0:
+        raise ValueError(f"soak_s {soak_s:g} must not be negative")
+    return ChamberSweep(low_degc=t_min, high_degc=t_max, start_degc=t_min, ramp_degc_per_min=rate_c_per_min,
+                        soak_s=soak_s)
+
+
+def sweep_from_options(options: Mapping[str, str]) -> ChamberSweep:
+    """:func:`scenario_sweep` from text options (``t_min``, ``t_max``, ``rate_c_per_min``, ``soak_s``).
+
+    Raises
+    ------
+    ValueError
+        Naming an unknown option, a value that is not a number, or one out of range.
+    """
+    values = dict(SCENARIO_DEFAULTS)
+    for key, text in options.items():
+        if key not in SCENARIO_DEFAULTS:
+            raise ValueError(f"unknown chamber option {key!r}; known: {', '.join(SCENARIO_DEFAULTS)}")
+        try:
+            values[key] = float(text)
+        except ValueError:
+            raise ValueError(f"chamber option {key}={text!r}: not a number") from None
+        if not np.isfinite(values[key]):
+            raise ValueError(f"chamber option {key}={text!r}: not a finite number")
+    return scenario_sweep(**values)
+
+
+def parse_chamber_spec(spec: str) -> ChamberSweep:
+    """:func:`sweep_from_options` from ``"t_min=-20,t_max=60,rate_c_per_min=1,soak_s=600"`` (any subset).
+
+    Raises
+    ------
+    ValueError
+        Naming the part that is not ``key=value`` or the option at fault.
+    """
+    options: dict[str, str] = {}
+    for part in filter(None, (p.strip() for p in spec.split(","))):
+        key, sep, value = part.partition("=")
+        if not sep:
+            raise ValueError(f"{part!r} is not key=value")
+        options[key.strip()] = value.strip()
+    return sweep_from_options(options)
+
+
+def describe_scenario(sweep: ChamberSweep) -> str:
+    """One line for a person: range, speed, soaks and length of a :func:`scenario_sweep` programme."""
+    rate = sweep.rates_degc_per_min()[0]
+    return (f"{sweep.low_degc:g} -> {sweep.high_degc:g} -> {sweep.low_degc:g} degC at {rate:g} degC/min, "
+            f"soaks of {sweep.soak_s:g} s, {sweep.duration_s:g} s of device clock, then held at "
+            f"{sweep.low_degc:g} degC")

@@ -6,7 +6,8 @@ unknown commands with ACK status 1. Time is the device clock in seconds since po
 by whoever serves the device (a pty thread, the ``sim://`` port): ``produce(t)`` returns every
 sample due at or before t; sample k is due at its own timestamp (an absolute schedule).
 
-What the unit feels comes from a scenario (a list of rig segments, looped or held at the end)
+What the unit feels comes from a scenario (a list of rig segments, looped or held at the end;
+the ``chamber`` scenario also sweeps its temperature, ``mocks.chamber.scenario_sweep``)
 and can be driven live with :meth:`SimDevice.set_pose`, :meth:`SimDevice.rotate` and
 :meth:`SimDevice.command`: the hook a simulated operator or turntable uses.
 
@@ -24,6 +25,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from mocks.chamber import ChamberSweep, scenario_sweep
 from mocks.rig import (
     Move,
     Rotation,
@@ -49,15 +51,20 @@ def _still() -> list[Segment]:
     return [Static("+z", 1.0)]
 
 
-# name -> (segments for a seed, loop). "still" holds +z forever (labelled +z throughout).
+# name -> (segments for a seed, loop). "still" holds +z forever (labelled +z throughout), and so does
+# "chamber", whose temperature sweeps (SimDevice takes its programme).
 SCENARIOS: dict[str, tuple[Callable[[int], list[Segment]], bool]] = {
     "still": (lambda seed: _still(), False),
+    "chamber": (lambda seed: _still(), False),
     "six-position": (lambda seed: sequence_segments("six-position"), True),
     "twelve-position": (lambda seed: sequence_segments("twelve-position"), True),
     "six-position-static": (lambda seed: sequence_segments("six-position", rotations=False), True),
     "handheld": (lambda seed: handheld_session(n_poses=20, seed=seed, hold_s=3.0, initial_still_s=10.0),
                  True),
 }
+
+
+HELD_STILL = ("still", "chamber")
 
 
 def scenario_timeline(scenario: str | Sequence[Segment], seed: int = 0, loop: bool | None = None) -> Timeline:
@@ -67,7 +74,7 @@ def scenario_timeline(scenario: str | Sequence[Segment], seed: int = 0, loop: bo
             raise ValueError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
         make, default_loop = SCENARIOS[scenario]
         segments = make(seed)
-        if scenario == "still":
+        if scenario in HELD_STILL:
             timeline = Timeline(segments, loop=False)
             timeline.pieces[-1].label = "+z"
             return timeline
@@ -85,14 +92,21 @@ class SimDevice:
     rate_hz : sample rate at power-up.
     scenario : a name of ``SCENARIOS`` or a list of rig segments.
     loop : repeat the scenario (default: per scenario; lists hold their last pose).
-    temperature : a temperature profile over device time (default 25 degC).
+    temperature : a temperature profile over device time (default 25 degC; for the ``chamber``
+        scenario, the profile of ``chamber``).
     encoder : name in ``ENCODERS`` of the sample wire format.
+    temp_noise_degc : standard deviation of the temperature sensor's noise.
+    chamber : the programme of the ``chamber`` scenario (default ``mocks.chamber.scenario_sweep()``).
     """
 
     def __init__(self, truth: UnitTruth | None = None, *, seed: int = 0, rate_hz: float = 200.0,
                  scenario: str | Sequence[Segment] = "still", loop: bool | None = None,
                  temperature: Callable[[np.ndarray], np.ndarray] | None = None,
-                 encoder: str = "native", temp_noise_degc: float = 0.01):
+                 encoder: str = "native", temp_noise_degc: float = 0.01, chamber: ChamberSweep | None = None):
+        if chamber is not None and scenario != "chamber":
+            raise ValueError(f"a chamber programme needs the chamber scenario, not {scenario!r}")
+        if scenario == "chamber" and temperature is None:
+            temperature = (chamber or scenario_sweep()).profile()
         if encoder not in ENCODERS:
             raise ValueError(f"unknown encoder {encoder!r}; known: {', '.join(ENCODERS)}")
         if not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ:
@@ -110,9 +124,11 @@ class SimDevice:
 
     @property
     def rate_hz(self) -> float:
+        """The sample rate now (SET_RATE changes it)."""
         return self.sampler.rate_hz
 
     def info(self) -> dict[str, object]:
+        """What GET_INFO answers: the unit's identity and its rate."""
         rate = self.rate_hz
         return self.truth.device_info(int(rate) if float(rate).is_integer() else rate)
 

@@ -9,7 +9,10 @@ URL options (all optional)::
 
     seed=N            unit, noise and scenario seed (default 0)
     rate=HZ           sample rate at power-up (default 200)
-    scenario=NAME     still | six-position | twelve-position | six-position-static | handheld
+    scenario=NAME     still | chamber | six-position | twelve-position | six-position-static | handheld
+    t_min=C t_max=C rate_c_per_min=R soak_s=S
+                      the chamber scenario's programme: from t_min up to t_max and back at R degC/min,
+                      soaking S s at each end (default -20, 60, 1, 600: 3 h), then held at t_min
     loop=0|1          repeat the scenario (default: per scenario)
     grade=mems|tactical   intrinsics of the random unit (default mems)
     ideal=1           an ideal unit (identity, no noise) instead of a random one
@@ -36,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, to_bytes
 
+from mocks.chamber import SCENARIO_DEFAULTS, ChamberSweep, sweep_from_options
 from mocks.device import SCENARIOS, SimDevice
 from mocks.faults import FaultInjector, FaultSpec
 from mocks.truth import UnitTruth
@@ -58,6 +62,7 @@ class SimOptions:
     speed: float = 1.0
     record: bool = False
     faults: FaultSpec | None = None
+    chamber: ChamberSweep | None = None
 
 
 def parse_sim_url(url: str) -> SimOptions:
@@ -67,6 +72,7 @@ def parse_sim_url(url: str) -> SimOptions:
         raise ValueError(f"expected a URL of the form sim://?seed=N&rate=HZ..., got {url!r}")
     options = SimOptions()
     fault_parts: list[str] = []
+    chamber_options: dict[str, str] = {}
     for key, values in urllib.parse.parse_qs(parts.query, keep_blank_values=True).items():
         value = values[-1]
         try:
@@ -93,12 +99,21 @@ def parse_sim_url(url: str) -> SimOptions:
                 fault_parts.append(f"seed={int(value)}")
             elif key in _FAULT_KEYS:
                 fault_parts.append(f"{key}={value}")
+            elif key in SCENARIO_DEFAULTS:
+                chamber_options[key] = value
             else:
                 raise ValueError("unknown option")
         except ValueError as exc:
             raise ValueError(f"sim:// option {key}={value!r}: {exc}") from None
     if fault_parts:
         options.faults = FaultSpec.parse(",".join(fault_parts))
+    if options.scenario == "chamber":
+        try:
+            options.chamber = sweep_from_options(chamber_options)
+        except ValueError as exc:
+            raise ValueError(f"sim:// chamber scenario: {exc}") from None
+    elif chamber_options:
+        raise ValueError(f"sim:// options {', '.join(chamber_options)} apply to scenario=chamber only")
     return options
 
 
@@ -132,7 +147,7 @@ class Serial(SerialBase):
             opts = parse_sim_url(self._port)
             truth = UnitTruth.ideal() if opts.ideal else UnitTruth.random(opts.seed, grade=opts.grade)
             self.device = SimDevice(truth, seed=opts.seed, rate_hz=opts.rate, scenario=opts.scenario,
-                                    loop=opts.loop)
+                                    loop=opts.loop, chamber=opts.chamber)
         except ValueError as exc:
             raise SerialException(f"cannot open {self._port!r}: {exc}") from None
         faults = opts.faults

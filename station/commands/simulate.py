@@ -28,7 +28,9 @@ unit's rate; a long sequence takes 1/X of the time). It prints the port path and
 
 scenarios: still (lying flat, +z up), six-position, twelve-position (the capture-csv sequences
 with their rotations, looped), six-position-static (no rotations), handheld (imu_tk-style random
-poses, looped).
+poses, looped), chamber (lying flat, +z up, in a climatic chamber: from -20 up to +60 degC and
+back at 1 degC/min with 10 min soaks, 3 h of device clock, then held at -20 degC; the unit's
+thermal bias follows; --chamber changes the programme).
 
 faults (probabilities per frame, comma separated): garbage=P, bitflip=P, truncate=P, drop=P,
 stall=P with stall_s=S, garbage_max=N, disconnect_bytes=N, disconnect_s=S, seed=N."""
@@ -37,6 +39,7 @@ examples:
   imu-station simulate --seed 3 --rate 400 --link /tmp/imu
   imu-station simulate --scenario six-position --faults garbage=0.01,drop=0.001
   imu-station simulate --scenario twelve-position --speed 10
+  imu-station simulate --scenario chamber --chamber t_min=0,t_max=40,rate_c_per_min=2 --speed 100
   imu-station capture --port /tmp/imu --duration 10 -o still.csv   (in another terminal)"""
 
 # Beyond this the pty and the host's decoding, not the simulated unit, would set the pace.
@@ -52,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sample rate at power-up (default: 200)")
     parser.add_argument("--scenario", default="still", choices=list(SCENARIOS),
                         help="how the unit moves (default: still)")
+    parser.add_argument("--chamber", default="", metavar="SPEC",
+                        help="programme of --scenario chamber: t_min=C,t_max=C,rate_c_per_min=R,soak_s=S, "
+                             "any of them (default: t_min=-20,t_max=60,rate_c_per_min=1,soak_s=600)")
     parser.add_argument("--hold", action="store_true",
                         help="hold the last pose at the end of the scenario instead of looping it")
     parser.add_argument("--grade", default="mems", choices=["mems", "tactical"],
@@ -70,6 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mocks.chamber import describe_scenario, parse_chamber_spec
     from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ, SimDevice
     from mocks.faults import FaultSpec
     from mocks.pty_server import PtyServer
@@ -79,6 +86,14 @@ def run(args: argparse.Namespace) -> int:
         faults = FaultSpec.parse(args.faults)
     except ValueError as exc:
         raise StationError(f"--faults {args.faults!r}: {exc}") from None
+    chamber = None
+    if args.scenario == "chamber":
+        try:
+            chamber = parse_chamber_spec(args.chamber)
+        except ValueError as exc:
+            raise StationError(f"--chamber {args.chamber!r}: {exc}") from None
+    elif args.chamber:
+        raise StationError(f"--chamber applies to --scenario chamber only, not {args.scenario}")
     if not MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:
         raise StationError(f"--rate {args.rate}: the simulated unit runs at {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
     if not 0 < args.speed <= MAX_SPEED:
@@ -87,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
     device = SimDevice(truth, seed=args.seed, rate_hz=args.rate, scenario=args.scenario,
-                       loop=False if args.hold else None, encoder=args.protocol)
+                       loop=False if args.hold else None, encoder=args.protocol, chamber=chamber)
     server = PtyServer(device, faults=faults, link=args.link, speed=args.speed)
 
     stop = threading.Event()
@@ -97,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
         speed = f", speed x{args.speed:g}" if args.speed != 1 else ""
         print(f"simulated unit {truth.serial} ({truth.model}), {args.rate} Hz, scenario {args.scenario}, "
               f"faults {faults.describe()}{speed}")
+        if chamber is not None:
+            print(f"chamber: {describe_scenario(chamber)}")
         print(f"port: {server.port_path}")
         if args.link is not None:
             print(f"link: {args.link} -> {server.port_path}")
