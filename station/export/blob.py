@@ -27,7 +27,18 @@ Layout, format version 1 (every offset in bytes, every number little-endian):
       4      u32  CRC-32 (IEEE 802.3) of every byte before it
 
 The firmware side (``imu_calib_load`` in the exported C) checks magic, version, length
-and CRC in that order, so each failure has its own code.
+and CRC in that order, so each failure has its own code. Then the content, with one set of
+rules that ``parse_blob`` applies exactly as the C does (same order, same error code), and that
+``build_blob`` checks on what it writes:
+
+- the header size lies between 96 and the CRC;
+- every float is finite; the dT time constant is not negative;
+- each correction matrix has a non-zero determinant (cofactor expansion in double precision,
+  the same operations on both sides);
+- per thermal block: at most the loader's capacity of segments (``IMU_CALIB_MAX_SEGMENTS``,
+  ``ERR_CAPACITY``), dT clamp min <= max, each segment t_min < t_max and starting at or after the
+  previous segment's t_max (float32 comparisons);
+- the content ends exactly at the CRC.
 """
 
 from __future__ import annotations
@@ -65,8 +76,25 @@ _HEADER = struct.Struct("<4sHHIHHqq32s16s16x")
 assert _HEADER.size == HEADER_SIZE
 
 
+# imu_calib_load's results (IMU_CALIB_ERR_* in the exported header)
+ERR_MAGIC = -1
+ERR_VERSION = -2
+ERR_LENGTH = -3
+ERR_CRC = -4
+ERR_CAPACITY = -5
+ERR_CONTENT = -6
+
+
 class BlobError(StationError):
-    """A blob that cannot be built from a parameter file, or read back."""
+    """A blob that cannot be built from a parameter file, or read back.
+
+    ``code`` is the ``imu_calib_load`` result the firmware gives for the same blob (None when
+    building).
+    """
+
+    def __init__(self, message: str, code: int | None = None):
+        super().__init__(message)
+        self.code = code
 
 
 @dataclass
@@ -118,14 +146,23 @@ def _f32(values: object) -> list[float]:
     return [float(v) for v in np.asarray(values, dtype=np.float32).ravel()]
 
 
+def _segment_problem(i: int, t_min: float, t_max: float, previous_t_max: float | None) -> str | None:
+    """What is wrong with segment ``i`` under the blob's rule (float32 bounds), or None."""
+    lo, hi = np.float32(t_min), np.float32(t_max)
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+        return f"segment {i}: t_min {t_min} must be below t_max {t_max}"
+    if previous_t_max is not None and lo < np.float32(previous_t_max):
+        return (f"segment {i} starts at {t_min} degC, before the previous segment ends "
+                f"({previous_t_max} degC); segments must be in increasing order")
+    return None
+
+
 def _check_thermal(name: str, triad: ThermalBias) -> None:
     previous_max = None
     for i, seg in enumerate(triad.segments):
-        if not (np.isfinite(seg.t_min) and np.isfinite(seg.t_max) and seg.t_min < seg.t_max):
-            raise BlobError(f"thermal.{name} segment {i}: t_min {seg.t_min} must be below t_max {seg.t_max}")
-        if previous_max is not None and seg.t_min < previous_max - 1e-9:
-            raise BlobError(f"thermal.{name} segment {i} starts at {seg.t_min} degC, before the previous "
-                            f"segment ends ({previous_max} degC); segments must be in increasing order")
+        problem = _segment_problem(i, seg.t_min, seg.t_max, previous_max)
+        if problem is not None:
+            raise BlobError(f"thermal.{name} {problem}")
         if not np.all(np.isfinite(seg.coeffs)):
             raise BlobError(f"thermal.{name} segment {i} has a coefficient that is not a finite number")
         previous_max = seg.t_max
@@ -192,59 +229,136 @@ def build_blob(params: ParamsFile, station_id: str, exported_utc: int) -> bytes:
         fixed_utf8(station_id, STATION_ID_SIZE, "station id"),
     )
     body = header + payload
-    return body + struct.pack("<I", crc32(body))
+    blob = body + struct.pack("<I", crc32(body))
+    try:
+        parse_blob(blob)
+    except BlobError as exc:
+        raise BlobError(f"the parameter file gives a blob the firmware loader refuses: {exc}") from None
+    return blob
 
 
-def _read_thermal(data: bytes, pos: int, name: str) -> tuple[ThermalBias | None, int]:
-    if pos + THERMAL_HEAD_SIZE > len(data) - CRC_SIZE:
-        raise BlobError(f"blob ends inside the {name} thermal block")
-    n, dt_min, dt_max = struct.unpack_from("<Iff", data, pos)
-    pos += THERMAL_HEAD_SIZE
-    if pos + n * SEGMENT_SIZE > len(data) - CRC_SIZE:
-        raise BlobError(f"blob ends inside the {name} thermal segments ({n} announced)")
-    segments = []
-    for _ in range(n):
-        values = struct.unpack_from(f"<{2 + 3 * N_TERMS}f", data, pos)
-        segments.append(ThermalSegment(values[0], values[1], np.array(values[2:])))
-        pos += SEGMENT_SIZE
-    return (ThermalBias(segments, dt_min, dt_max) if n else None), pos
+class _Cursor:
+    """The C loader's bounds-checked reader: a short read or a non-finite float clears ``ok`` and
+    keeps the first reason; reads after that give 0 and do not move."""
+
+    def __init__(self, data: bytes, pos: int, end: int):
+        self.data, self.pos, self.end = data, pos, end
+        self.ok = True
+        self.why = ""
+
+    def refuse(self, why: str) -> None:
+        if self.ok:
+            self.ok, self.why = False, why
+
+    def u32(self, what: str) -> int:
+        if not self.ok or self.end - self.pos < 4:
+            self.refuse(f"blob content ends inside {what}")
+            return 0
+        (value,) = struct.unpack_from("<I", self.data, self.pos)
+        self.pos += 4
+        return int(value)
+
+    def f32(self, what: str) -> float:
+        (value,) = struct.unpack("<f", struct.pack("<I", self.u32(what)))
+        if not np.isfinite(value):
+            self.refuse(f"{what} is not a finite number")
+        return float(value)
+
+    def floats(self, n: int, what: str) -> list[float]:
+        return [self.f32(what) for _ in range(n)]
 
 
-def parse_blob(data: bytes) -> BlobContents:
-    """Read a blob back, with the checks and in the order of the firmware's ``imu_calib_load``."""
+def _determinant(m: list[float]) -> float:
+    """Cofactor expansion in double precision, in the order of the C loader's imu_calib_det."""
+    a, b, c, d, e, f, g, h, i = m
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+
+
+def _inverse(m: list[float], det: float) -> np.ndarray:
+    a, b, c, d, e, f, g, h, i = m
+    adjugate = np.array([[e * i - f * h, c * h - b * i, b * f - c * e],
+                         [f * g - d * i, a * i - c * g, c * d - a * f],
+                         [d * h - e * g, b * g - a * h, a * e - b * d]])
+    return adjugate / det
+
+
+def _take_thermal(r: _Cursor, name: str, max_segments: int | None) -> ThermalBias | None:
+    n = r.u32(f"the {name} thermal block")
+    if r.ok and max_segments is not None and n > max_segments:
+        raise BlobError(f"the {name} thermal model has {n} segments, more than the loader's "
+                        f"{max_segments}", ERR_CAPACITY)
+    dt_min = r.f32(f"the {name} dT clamp")
+    dt_max = r.f32(f"the {name} dT clamp")
+    if r.ok and not dt_min <= dt_max:
+        r.refuse(f"the {name} dT clamp [{dt_min}, {dt_max}] is not a range")
+    segments: list[ThermalSegment] = []
+    while r.ok and len(segments) < n:
+        what = f"{name} thermal segment {len(segments)}"
+        t_min, t_max = r.f32(what), r.f32(what)
+        coeffs = r.floats(3 * N_TERMS, what)
+        problem = _segment_problem(len(segments), t_min, t_max, segments[-1].t_max if segments else None)
+        if problem is not None:
+            r.refuse(f"{name} thermal {problem}")
+        segments.append(ThermalSegment(t_min, t_max, np.array(coeffs)))
+    if not r.ok:
+        raise BlobError(f"blob content is inconsistent: {r.why}", ERR_CONTENT)
+    return ThermalBias(segments, dt_min, dt_max) if n else None
+
+
+def parse_blob(data: bytes, max_segments: int | None = None) -> BlobContents:
+    """Read a blob back with exactly the checks, order and error codes of the firmware's ``imu_calib_load``.
+
+    Parameters
+    ----------
+    data : bytes
+        The blob.
+    max_segments : int, optional
+        The loader's ``IMU_CALIB_MAX_SEGMENTS``: more segments in a thermal block give
+        ``ERR_CAPACITY`` as in the C. None reads any number.
+
+    Raises
+    ------
+    BlobError
+        With ``code`` the loader's result for the same bytes.
+    """
     if len(data) < 8:
-        raise BlobError(f"blob is {len(data)} bytes, shorter than its fixed header start")
-    magic, version, header_size = struct.unpack_from("<4sHH", data, 0)
+        raise BlobError(f"blob is {len(data)} bytes, shorter than its fixed header start", ERR_LENGTH)
+    magic, version = struct.unpack_from("<4sH", data, 0)
     if magic != MAGIC:
-        raise BlobError(f"bad magic {magic!r}, expected {MAGIC!r}: not an imu-station parameter blob")
+        raise BlobError(f"bad magic {magic!r}, expected {MAGIC!r}: not an imu-station parameter blob",
+                        ERR_MAGIC)
     if version != FORMAT_VERSION:
-        raise BlobError(f"blob format version {version} is unknown; this station reads {FORMAT_VERSION}")
-    if len(data) < MIN_BLOB_SIZE or header_size < HEADER_SIZE:
-        raise BlobError(f"blob is {len(data)} bytes, too short for format version {FORMAT_VERSION}")
-    (_, _, _, total, schema, flags, created, exported, serial, station) = _HEADER.unpack_from(data, 0)
+        raise BlobError(f"blob format version {version} is unknown; this station reads {FORMAT_VERSION}",
+                        ERR_VERSION)
+    if len(data) < MIN_BLOB_SIZE:
+        raise BlobError(f"blob is {len(data)} bytes, too short for format version {FORMAT_VERSION}",
+                        ERR_LENGTH)
+    (_, _, header_size, total, schema, flags, created, exported, serial, station) = \
+        _HEADER.unpack_from(data, 0)
     if total != len(data):
-        raise BlobError(f"blob says it is {total} bytes long but {len(data)} bytes were given")
+        raise BlobError(f"blob says it is {total} bytes long but {len(data)} bytes were given", ERR_LENGTH)
     (stored_crc,) = struct.unpack_from("<I", data, total - CRC_SIZE)
     if crc32(data[: total - CRC_SIZE]) != stored_crc:
-        raise BlobError("blob CRC-32 mismatch: the blob is corrupted")
-    pos = header_size
-    reference_temp, tau = struct.unpack_from("<ff", data, pos)
-    pos += 8
-    triads = []
-    for _ in range(2):
-        values = struct.unpack_from("<12f", data, pos)
-        correction = np.array(values[:9]).reshape(3, 3)
-        if not np.all(np.isfinite(values)) or abs(np.linalg.det(correction)) < 1e-12:
-            raise BlobError("blob holds a correction matrix that is singular or not finite")
-        triads.append(SensorCalibration(np.linalg.inv(correction), np.array(values[9:])))
-        pos += TRIAD_SIZE
-    accel_thermal, pos = _read_thermal(data, pos, "accel")
-    gyro_thermal, pos = _read_thermal(data, pos, "gyro")
-    if pos != total - CRC_SIZE:
-        raise BlobError(f"blob content ends at byte {pos}, not at the CRC (byte {total - CRC_SIZE})")
-    for name, triad in (("accel", accel_thermal), ("gyro", gyro_thermal)):
-        if triad is not None:
-            _check_thermal(name, triad)
+        raise BlobError("blob CRC-32 mismatch: the blob is corrupted", ERR_CRC)
+    end = total - CRC_SIZE
+    if not HEADER_SIZE <= header_size <= end:
+        raise BlobError(f"blob header size {header_size} is outside {HEADER_SIZE}..{end}", ERR_CONTENT)
+    r = _Cursor(data, header_size, end)
+    reference_temp = r.f32("the reference temperature")
+    tau = r.f32("the dT time constant")
+    triads = [r.floats(12, f"the {name} correction or bias") for name in ("accel", "gyro")]
+    determinants = [_determinant(values[:9]) for values in triads]
+    if r.ok and 0.0 in determinants:
+        r.refuse("a correction matrix is singular (determinant 0)")
+    accel_thermal = _take_thermal(r, "accel", max_segments)
+    gyro_thermal = _take_thermal(r, "gyro", max_segments)
+    if r.pos != end:
+        raise BlobError(f"blob content ends at byte {r.pos}, not at the CRC (byte {end})", ERR_CONTENT)
+    if tau < 0:
+        raise BlobError(f"blob content is inconsistent: the dT time constant {tau} s is negative",
+                        ERR_CONTENT)
+    calibrations = [SensorCalibration(_inverse(values[:9], det), np.array(values[9:]))
+                    for values, det in zip(triads, determinants, strict=True)]
     thermal = None
     if accel_thermal is not None or gyro_thermal is not None:
         thermal = ThermalModel(reference_temp, DtempFilter("ema", tau), accel_thermal, gyro_thermal)
@@ -252,6 +366,6 @@ def parse_blob(data: bytes) -> BlobContents:
         flags=flags, schema_version=schema, created_utc=created, exported_utc=exported,
         serial=serial.rstrip(b"\0").decode("utf-8", errors="replace"),
         station_id=station.rstrip(b"\0").decode("utf-8", errors="replace"),
-        reference_temp=reference_temp, dtemp_tau_s=tau, accel=triads[0], gyro=triads[1], thermal=thermal,
-        format_version=version,
+        reference_temp=reference_temp, dtemp_tau_s=tau, accel=calibrations[0], gyro=calibrations[1],
+        thermal=thermal, format_version=version,
     )

@@ -218,7 +218,9 @@ typedef struct {
 } imu_calib_dtemp_t;
 
 /* Parse a parameter blob. 0 on success; a negative IMU_CALIB_ERR_* code for bad magic, unknown
-   version, wrong length or CRC mismatch (checked in that order), leaving *out untouched. */
+   version, wrong length or CRC mismatch (checked in that order), then for content that breaks the
+   blob's rules (non-finite number, singular correction, negative dT time constant, thermal
+   segments out of order or overlapping, too many segments), leaving *out untouched. */
 int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len);
 
 /* Correct one sample: temperature in degC, its rate in degC/s, raw inputs in sensor units.
@@ -362,11 +364,21 @@ static int imu_calib_take_thermal(imu_calib_reader_t *r, imu_calib_thermal_t *th
         s->t_min = imu_calib_take_f32(r);
         s->t_max = imu_calib_take_f32(r);
         imu_calib_take_floats(r, &s->coeffs[0][0], 3u * IMU_CALIB_TERMS);
-        if (!(s->t_min < s->t_max) || (i > 0u && s->t_min < th->segments[i - 1u].t_min)) {
+        if (!(s->t_min < s->t_max) || (i > 0u && s->t_min < th->segments[i - 1u].t_max)) {
             r->ok = 0;
         }
     }
     return r->ok ? IMU_CALIB_OK : IMU_CALIB_ERR_CONTENT;
+}
+
+/* Determinant of a correction matrix, by cofactors in double precision: the station's blob reader
+   (station.export.blob) does the same operations in the same order, so both refuse the same blobs. */
+static double imu_calib_det(const imu_calib_triad_t *t)
+{
+    double a = (double)t->correction[0][0], b = (double)t->correction[0][1], c = (double)t->correction[0][2];
+    double d = (double)t->correction[1][0], e = (double)t->correction[1][1], f = (double)t->correction[1][2];
+    double g = (double)t->correction[2][0], h = (double)t->correction[2][1], k = (double)t->correction[2][2];
+    return a * (e * k - f * h) - b * (d * k - f * g) + c * (d * h - e * g);
 }
 
 int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
@@ -420,6 +432,9 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
     imu_calib_take_floats(&r, p.accel.bias, 3u);
     imu_calib_take_floats(&r, &p.gyro.correction[0][0], 9u);
     imu_calib_take_floats(&r, p.gyro.bias, 3u);
+    if (r.ok && (imu_calib_det(&p.accel) == 0.0 || imu_calib_det(&p.gyro) == 0.0)) {
+        r.ok = 0;
+    }
     rc = imu_calib_take_thermal(&r, &p.accel_thermal);
     if (rc == IMU_CALIB_OK) {
         rc = imu_calib_take_thermal(&r, &p.gyro_thermal);

@@ -17,10 +17,11 @@ import yaml
 from station.engines.sensor_model import SensorCalibration
 from station.engines.thermal_model import ThermalModel
 from station.errors import InputFileError
+from station.export.params_check import UNITS, Locate, check_params
 from station.files import atomic_write_text
+from station.yaml_file import read_yaml
 
 SCHEMA = "imu-station/params/1"
-UNITS = {"accel": "m/s^2", "gyro": "rad/s", "temperature": "degC"}
 SENSOR_KEYS = ("matrix", "bias", "scale", "misalignment", "correction", "method", "residual_rms", "stddev")
 
 
@@ -58,22 +59,13 @@ def sensor_to_dict(cal: SensorCalibration) -> dict[str, Any]:
     return to_plain(out)
 
 
-def sensor_from_dict(d: dict[str, Any], where: str) -> SensorCalibration:
-    try:
-        matrix = np.asarray(d["matrix"], dtype=float)
-        bias = np.asarray(d["bias"], dtype=float)
-    except KeyError as exc:
-        raise ValueError(f"section '{where}' lacks the required key {exc.args[0]!r}") from None
-    if matrix.shape != (3, 3) or bias.shape != (3,):
-        raise ValueError(f"section '{where}': matrix must be 3x3 and bias 3 numbers")
-    if not np.all(np.isfinite(matrix)) or not np.all(np.isfinite(bias)):
-        raise ValueError(f"section '{where}': matrix and bias must be finite numbers")
-    if abs(np.linalg.det(matrix)) < 1e-12:
-        raise ValueError(f"section '{where}': matrix is singular and cannot be inverted")
+def sensor_from_dict(d: dict[str, Any]) -> SensorCalibration:
+    """A sensor section already checked by ``check_params``."""
     extra = {k: v for k, v in d.items() if k not in SENSOR_KEYS}
     return SensorCalibration(
-        matrix, bias, method=str(d.get("method", "")), residual_rms=d.get("residual_rms"),
-        stddev=d.get("stddev") or {}, extra=extra,
+        np.asarray(d["matrix"], dtype=float), np.asarray(d["bias"], dtype=float),
+        method=str(d.get("method") or ""), residual_rms=d.get("residual_rms"), stddev=d.get("stddev") or {},
+        extra=extra,
     )
 
 
@@ -114,43 +106,35 @@ class ParamsFile:
         atomic_write_text(path, self.dump())
 
     @classmethod
-    def from_dict(cls, d: Any, path: str | Path = "<params>") -> ParamsFile:
-        if not isinstance(d, dict):
-            raise InputFileError(path, "is not a YAML mapping; expected an imu-station parameter file")
-        schema = d.get("schema")
-        if schema != SCHEMA:
+    def from_dict(cls, d: Any, path: str | Path = "<params>", locate: Locate | None = None) -> ParamsFile:
+        """A parameter file from its YAML document, checked against the schema (``check_params``).
+
+        ``locate`` maps a key path to its line in the file, for the messages.
+        """
+        schema = d.get("schema") if isinstance(d, dict) else None
+        if isinstance(d, dict) and schema != SCHEMA:
+            line = locate(("schema",)) if locate is not None else None
             raise InputFileError(
                 path, f"schema is {schema!r}, this station reads {SCHEMA!r}; "
-                "write the file with this station or upgrade it", column="schema")
+                "write the file with this station or upgrade it", line=line, column="schema")
+        check_params(d, path, locate)
         known = {"schema", "device", "created", "units", "accel", "gyro", "thermal", "noise"}
-        try:
-            return cls(
-                device=d.get("device") or {},
-                created=str(d.get("created", utc_now())),
-                accel=sensor_from_dict(d["accel"], "accel") if d.get("accel") else None,
-                gyro=sensor_from_dict(d["gyro"], "gyro") if d.get("gyro") else None,
-                thermal=ThermalModel.from_dict(d["thermal"]) if d.get("thermal") else None,
-                noise=d.get("noise"),
-                other={k: v for k, v in d.items() if k not in known},
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputFileError(path, f"invalid parameter file: {exc}") from None
+        return cls(
+            device=dict(d.get("device") or {}),
+            created=str(d.get("created", utc_now())),
+            accel=sensor_from_dict(d["accel"]) if d.get("accel") else None,
+            gyro=sensor_from_dict(d["gyro"]) if d.get("gyro") else None,
+            thermal=ThermalModel.from_dict(d["thermal"]) if d.get("thermal") else None,
+            noise=d.get("noise"),
+            other={k: v for k, v in d.items() if k not in known},
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> ParamsFile:
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise InputFileError(path, "does not exist; give the parameter file written by "
-                                 "'imu-station calibrate', 'allan' or 'thermal'") from None
-        except OSError as exc:
-            raise InputFileError(path, f"cannot be read: {exc.strerror}") from None
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise InputFileError.invalid_yaml(path, exc) from None
-        return cls.from_dict(data, path)
+        """Read and check a parameter file (bounded in size and alias expansion: ``station.yaml_file``)."""
+        document = read_yaml(path, "does not exist; give the parameter file written by "
+                             "'imu-station calibrate', 'allan' or 'thermal'")
+        return cls.from_dict(document.construct(), path, document.line_of)
 
     @classmethod
     def load_or_new(cls, path: str | Path) -> ParamsFile:
