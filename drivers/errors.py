@@ -1,7 +1,8 @@
 """The drivers' exception root. Every message names the port and says what to do next.
 
-``drivers`` may not import ``station``, so these errors carry the station's exit-code convention
-themselves (``exit_code = 3``: device or link) and the CLI treats them like its own errors.
+``DriverError`` is a :class:`protocols.errors.StationError` (the one root every layer raises
+under, kept in the lowest layer since ``drivers`` may not import ``station``), with exit code
+``ExitCode.DEVICE`` (3: device or link). The whole tree is drawn in ``station.errors``.
 
 ::
 
@@ -20,11 +21,21 @@ themselves (``exit_code = 3``: device or link) and the CLI treats them like its 
 
 from __future__ import annotations
 
+from protocols.errors import ExitCode, StationError
 
-class DriverError(Exception):
-    """A device or link error the user can act on; ``port`` names the port it concerns."""
 
-    exit_code = 3
+class DriverError(StationError):
+    """A device or link error the user can act on; ``port`` names the port it concerns.
+
+    Parameters
+    ----------
+    message : str
+        What failed, naming the port, and what to do next.
+    port : str
+        The port (device path or URL) the error concerns.
+    """
+
+    exit_code = ExitCode.DEVICE
 
     def __init__(self, message: str, port: str = ""):
         super().__init__(message)
@@ -64,7 +75,17 @@ class CommandTimeout(CommandError):
 
 
 class CommandRejected(CommandError):
-    """The device answered a command with an error status (unknown command, bad argument, busy)."""
+    """The device answered a command with an error status (unknown command, bad argument, busy).
+
+    Parameters
+    ----------
+    message : str
+        What the device refused, naming the port.
+    port : str
+        The port the device is on.
+    status : int
+        The device's error status code.
+    """
 
     def __init__(self, message: str, port: str = "", status: int = 0):
         super().__init__(message, port)

@@ -27,9 +27,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.signal import lfilter
 
+from protocols.units import STANDARD_GRAVITY
+
 THERMAL_TERMS = ("t3", "t2", "t", "dt2", "dt", "tdt", "1")
 EARTH_RATE_RAD_S = 7.2921159e-5  # WGS-84 angular rate of the Earth
-STANDARD_GRAVITY = 9.80665
 
 # Allan deviation of flicker bias noise sits at sqrt(2 ln2 / pi) B (IEEE Std 952, Annex C).
 FLICKER_FLOOR = float(np.sqrt(2.0 * np.log(2.0) / np.pi))  # 0.6643

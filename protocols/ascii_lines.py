@@ -33,8 +33,8 @@ import numpy as np
 
 from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
 from protocols.crc import crc16_ccitt_false
+from protocols.units import STANDARD_GRAVITY
 
-STANDARD_GRAVITY = 9.80665
 MOTIONCAL_ACC_PER_G = 8192.0
 MOTIONCAL_GYRO_PER_DPS = 16.0
 MOTIONCAL_MAG_PER_UT = 10.0

@@ -32,6 +32,8 @@ from typing import Any
 import numpy as np
 
 from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+from protocols.errors import StationError
+from protocols.units import STANDARD_GRAVITY
 
 STX_V1 = 0xFE
 STX_V2 = 0xFD
@@ -39,14 +41,14 @@ HEADER_V1 = 6
 HEADER_V2 = 10
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
-MILLI_G = 9.80665e-3
+MILLI_G = STANDARD_GRAVITY * 1e-3
 
 IMU_MESSAGES = ("HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU")
 _STX = re.compile(rb"[\xfd\xfe]")
 
 
-class MavlinkUnavailable(ValueError):
-    """pymavlink is not installed (a ValueError, as any protocol the station cannot decode)."""
+class MavlinkUnavailable(StationError):
+    """pymavlink is not installed: the MAVLink protocol needs the ``mavlink`` extra (exit 4)."""
 
 
 def load_dialect() -> Any:

@@ -1,19 +1,55 @@
-"""The station's exception root. Every message says what went wrong and what to do next."""
+"""The station's exceptions and exit codes. Every message says what went wrong and what to do next.
+
+One root, :class:`StationError`, defined in the lowest layer (``protocols.errors``) so that the
+protocols and the drivers, which may not import ``station``, raise under it too; each layer
+has its own root below it. The CLI catches ``StationError`` alone, prints the message as one
+line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
+
+    StationError                          exit 4 unless a subclass says otherwise
+     ├── InputFileError                   a file the user gave cannot be read: file, line, field
+     ├── EngineInputError                 the data cannot determine what was asked
+     ├── OutputFileError                  a file the station writes cannot be written
+     ├── SequenceError                    a step label that does not follow the spec (acquisition)
+     ├── BlobError                        a parameter blob that cannot be built or read (export)
+     ├── DemoFailed                       a check of the demo did not hold
+     ├── MavlinkUnavailable               the MAVLink protocol needs pymavlink (protocols)
+     └── DriverError                      exit 3: device or link (drivers, see drivers.errors)
+          ├── PortError                   opening the port failed
+          │    ├── PortNotFound
+          │    ├── PortBusy
+          │    └── PortPermission
+          ├── PortLost                    the port went away while open
+          ├── NoSamples                   the port is open but no sample arrives
+          ├── TableFault                  the turntable reports a fault
+          └── CommandError                a command to the device failed
+               ├── CommandTimeout
+               ├── CommandRejected
+               └── CommandUnsupported
+
+Decoders never raise on bad bytes (they count them), so no decoding error appears here.
+"""
 
 from __future__ import annotations
 
+from protocols.errors import ExitCode, StationError
 
-class StationError(Exception):
-    """An error the user can act on; the CLI prints it without a traceback.
-
-    ``exit_code`` follows the factory convention: 3 device or link, 4 usage or configuration.
-    """
-
-    exit_code = 4
+__all__ = ["EngineInputError", "ExitCode", "InputFileError", "OutputFileError", "StationError"]
 
 
 class InputFileError(StationError):
-    """A file the user gave cannot be read: names the file, line and field."""
+    """A file the user gave cannot be read: names the file, line and field.
+
+    Parameters
+    ----------
+    path : object
+        The file, as the user named it.
+    problem : str
+        What is wrong, and what to do about it.
+    line : int, optional
+        1-based line of the problem, when the format has lines.
+    column : str, optional
+        The column or field at fault.
+    """
 
     def __init__(self, path: object, problem: str, line: int | None = None, column: str | None = None):
         where = str(path)
@@ -30,8 +66,10 @@ class InputFileError(StationError):
     def invalid_yaml(cls, path: object, exc: Exception) -> InputFileError:
         """The error for a file PyYAML could not parse, at the line of its problem mark if it has one."""
         mark = getattr(exc, "problem_mark", None)
-        return cls(path, f"is not valid YAML: {getattr(exc, 'problem', exc)}",
-                   line=mark.line + 1 if mark is not None else None)
+        # PyYAML's own text spans lines and repeats the mark; context and problem alone read as one line.
+        parts = [getattr(exc, "context", None), getattr(exc, "problem", None)]
+        problem = ", ".join(" ".join(str(p).split()) for p in parts if p) or " ".join(str(exc).split())
+        return cls(path, f"is not valid YAML: {problem}", line=mark.line + 1 if mark is not None else None)
 
 
 class EngineInputError(StationError):
@@ -39,7 +77,15 @@ class EngineInputError(StationError):
 
 
 class OutputFileError(StationError):
-    """A file the station writes cannot be written (disk full, no permission): names the file."""
+    """A file the station writes cannot be written (disk full, no permission): names the file.
+
+    Parameters
+    ----------
+    path : object
+        The file that could not be written.
+    problem : str
+        Why, and what to do about it.
+    """
 
     def __init__(self, path: object, problem: str):
         super().__init__(f"{path}: {problem}")

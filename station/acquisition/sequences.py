@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from station.errors import InputFileError
+from station.errors import InputFileError, StationError
 
 SCHEMA = "imu-station/sequence/1"
 SIX_POSITION = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -45,6 +45,7 @@ _ROT_RE = re.compile(r"^rot([+-])([xyz])(?::([0-9]+(?:\.[0-9]*)?))?$")
 
 
 class SequenceError(ValueError):
+class SequenceError(StationError):
     """A label or step that does not follow the spec; the loader turns it into an InputFileError."""
 
 

@@ -6,6 +6,9 @@ import math
 
 import numpy as np
 
+# Defined once for every layer in protocols.units; the calibration engines import it from here.
+from protocols.units import STANDARD_GRAVITY as STANDARD_GRAVITY
+
 # WGS-84 defining and derived constants (NIMA TR8350.2, 3rd ed., tables 3.1 and 3.3).
 WGS84_A = 6378137.0                    # semi-major axis, m
 WGS84_F = 1.0 / 298.257223563          # flattening
@@ -14,7 +17,6 @@ WGS84_K = 0.00193185265241             # Somigliana's constant k = (b gamma_p)/(
 WGS84_E2 = 0.00669437999013            # first eccentricity squared
 WGS84_M = 0.00344978650684             # m = omega^2 a^2 b / GM
 EARTH_RATE = 7.292115e-5               # rad/s
-STANDARD_GRAVITY = 9.80665             # m/s^2, the conventional value
 
 
 def normal_gravity(latitude_deg: float, height_m: float = 0.0) -> float:

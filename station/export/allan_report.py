@@ -13,13 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from protocols.units import STANDARD_GRAVITY
 from station.engines.allan import AllanCurve
 from station.engines.allan_fit import ML_METHOD, TERMS, AxisNoise
 from station.files import atomic_write_text
 
 METHOD = ("overlapping Allan deviation (demeaned cumulative sum), IEEE 952 model fitted with weights from "
           "Greenhall-Riley EDF")
-STANDARD_GRAVITY = 9.80665
 DEG = 180.0 / math.pi
 
 # SI unit of each term, then (datasheet unit, factor from SI)

@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
+from protocols.units import STANDARD_GRAVITY
 from station.engines.correction import apply_calibration
 from station.engines.sensor_model import SensorCalibration
 from station.engines.thermal_model import ThermalBias
 from station.export.params_file import ParamsFile
 
-STANDARD_GRAVITY = 9.80665
 GYRO_POSE_RATE = 1.0  # rad/s: the gyro "poses" are +-1 rad/s about each axis
 FIT_POINTS = 401
 GRID_POINTS = 401

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
+from protocols.units import STANDARD_GRAVITY
 from station.export.autopilot import AutopilotExport, reference_temp, thermal_range
 from station.export.params_file import ParamsFile
 from station.files import atomic_open
 
-UNITS = {"accel": ("mg", 1e3 / 9.80665), "gyro": ("deg/h", 3600.0 * 180.0 / np.pi)}
+UNITS = {"accel": ("mg", 1e3 / STANDARD_GRAVITY), "gyro": ("deg/h", 3600.0 * 180.0 / np.pi)}
 DTEMP_STEPS = 9
 
 

@@ -37,12 +37,13 @@ from typing import Any
 
 import yaml
 
+from protocols.units import STANDARD_GRAVITY
 from station.acquisition import sequences
 from station.acquisition.sequences import Sequence
 from station.errors import InputFileError
 
 SCHEMA = "imu-station/plan/1"
-G0 = 9.80665
+G0 = STANDARD_GRAVITY
 DEG = math.pi / 180.0
 
 # unit name -> (dimension, factor to SI)

@@ -6,10 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from protocols.units import STANDARD_GRAVITY
 from station.engines.thermal import ThermalFit
 from station.files import atomic_open
 
-UNITS = {"accel": ("mg", 1e3 / 9.80665), "gyro": ("deg/h", 3600.0 * 180.0 / np.pi)}
+UNITS = {"accel": ("mg", 1e3 / STANDARD_GRAVITY), "gyro": ("deg/h", 3600.0 * 180.0 / np.pi)}
 
 
 def plot_thermal(fit: ThermalFit, path: str | Path) -> None:

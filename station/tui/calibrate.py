@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
+from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import Capture
 from station.engines.calibration_common import CalibrationReport
 from station.engines.calibration_turntable import calibrate_turntable
 from station.errors import EngineInputError
-
-STANDARD_GRAVITY = 9.80665
 
 
 def calibrate_run(capture: Capture, gravity: float = STANDARD_GRAVITY) -> CalibrationReport:
