@@ -44,7 +44,6 @@ _POSE_RE = re.compile(r"^(?:[+-][xyz]){1,3}$")
 _ROT_RE = re.compile(r"^rot([+-])([xyz])(?::([0-9]+(?:\.[0-9]*)?))?$")
 
 
-class SequenceError(ValueError):
 class SequenceError(StationError):
     """A label or step that does not follow the spec; the loader turns it into an InputFileError."""
 
