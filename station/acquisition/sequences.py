@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from station.errors import InputFileError, StationError
+from station.yaml_file import read_yaml
 
 SCHEMA = "imu-station/sequence/1"
 SIX_POSITION = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -266,17 +267,7 @@ def _scalar(node: yaml.Node, path: Path, what: str) -> str:
 def load_yaml(path: str | Path) -> Sequence:
     """Read a sequence file; refuse unknown keys, bad labels and bad numbers naming the line."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputFileError(path, "does not exist; give a built-in sequence name or a YAML sequence "
-                             "file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot be read: {exc}") from None
-    try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError as exc:
-        raise InputFileError.invalid_yaml(path, exc) from None
+    root = read_yaml(path, "does not exist; give a built-in sequence name or a YAML sequence file").root
     if not isinstance(root, yaml.MappingNode):
         raise InputFileError(path, "must be a YAML mapping with 'name' and 'steps'", line=1)
     top = {}

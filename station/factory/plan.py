@@ -41,6 +41,7 @@ from protocols.units import STANDARD_GRAVITY
 from station.acquisition import sequences
 from station.acquisition.sequences import Sequence
 from station.errors import InputFileError
+from station.yaml_file import read_yaml
 
 SCHEMA = "imu-station/plan/1"
 G0 = STANDARD_GRAVITY
@@ -182,17 +183,8 @@ class _Reader:
 def load_plan(path: str | Path) -> Plan:
     """Read and check a plan file (schema ``imu-station/plan/1``)."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-        text = raw.decode("utf-8")
-    except FileNotFoundError:
-        raise InputFileError(path, "does not exist; give the plan YAML (see examples/plan.yaml)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot be read: {exc}") from None
-    try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError as exc:
-        raise InputFileError.invalid_yaml(path, exc) from None
+    document = read_yaml(path, "does not exist; give the plan YAML (see examples/plan.yaml)")
+    raw, root = document.raw, document.root
     r = _Reader(path)
     if root is None:
         raise InputFileError(path, "is empty; a plan needs at least 'schema', 'name' and 'sequence'")
