@@ -1,0 +1,163 @@
+"""One set of blob rules: the station's reader (``parse_blob``) and the firmware loader
+(``imu_calib_load`` of the exported C, compiled with gcc) accept and refuse the same blobs, with
+the same error code, over thousands of corrupted blobs: field mutations with a recomputed CRC (so
+they reach the content checks) and random bit flips with and without one.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import struct
+import subprocess
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from export_params import make_params
+
+from protocols.crc import crc32
+from station.export import blob as blobfmt
+from station.export.c_export import DEFAULT_MAX_SEGMENTS, write_c_export
+
+HARNESS = Path(__file__).with_name("test_export_harness.c")
+CC = ["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+N_FIELD = 2500
+N_FLIPS = 1500
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc is needed to compile the loader")
+
+PAYLOAD = blobfmt.HEADER_SIZE
+TRIADS = PAYLOAD + 8
+ACCEL_THERMAL = TRIADS + 2 * blobfmt.TRIAD_SIZE
+NAN = struct.pack("<f", math.nan)
+INF = struct.pack("<f", math.inf)
+
+
+def with_crc(data: bytes | bytearray) -> bytes:
+    out = bytearray(data)
+    out[-4:] = struct.pack("<I", crc32(bytes(out[:-4])))
+    return bytes(out)
+
+
+def put(blob: bytes, offset: int, data: bytes) -> bytes:
+    out = bytearray(blob)
+    out[offset:offset + len(data)] = data
+    return with_crc(out)
+
+
+def field_mutation(good: bytes, rng: np.random.Generator) -> bytes:
+    """A blob whose CRC is right and one field is wrong (or in an edge case)."""
+    n_floats = (len(good) - 4 - PAYLOAD) // 4
+    kinds: list[Callable[[], bytes]] = [
+        lambda: put(good, 6, struct.pack("<H", int(rng.choice([0, 95, 97, 0xFFFF, len(good) - 4,
+                                                                len(good)])))),
+        lambda: put(good, 8, struct.pack("<I", int(rng.integers(0, 2**32)))),
+        lambda: put(good, PAYLOAD + 4 * int(rng.integers(0, n_floats)),
+                    [NAN, INF, struct.pack("<f", -math.inf)][int(rng.integers(0, 3))]),
+        lambda: put(good, PAYLOAD + 4, struct.pack("<f", float(rng.choice([-1.0, -1e-30, 0.0, -0.0, 1e30])))),
+        lambda: put(good, PAYLOAD, struct.pack("<f", float(rng.choice([math.inf, -math.inf, 3e38, -273.0])))),
+        lambda: put(good, ACCEL_THERMAL, struct.pack("<I", int(rng.choice([0, 1, 2, 3, 4, 9, 2**31,
+                                                                           2**32 - 1])))),
+        lambda: put(good, ACCEL_THERMAL + 4, struct.pack("<ff", *sorted(rng.normal(0, 1, 2))[::-1])),
+        lambda: put(good, ACCEL_THERMAL + 12 + int(rng.choice([0, 4, 92, 96])),
+                    struct.pack("<f", float(rng.choice([-10.0, 13.5, 13.4, 13.6, 37.0, 60.0, 99.0])))),
+        lambda: put(good, TRIADS + 48 * int(rng.integers(0, 2)) + 12 * int(rng.integers(0, 3)), bytes(12)),
+        lambda: put(good, TRIADS + 48 * int(rng.integers(0, 2)), bytes(36)),
+        lambda: with_crc(good[:-4 - 4 * int(rng.integers(1, 30))] + bytes(4)),
+        lambda: with_crc(good[:-4] + bytes(4 * int(rng.integers(1, 30))) + bytes(4)),
+        lambda: put(good, PAYLOAD + 4 * int(rng.integers(0, n_floats)), rng.bytes(4)),
+    ]
+    data = kinds[int(rng.integers(0, len(kinds)))]()
+    if struct.unpack_from("<I", data, 8)[0] == len(good) and len(data) != len(good):
+        data = put(data, 8, struct.pack("<I", len(data)))  # a resized blob that says its new size
+    return data
+
+
+def bit_flips(good: bytes, rng: np.random.Generator) -> bytes:
+    out = bytearray(good)
+    for _ in range(int(rng.integers(1, 4))):
+        bit = int(rng.integers(0, 8 * len(out)))
+        out[bit // 8] ^= 1 << (bit % 8)
+    return with_crc(out) if rng.random() < 0.7 else bytes(out)
+
+
+@pytest.fixture(scope="module")
+def loader(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("blob_rules")
+    write_c_export(make_params(seed=3), out, "bench-7", 1_795_000_000)
+    exe = out / "harness"
+    subprocess.run([*CC, "-I.", "imu_calib.c", str(HARNESS), "-lm", "-o", str(exe)], cwd=out, check=True,
+                   capture_output=True, timeout=120)
+    return exe, out
+
+
+def c_results(exe: Path, blobs: list[bytes], work: Path) -> list[tuple[int, bool]]:
+    """imu_calib_load's result and whether it left *out untouched, per blob."""
+    paths = []
+    for i, data in enumerate(blobs):
+        path = work / f"{i}.bin"
+        path.write_bytes(data)
+        paths.append(str(path))
+    results: list[tuple[int, bool]] = []
+    for start in range(0, len(paths), 500):
+        proc = subprocess.run([str(exe), "load", *paths[start:start + 500]], capture_output=True, text=True,
+                              check=True, timeout=120)
+        results += [(int(rc), untouched == "1") for rc, untouched in
+                    (line.split() for line in proc.stdout.splitlines())]
+    return results
+
+
+def station_result(data: bytes) -> int:
+    try:
+        blobfmt.parse_blob(data, max_segments=DEFAULT_MAX_SEGMENTS)
+    except blobfmt.BlobError as exc:
+        assert exc.code is not None
+        return exc.code
+    return 0
+
+
+def test_reader_and_loader_agree_on_corrupted_blobs(loader: tuple[Path, Path], tmp_path: Path) -> None:
+    exe, out = loader
+    good = (out / "imu_calib.bin").read_bytes()
+    rng = np.random.default_rng(22)
+    blobs = [good] + [field_mutation(good, rng) for _ in range(N_FIELD)] + \
+        [bit_flips(good, rng) for _ in range(N_FLIPS)]
+    c_side = c_results(exe, blobs, tmp_path)
+    disagreements = []
+    for i, (data, (code, untouched)) in enumerate(zip(blobs, c_side, strict=True)):
+        assert untouched == (code != 0), f"blob {i}: *out written on failure or untouched on success"
+        ours = station_result(data)
+        if ours != code:
+            disagreements.append((i, ours, code))
+    assert not disagreements, disagreements[:10]
+    codes = Counter(code for code, _ in c_side)
+    # The corpus reaches every rule, not only the CRC.
+    for code in (0, blobfmt.ERR_VERSION, blobfmt.ERR_LENGTH, blobfmt.ERR_CRC, blobfmt.ERR_CAPACITY,
+                 blobfmt.ERR_CONTENT):
+        assert codes[code] > 0, codes
+    assert codes[blobfmt.ERR_CONTENT] > 500, codes
+
+
+@pytest.mark.parametrize(("name", "damage", "code"), [
+    ("header size 0xFFFF", lambda b: put(b, 6, struct.pack("<H", 0xFFFF)), blobfmt.ERR_CONTENT),
+    ("header size at the CRC", lambda b: put(b, 6, struct.pack("<H", len(b) - 4)), blobfmt.ERR_CONTENT),
+    ("NaN dT time constant", lambda b: put(b, PAYLOAD + 4, NAN), blobfmt.ERR_CONTENT),
+    ("negative dT time constant", lambda b: put(b, PAYLOAD + 4, struct.pack("<f", -1.0)),
+     blobfmt.ERR_CONTENT),
+    ("infinite reference temperature", lambda b: put(b, PAYLOAD, INF), blobfmt.ERR_CONTENT),
+    ("overlapping segments", lambda b: put(b, ACCEL_THERMAL + 12 + 96, struct.pack("<f", 13.0)),
+     blobfmt.ERR_CONTENT),
+    ("singular accel correction", lambda b: put(b, TRIADS, bytes(12)), blobfmt.ERR_CONTENT),
+    ("nine segments", lambda b: put(b, ACCEL_THERMAL, struct.pack("<I", 9)), blobfmt.ERR_CAPACITY),
+])
+def test_rules_the_two_sides_disagreed_on(loader: tuple[Path, Path], tmp_path: Path, name: str,
+                                          damage: Callable[[bytes], bytes], code: int) -> None:
+    exe, out = loader
+    data = damage((out / "imu_calib.bin").read_bytes())
+    assert c_results(exe, [data], tmp_path) == [(code, True)], name
+    with pytest.raises(blobfmt.BlobError) as info:
+        blobfmt.parse_blob(data, max_segments=DEFAULT_MAX_SEGMENTS)
+    assert info.value.code == code, str(info.value)
