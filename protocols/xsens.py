@@ -97,6 +97,11 @@ TICKS_PER_SECOND = 10_000  # SampleTimeFine
 _US_PER_TICK = 1_000_000 // TICKS_PER_SECOND
 _NAN3 = (math.nan, math.nan, math.nan)
 
+# What the framing found at a frame start, when not the frame's end.
+_INCOMPLETE, _TOO_LONG, _BAD_SUM = -1, -2, -3
+# What an MTData2 packet was to the decoder.
+_SAMPLE, _MESSAGE, _UNDATED = 0, 1, 2
+
 
 _HAS_PRECISION = {TEMPERATURE, 0x2010, 0x2020, 0x2030, DELTA_V, ACCELERATION, FREE_ACCELERATION,
                   ACCELERATION_HR, 0x5020, 0x5030, 0x5040, RATE_OF_TURN, DELTA_Q, RATE_OF_TURN_HR,
@@ -346,12 +351,15 @@ class XsensDecoder(StreamDecoderBase):
         self.message_ids_seen: dict[int, int] = {}
         self._counter: int | None = None  # unwrapped PacketCounter of the last packet
         self._own_seq = 0  # for packets without PacketCounter
-        self._fine: int | None = None  # unwrapped SampleTimeFine of the last packet with one
+        self._fine: int | None = None  # unwrapped SampleTimeFine of the last sample dated by it
         self._last_inertial_ticks: int | None = None
         self._temp = math.nan
         self._pending: list[tuple[int, int, MTData2Packet]] = []  # delta packets waiting for an interval
 
     def feed(self, data: bytes) -> Decoded:
+        return self._decode(data, final=False)
+
+    def _decode(self, data: bytes, final: bool) -> Decoded:
         buf = self._buf
         buf += data
         rows: list[tuple] = []
@@ -362,29 +370,29 @@ class XsensDecoder(StreamDecoderBase):
             pos, found = self._seek_sync(SYNC, pos)
             if not found:
                 break
-            if len(buf) - pos < 4:
+            end = self._frame_end(pos)
+            if end == _INCOMPLETE:
                 break
-            length = buf[pos + 3]
-            header = 4
-            if length == EXTENDED_LENGTH:
-                if len(buf) - pos < 6:
-                    break
-                length = (buf[pos + 4] << 8) | buf[pos + 5]
-                header = 6
-                if length > MAX_PAYLOAD:
-                    stats.length_errors += 1
-                    pos = self._skip_candidate(pos)
-                    continue
-            end = pos + header + length + 1
-            if len(buf) < end:
-                break
-            if sum(memoryview(buf)[pos + 1 : end]) & 0xFF:
+            if end == _TOO_LONG:
+                stats.length_errors += 1
+                pos = self._skip_candidate(pos)
+                continue
+            if end == _BAD_SUM:
+                end = self._claimed_end(pos)
                 if buf.find(SYNC, pos + 1, end) >= 0:
                     stats.truncated += 1
                 else:
                     stats.crc_errors += 1
                 pos = self._skip_candidate(pos)
                 continue
+            verdict = self._believe(pos, end, final)
+            if verdict is None:
+                break
+            if not verdict:
+                stats.truncated += 1  # a cut frame's header whose checksum passed by chance
+                pos = self._skip_candidate(pos)
+                continue
+            header = 6 if buf[pos + 3] == EXTENDED_LENGTH else 4
             msg_id = buf[pos + 2]
             payload = bytes(buf[pos + header : end - 1])
             pos = end
@@ -400,34 +408,144 @@ class XsensDecoder(StreamDecoderBase):
             except BadPacket:
                 stats.bad_payloads += 1
                 continue
-            stats.frames += 1
-            if self._on_packet(packet, rows):
+            kind = self._on_packet(packet, rows)
+            if kind == _UNDATED:
+                stats.bad_payloads += 1
                 continue
-            messages.append(Message(msg_id, payload))
+            stats.frames += 1
+            if kind == _MESSAGE:
+                messages.append(Message(msg_id, payload))
         if pos:
             del buf[:pos]
         samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
         stats.samples += len(samples)
         return Decoded(samples, messages)
 
-    def _on_packet(self, packet: MTData2Packet, rows: list[tuple]) -> bool:
-        """Track counter, time and temperature; append the sample rows. False: not inertial."""
-        # This packet's unwrapped counter and fine time, when it carries them.
+    # -------------------------------------------------------------- framing
+
+    def _claimed_end(self, pos: int) -> int:
+        """Where the frame announced at ``pos`` would end (its header must be in the buffer)."""
+        buf = self._buf
+        if buf[pos + 3] == EXTENDED_LENGTH:
+            return pos + 7 + ((buf[pos + 4] << 8) | buf[pos + 5])
+        return pos + 5 + buf[pos + 3]
+
+    def _frame_end(self, pos: int) -> int:
+        """End of the frame at ``pos`` (a sync there) when its checksum passes, else one of
+        ``_INCOMPLETE`` (bytes missing), ``_TOO_LONG`` (impossible length), ``_BAD_SUM``."""
+        buf = self._buf
+        if len(buf) - pos < 4 or (buf[pos + 3] == EXTENDED_LENGTH and len(buf) - pos < 6):
+            return _INCOMPLETE
+        if buf[pos + 3] == EXTENDED_LENGTH and ((buf[pos + 4] << 8) | buf[pos + 5]) > MAX_PAYLOAD:
+            return _TOO_LONG
+        end = self._claimed_end(pos)
+        if len(buf) < end:
+            return _INCOMPLETE
+        return _BAD_SUM if sum(memoryview(buf)[pos + 1 : end]) & 0xFF else end
+
+    def _valid_at(self, pos: int, final: bool) -> int | None:
+        """End of a checksum-valid frame starting exactly at ``pos``; 0 if none; None: wait for bytes."""
+        buf = self._buf
+        if len(buf) - pos < 2:
+            return None if not final and buf[pos:] in (b"", SYNC[:1]) else 0
+        if buf[pos : pos + 2] != SYNC:
+            return 0
+        end = self._frame_end(pos)
+        if end == _INCOMPLETE:
+            return 0 if final else None
+        return max(end, 0)
+
+    def _inner_frames(self, pos: int, end: int, final: bool) -> list[tuple[int, int]] | None:
+        """The checksum-valid frames, as ``(start, end)``, that start inside ``buf[pos + 1:end]``
+        and inside which no other valid frame starts; None: wait for more bytes."""
+        frames = []
+        p = self._buf.find(SYNC, pos + 1, end)
+        while p >= 0:
+            inner = self._valid_at(p, final)
+            if inner is None:
+                return None
+            if inner:
+                frames.append((p, inner))
+            p = self._buf.find(SYNC, p + 1, end)
+        clean = []
+        for start, stop in frames:
+            p = self._buf.find(SYNC, start + 1, stop)
+            swallows = False
+            while p >= 0 and not swallows:
+                inner = self._valid_at(p, final)
+                if inner is None:
+                    return None
+                swallows = inner > 0
+                p = self._buf.find(SYNC, p + 1, stop)
+            if not swallows:
+                clean.append((start, stop))
+        return clean
+
+    def _followed(self, end: int, final: bool) -> bool | None:
+        """Whether a valid frame starts right at ``end`` (or the stream ends there); None: wait."""
+        if end == len(self._buf):
+            return True if final else None
+        valid = self._valid_at(end, final)
+        return None if valid is None else valid > 0
+
+    def _is_packet(self, start: int, end: int) -> bool:
+        """Whether the valid frame ``buf[start:end]`` is an MTData2 packet whose items fit it."""
+        buf = self._buf
+        if buf[start + 2] != MID_MTDATA2:
+            return False
+        header = 6 if buf[start + 3] == EXTENDED_LENGTH else 4
+        try:
+            parse_mtdata2(bytes(buf[start + header : end - 1]))
+        except BadPacket:
+            return False
+        return True
+
+    def _believe(self, pos: int, end: int, final: bool) -> bool | None:
+        """Whether the checksum-valid frame ``buf[pos:end]`` is real; None: wait for more bytes.
+
+        An 8-bit checksum passes by chance once in 256, so a frame start in garbage (a cut
+        frame's header) can claim a span that covers good frames, and a good frame's payload
+        can hold a chance frame. The frame is believed when no valid frame starts inside it.
+        When some do (taking those inside which no other starts), the MTData2 packets decide:
+        the frame is believed when its items fit it and none of the inner frames' do, and is a
+        false start in the opposite case. Otherwise what follows decides: it is believed only
+        if a valid frame starts right where it ends and none of the inner ones is followed by
+        one. A false start's bytes are read again from the next frame start.
+        """
+        if self._buf.find(SYNC, pos + 1, end) < 0:
+            return True
+        inner = self._inner_frames(pos, end, final)
+        if inner is None:
+            return None
+        if not inner:
+            return True
+        outer_fits = self._is_packet(pos, end)
+        inner_fits = any(self._is_packet(start, stop) for start, stop in inner)
+        if outer_fits != inner_fits:
+            return outer_fits
+        followed = self._followed(end, final)
+        if not followed:
+            return followed  # None: wait for the bytes after it; False: a false start
+        for _, stop in inner:
+            inner_followed = self._followed(stop, final)
+            if inner_followed is None or inner_followed:
+                return None if inner_followed is None else False
+        return True
+
+    def _on_packet(self, packet: MTData2Packet, rows: list[tuple]) -> int:
+        """Track counter, time and temperature; append the sample rows.
+
+        Returns ``_SAMPLE`` (rows appended or a delta packet held for its interval),
+        ``_MESSAGE`` (not an inertial packet of the chosen source) or ``_UNDATED`` (an inertial
+        packet dated before the stream's clock zero: it cannot be placed in time).
+        """
         counter: int | None = None
-        fine: int | None = None
         if packet.counter is not None:
             if self._counter is None:
                 counter = packet.counter
             else:
                 counter = self._counter + ((packet.counter - self._counter) & 0xFFFF)
             self._counter = counter
-        if packet.time_fine is not None:
-            if self._fine is None:
-                fine = packet.time_fine
-            else:
-                # Signed step: GNSS packets carry the older time of their fix, not a wrap.
-                fine = self._fine + (((packet.time_fine - self._fine + 2**31) & 0xFFFFFFFF) - 2**31)
-            self._fine = fine
         if packet.temp is not None:
             self._temp = packet.temp
         source = packet.source
@@ -437,18 +555,28 @@ class XsensDecoder(StreamDecoderBase):
             self.other_source_packets += source is not None
             # Its counter value is not a lost sample: the link statistics must not count it as one.
             self.stats.seq_skipped += packet.counter is not None
-            return False
+            return _MESSAGE
         if counter is not None:
             seq = counter & 0xFFFFFFFF
         else:
             seq = self._own_seq & 0xFFFFFFFF
-        self._own_seq = seq + 1
-        if fine is not None:
-            ticks = fine
+        if packet.time_fine is not None:
+            if self._fine is None:
+                ticks = packet.time_fine
+            else:
+                # A signed step from the last sample's time: the clock wraps forward every 4.97 days,
+                # a sample dated a little earlier (a replay, a unit's glitch) steps back.
+                ticks = self._fine + (((packet.time_fine - self._fine + 2**31) & 0xFFFFFFFF) - 2**31)
+            if ticks < 0:
+                return _UNDATED
+            # Only samples move the reference: packets of other kinds (GNSS fixes carry the older
+            # time of their fix) and undated ones must not shift the unwrapping of the next.
+            self._fine = ticks
         elif packet.time_coarse is not None:
             ticks = packet.time_coarse * TICKS_PER_SECOND
         else:
             ticks = round(seq * TICKS_PER_SECOND / self.nominal_rate_hz)
+        self._own_seq = seq + 1
         needs_dt = (packet.acc is None and packet.delta_v is not None) or (
             packet.gyro is None and packet.delta_q is not None)
         last = self._last_inertial_ticks
@@ -456,12 +584,12 @@ class XsensDecoder(StreamDecoderBase):
         self._last_inertial_ticks = ticks
         if needs_dt and not dt:
             self._pending.append((seq, ticks, packet))
-            return True
+            return _SAMPLE
         for p_seq, p_ticks, pending in self._pending:
             rows.append(self._row(p_seq, p_ticks, pending, dt))
         self._pending.clear()
         rows.append(self._row(seq, ticks, packet, dt))
-        return True
+        return _SAMPLE
 
     def _row(self, seq: int, ticks: int, packet: MTData2Packet, dt: float | None) -> tuple:
         if self.source == "hr":
@@ -484,17 +612,17 @@ class XsensDecoder(StreamDecoderBase):
     def flush(self) -> Decoded:
         """End of stream: a frame start left waiting for bytes is truncated; what follows it is
         decoded, so a false start inside garbage does not hide a good last frame."""
-        batches: list[np.ndarray] = []
-        messages: list[Message] = []
+        out = self._decode(b"", final=True)
+        batches, messages = [out.samples], list(out.messages)
         while self._buf:
             if self._buf.startswith(SYNC):
                 self.stats.truncated += 1
             del self._buf[: self._skip_candidate(0)]
-            out = self.feed(b"")
+            out = self._decode(b"", final=True)
             batches.append(out.samples)
             messages += out.messages
         # A lone delta packet has no interval to turn it into a rate: it cannot become a sample.
         if self._pending:
             self.stats.bad_payloads += len(self._pending)
             self._pending.clear()
-        return Decoded(np.concatenate(batches) if batches else EMPTY_SAMPLES, messages)
+        return Decoded(np.concatenate(batches), messages)
