@@ -139,6 +139,12 @@ class _Options(TypedDict, total=False):
     rate_hz: float
 
 
+# Limits of what a line's numbers may hold (NaN fails the comparisons too): times and counters
+# must fit the sample record's 64-bit fields (t_us = t * 1e6), and MotionCal's raw counts a
+# 32-bit integer, so that an over-long number is a bad payload rather than an overflow.
+_MAX_T_S = 2.0**63 / 1e6
+_MAX_SEQ = 2.0**63
+_MAX_COUNTS = 2**31
 _LINE_END = re.compile(rb"[\r\n]")
 # "Cal1:...", "Info: ...": a tagged line of another kind, text for us (Raw: and Uni: are read before).
 _TAGGED = re.compile(r"[A-Za-z][A-Za-z0-9 _-]*:")
@@ -265,9 +271,9 @@ class AsciiDecoder(StreamDecoderBase):
         ok = np.isfinite(acc).all() and np.abs(acc).max() <= self.max_acc
         ok = ok and np.isfinite(gyro).all() and np.abs(gyro).max() <= self.max_gyro
         ok = ok and not ((temp < self.temp_range[0]) | (temp > self.temp_range[1])).any()
-        for name in ("seq", "t"):
+        for name, limit in (("seq", _MAX_SEQ), ("t", _MAX_T_S)):
             if name in got:
-                ok = ok and np.isfinite(got[name]).all() and (got[name] >= 0).all()
+                ok = ok and bool(((got[name] >= 0) & (got[name] < limit)).all())
         if not ok:
             return None
         n = len(lines)
@@ -365,6 +371,8 @@ class AsciiDecoder(StreamDecoderBase):
             raise _Reject("bad_payloads")
         if text.startswith("Raw:"):
             v = self._numbers(fields, int)
+            if any(abs(x) > _MAX_COUNTS for x in v):
+                raise _Reject("bad_payloads")
             acc = [x * STANDARD_GRAVITY / MOTIONCAL_ACC_PER_G for x in v[0:3]]
             gyro = [math.radians(x / MOTIONCAL_GYRO_PER_DPS) for x in v[3:6]]
         else:
@@ -417,10 +425,10 @@ class AsciiDecoder(StreamDecoderBase):
             except ValueError:
                 raise _Reject("bad_payloads") from None
         seq = got.get("seq")
-        if seq is not None and not (math.isfinite(seq) and seq >= 0):
+        if seq is not None and not 0 <= seq < _MAX_SEQ:
             raise _Reject("bad_payloads")
         t = got.get("t")
-        if t is not None and not (math.isfinite(t) and t >= 0):
+        if t is not None and not 0 <= t < _MAX_T_S:
             raise _Reject("bad_payloads")
         return (None if seq is None else int(seq), t, [got["ax"], got["ay"], got["az"]],
                 [got["gx"], got["gy"], got["gz"]], got.get("temp", math.nan))
