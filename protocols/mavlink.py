@@ -45,6 +45,7 @@ MILLI_G = STANDARD_GRAVITY * 1e-3
 
 IMU_MESSAGES = ("HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU")
 _STX = re.compile(rb"[\xfd\xfe]")
+_UNDATED = ()  # what _imu_row returns for an IMU message it cannot place in time
 
 
 class MavlinkUnavailable(StationError):
@@ -200,10 +201,13 @@ class MavlinkDecoder(StreamDecoderBase):
                     pos = self._skip(pos)
                 continue
             pos += length
-            stats.frames += 1
             name = msg.get_type()
             self.messages_seen[name] = self.messages_seen.get(name, 0) + 1
             row = self._imu_row(msg, name) if name in IMU_MESSAGES else None
+            if row is _UNDATED:
+                stats.bad_payloads += 1
+                continue
+            stats.frames += 1
             if row is None:
                 messages.append(Message(msg.get_msgId(), bytes(frame)))
             else:
@@ -237,6 +241,8 @@ class MavlinkDecoder(StreamDecoderBase):
     # -------------------------------------------------------------- IMU messages
 
     def _imu_row(self, msg: Any, name: str) -> tuple | None:
+        """The sample of an IMU message of the chosen source; None for another source's;
+        ``_UNDATED`` when its time_boot_ms steps back past the stream's first."""
         header = msg.get_header()
         imu_id = msg.id if "id" in msg.get_fieldnames() else 0  # SCALED_IMU* have no IMU id field
         key = (name, header.srcSystem, header.srcComponent, imu_id)
@@ -257,7 +263,10 @@ class MavlinkDecoder(StreamDecoderBase):
                 t_us = int(msg.time_usec)
             else:
                 acc_scale, gyro_scale = MILLI_G, 1e-3
-                t_us = self._unwrap_boot_ms(int(msg.time_boot_ms)) * 1000
+                boot_ms = self._unwrap_boot_ms(int(msg.time_boot_ms))
+                if boot_ms is None:
+                    return _UNDATED
+                t_us = boot_ms * 1000
             acc = (msg.xacc * acc_scale, msg.yacc * acc_scale, msg.zacc * acc_scale)
             gyro = (msg.xgyro * gyro_scale, msg.ygyro * gyro_scale, msg.zgyro * gyro_scale)
             cdeg = getattr(msg, "temperature", 0)
@@ -266,12 +275,18 @@ class MavlinkDecoder(StreamDecoderBase):
         self._count += 1
         return (seq, t_us, acc, gyro, temp)
 
-    def _unwrap_boot_ms(self, ms: int) -> int:
+    def _unwrap_boot_ms(self, ms: int) -> int | None:
+        """time_boot_ms unwrapped past 2^32 ms by a signed step from the last sample's: a frame
+        dated a little earlier (a replay) steps back, not 49.7 days forward. None: it would
+        fall before the stream's clock zero."""
         if self._boot_ms is None:
             self._boot_ms = ms
-        else:
-            self._boot_ms += (ms - self._boot_ms) & 0xFFFFFFFF
-        return self._boot_ms
+            return ms
+        unwrapped = self._boot_ms + (((ms - self._boot_ms + 2**31) & 0xFFFFFFFF) - 2**31)
+        if unwrapped < 0:
+            return None
+        self._boot_ms = unwrapped
+        return unwrapped
 
 
 # ---------------------------------------------------------------------------------- encoder
