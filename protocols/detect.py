@@ -6,18 +6,22 @@ those carry no inertial data (the explanation then says what the unit should be 
 text lines must hold samples. The result names the protocol, says why, and hands over the
 decoder that read the bytes, so no sample of them is lost.
 
-``AutoDecoder`` (registered as ``auto``) does this inside the stream: it holds the first bytes
-until a protocol is recognised, then decodes with that protocol's decoder from the first byte.
+``Detector`` does it on a stream read piece by piece (each candidate reads every piece once);
+on a heavily damaged link it still decides once enough bytes leave one protocol clearly ahead,
+and when it cannot it says how many bytes it saw, what each protocol found in them, and what
+to try. ``AutoDecoder`` (registered as ``auto``) does this inside the stream: once a protocol
+is recognised, that protocol's decoder, which read every byte since the first, goes on.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from protocols.ascii_lines import AsciiDecoder
-from protocols.base import Decoded, DecoderStats, StreamDecoderBase
+from protocols.base import EMPTY_SAMPLES, Decoded, DecoderStats, Message, StreamDecoderBase
 from protocols.mavlink import MavlinkDecoder, pymavlink_available
 from protocols.native import DEVICE_INFO, NativeDecoder
 from protocols.xsens import MESSAGE_NAMES, XsensDecoder
@@ -25,6 +29,8 @@ from protocols.xsens import MESSAGE_NAMES, XsensDecoder
 MIN_FRAMES = 3  # checksummed frames that make a binary protocol certain
 MIN_LINES = 3  # sample lines that make a text protocol certain
 ENOUGH_BYTES = 4096  # after this many bytes without a protocol, say what the bytes look like
+MIN_DAMAGED_FRAMES = 8  # good frames that decide on a damaged link, past ENOUGH_BYTES
+LOOK_BYTES = 1024  # the first bytes kept to describe what an unknown stream looks like
 
 
 @dataclass
@@ -135,85 +141,191 @@ def _look_of(data: bytes) -> str:
     return "binary, starting " + data[:24].hex(" ")
 
 
+def _certain(name: str, dec: StreamDecoderBase, samples: int) -> bool:
+    stats = dec.stats
+    if name == "ascii":
+        return samples >= MIN_LINES and stats.errors <= samples // 4
+    return stats.frames >= MIN_FRAMES and stats.errors <= stats.frames // 4
+
+
+def _evidence(name: str, dec: StreamDecoderBase, samples: int) -> int:
+    """Good frames that speak for ``name``: sample lines for text, checksummed frames for binary."""
+    return samples if name == "ascii" else dec.stats.frames
+
+
+class _Candidate:
+    """One protocol's decoder reading the stream, with what it returned so far."""
+
+    def __init__(self, name: str, decoder: StreamDecoderBase, max_messages: int):
+        self.name = name
+        self.decoder = decoder
+        self._batches: list[np.ndarray] = []
+        self._samples = 0
+        self._messages: deque[Message] = deque(maxlen=max_messages)
+
+    def feed(self, data: bytes) -> None:
+        self._add(self.decoder.feed(data))
+
+    def flush(self) -> None:
+        self._add(self.decoder.flush())
+
+    def _add(self, out: Decoded) -> None:
+        if len(out.samples):
+            self._batches.append(out.samples)
+            self._samples += len(out.samples)
+        self._messages.extend(out.messages)
+
+    @property
+    def samples(self) -> int:
+        return self._samples
+
+    def decoded(self) -> Decoded:
+        samples = np.concatenate(self._batches) if self._batches else EMPTY_SAMPLES
+        return Decoded(samples, list(self._messages))
+
+
+class Detector:
+    """Recognises the protocol of a stream read piece by piece, losing none of its bytes.
+
+    Every candidate decoder reads each piece once and keeps what it returned, so the one
+    chosen hands over every sample of the bytes seen. A protocol is chosen when its frames are
+    certain (``MIN_FRAMES`` checksummed frames, or ``MIN_LINES`` sample lines, with at most a
+    quarter as many damaged ones). On a heavily damaged link that rule may never hold: after
+    ``ENOUGH_BYTES``, a protocol with ``MIN_DAMAGED_FRAMES`` good frames and more of them than
+    any other is chosen anyway, and the explanation says how damaged the link is.
+    ``max_messages`` bounds the messages each candidate keeps while undecided (the oldest go).
+    """
+
+    def __init__(self, max_messages: int = 1024) -> None:
+        self.nbytes = 0
+        self._head = bytearray()  # the first bytes, to describe what they look like
+        self._candidates = [_Candidate(name, dec, max_messages) for name, dec in _candidates()]
+
+    def feed(self, data: bytes) -> None:
+        self.nbytes += len(data)
+        if len(self._head) < LOOK_BYTES:
+            self._head += data[: LOOK_BYTES - len(self._head)]
+        for candidate in self._candidates:
+            candidate.feed(data)
+
+    def detection(self, final: bool = False) -> Detection:
+        """The protocol recognised so far, or why none is. ``final``: the stream ended; the
+        candidate with the most samples wins however few (no sample of it is lost)."""
+        if final:
+            for candidate in self._candidates:
+                candidate.flush()
+        choice = self._choice(final)
+        if choice is not None:
+            return self._chosen(*choice)
+        ranked = sorted(self._candidates, key=lambda c: -_evidence(c.name, c.decoder, c.samples))
+        head = bytes(self._head)
+        if not pymavlink_available() and _looks_like_mavlink(head):
+            return Detection(None, "the bytes look like MAVLink 2 frames, but pymavlink is not installed: "
+                                   "pip install 'imu-station[mavlink]'")
+        if self.nbytes < ENOUGH_BYTES and not final:
+            return Detection(None, f"no protocol recognised yet in {self.nbytes} bytes", need_more=True)
+        found = "; ".join(f"{c.name}: {_evidence(c.name, c.decoder, c.samples)} good "
+                          f"{'sample lines' if c.name == 'ascii' else 'frames'} and {c.decoder.stats.errors} "
+                          f"damaged" for c in ranked if _evidence(c.name, c.decoder, c.samples)
+                          or c.decoder.stats.errors)
+        text = (f"no known protocol (native, xsens, mavlink, ascii) in {self.nbytes} bytes; they look "
+                f"{_look_of(head)}")
+        if found:
+            text += (f"; what each protocol found: {found}; too few good frames to be sure: if the unit "
+                     f"speaks one of these, the link is damaged (check the cable, the baud rate and "
+                     f"for electrical noise) or name it with --protocol NAME")
+        else:
+            text += "; check the baud rate, or name the protocol with --protocol"
+        return Detection(None, text)
+
+    def decided(self) -> bool:
+        """Whether :meth:`detection` would name a protocol now (cheap: no explanation made)."""
+        return self._choice(final=False) is not None
+
+    def _choice(self, final: bool) -> tuple[_Candidate, str] | None:
+        """The candidate to choose and a note on why (empty when certain), or None."""
+        certain = [c for c in self._candidates if _certain(c.name, c.decoder, c.samples)]
+        if certain:
+            return max(certain, key=lambda c: c.samples), ""
+        ranked = sorted(self._candidates, key=lambda c: -_evidence(c.name, c.decoder, c.samples))
+        best = _evidence(ranked[0].name, ranked[0].decoder, ranked[0].samples)
+        second = _evidence(ranked[1].name, ranked[1].decoder, ranked[1].samples) if len(ranked) > 1 else 0
+        if self.nbytes >= ENOUGH_BYTES and best >= MIN_DAMAGED_FRAMES and best > second:
+            stats = ranked[0].decoder.stats
+            return ranked[0], (f"chosen on a damaged link ({stats.errors} damaged frames, "
+                               f"{stats.garbage_bytes} garbage bytes): check the cable and the baud rate")
+        if final:
+            most = max(self._candidates, key=lambda c: c.samples)
+            if most.samples:
+                return most, "chosen at the end of the stream, on the few samples it held"
+        return None
+
+    def _chosen(self, candidate: _Candidate, note: str) -> Detection:
+        out = candidate.decoded()
+        text = _describe(candidate.name, candidate.decoder, out, self.nbytes)
+        if note:
+            text += "; " + note
+        return Detection(candidate.name, text, len(out.samples), _rate(out.samples), candidate.decoder, out)
+
+
 def detect(data: bytes) -> Detection:
     """Recognise the protocol of ``data``, the first bytes a unit sent (from any point of its stream)."""
-    results = []
-    for name, dec in _candidates():
-        out = dec.feed(bytes(data))
-        results.append((name, dec, out))
-    best = None
-    for name, dec, out in results:
-        stats = dec.stats
-        n = len(out.samples)
-        if name == "ascii":
-            certain = n >= MIN_LINES and stats.errors <= n // 4
-        else:
-            certain = stats.frames >= MIN_FRAMES and stats.errors <= stats.frames // 4
-        if certain and (best is None or n > len(best[2].samples)):
-            best = (name, dec, out)
-    if best is not None:
-        name, dec, out = best
-        return Detection(name, _describe(name, dec, out, len(data)), len(out.samples), _rate(out.samples),
-                         dec, out)
-    if not pymavlink_available() and _looks_like_mavlink(data):
-        return Detection(None, "the bytes look like MAVLink 2 frames, but pymavlink is not installed: "
-                               "pip install 'imu-station[mavlink]'")
-    if len(data) < ENOUGH_BYTES:
-        return Detection(None, f"no protocol recognised yet in {len(data)} bytes", need_more=True)
-    return Detection(None, f"no known protocol (native, xsens, mavlink, ascii) in {len(data)} bytes; "
-                           f"they look {_look_of(data)}; check the baud rate, or name the protocol "
-                           f"with --protocol")
+    detector = Detector()
+    detector.feed(bytes(data))
+    return detector.detection()
 
 
 class AutoDecoder(StreamDecoderBase):
     """A decoder that recognises the protocol from the first bytes, then decodes with it.
 
-    Until then it holds the bytes (at most ``max_hold``; beyond, the oldest are dropped as
-    garbage) and tries again each time a quarter more arrived. ``detection`` is the
-    :class:`Detection` once made (its ``explanation`` is what to show the user).
+    Until then every candidate decoder reads the bytes (a :class:`Detector`), so the one chosen
+    returns every sample from the first byte on, however long recognition took; nothing is
+    dropped. ``detection`` is the :class:`Detection` once made (its ``explanation`` is what to
+    show the user); :meth:`explain` says what was found so far when none is yet. At the end of
+    the stream, the candidate with the most samples is taken however few it has.
+    ``max_messages`` bounds the non-sample messages each candidate keeps while undecided.
     """
 
     name = "auto"
 
-    def __init__(self, max_hold: int = 65_536) -> None:
+    def __init__(self, max_messages: int = 1024) -> None:
         super().__init__()
-        self.max_hold = max_hold
         self.detection: Detection | None = None
+        self._detector: Detector | None = Detector(max_messages)
         self._inner: StreamDecoderBase | None = None
-        self._new = 0  # bytes since the last attempt
 
     def feed(self, data: bytes) -> Decoded:
         if self._inner is not None:
             return self._inner.feed(data)
-        self._buf += data
-        self._new += len(data)
-        if len(self._buf) > self.max_hold:
-            drop = len(self._buf) - self.max_hold
-            self.stats.garbage_bytes += drop
-            self.stats.resyncs += 1
-            del self._buf[:drop]
-        if self._new < max(64, len(self._buf) // 4):
+        assert self._detector is not None
+        self._detector.feed(data)
+        self.stats.garbage_bytes += len(data)  # unexplained until a protocol is recognised
+        if not self._detector.decided():
             return Decoded()
-        self._new = 0
-        found = detect(bytes(self._buf))
-        inner = found.decoder
-        if found.protocol is None or inner is None:
+        return self._take(final=False)
+
+    def _take(self, final: bool) -> Decoded:
+        assert self._detector is not None
+        found = self._detector.detection(final)
+        if found.protocol is None or found.decoder is None:
             return Decoded()
         self.detection = found
-        self._inner = inner
-        garbage_before = self.stats.garbage_bytes
-        self.stats = inner.stats
-        self.stats.garbage_bytes += garbage_before
-        self._buf.clear()
+        self._inner = found.decoder
+        self.stats = found.decoder.stats  # it read every byte: its counters are the whole story
+        self._detector = None
         return found.decoded
 
     def flush(self) -> Decoded:
         if self._inner is not None:
             return self._inner.flush()
-        if self._buf:  # the stream ended before a protocol was recognised: the bytes were garbage
-            self.stats.garbage_bytes += len(self._buf)
-            self._buf.clear()
-        return Decoded()
+        return self._take(final=True)
+
+    def explain(self) -> str:
+        """What was recognised, or why nothing is yet (bytes seen, what each protocol found)."""
+        if self.detection is not None:
+            return self.detection.explanation
+        assert self._detector is not None
+        return self._detector.detection().explanation
 
     @property
     def protocol(self) -> str | None:
