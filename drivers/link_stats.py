@@ -41,11 +41,13 @@ class LinkStats:
         return self.crc_errors + self.length_errors + self.truncated + self.bad_payloads
 
     def as_dict(self) -> dict[str, float | int]:
+        """Every counter by name, ``errors`` included (what capture files and JSON reports keep)."""
         out = asdict(self)
         out["errors"] = self.errors
         return out
 
     def summary(self) -> str:
+        """One line for a person: samples, rate, errors by kind, resyncs, garbage, lost, dropped."""
         skipped = f" ({self.seq_skipped} seq skipped by non-sample packets)" if self.seq_skipped else ""
         return (f"{self.samples} samples, {self.rate_hz:.1f} Hz, {self.errors} errors "
                 f"({self.crc_errors} CRC, {self.truncated} truncated, {self.length_errors} length), "
@@ -67,6 +69,7 @@ class LinkMonitor:
         self._window: deque[tuple[int, int]] = deque()  # (t_us of a batch's last sample, samples so far)
 
     def add_bytes(self, n: int) -> None:
+        """Count ``n`` bytes read from the link."""
         self.stats.bytes += n
 
     def add_samples(self, samples: np.ndarray) -> None:
@@ -99,9 +102,11 @@ class LinkMonitor:
             s.rate_hz = (s.samples - n0) / ((t_last - t0) * 1e-6)
 
     def add_overflow(self, n: int) -> None:
+        """Count ``n`` samples dropped because the consumer did not keep up."""
         self.stats.overflow_drops += n
 
     def update_decoder(self, dec: DecoderStats) -> None:
+        """Copy the decoder's frame counters (CRC, length, truncation, resyncs, skipped seq) in."""
         s = self.stats
         s.crc_errors = dec.crc_errors
         s.resyncs = dec.resyncs

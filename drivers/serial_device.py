@@ -178,6 +178,10 @@ class SerialDevice(Device):
     # -- the consumer side ---------------------------------------------------------------------
 
     def read(self, timeout: float | None = None) -> np.ndarray:
+        """Every sample received since the last read, as one batch (empty on timeout).
+
+        Raises the link's error once everything received before it was read (``Device.read``).
+        """
         with self._cond:
             if not self._pending and self._error is None and not self._closed:
                 self._cond.wait_for(lambda: self._pending or self._error is not None or self._closed, timeout)
@@ -192,16 +196,19 @@ class SerialDevice(Device):
 
     @property
     def stats(self) -> LinkStats:
+        """A snapshot of the link statistics (a copy: later samples do not change it)."""
         with self._cond:
             return LinkStats(**vars(self._monitor.stats))
 
     @property
     def info(self) -> dict[str, Any]:
+        """The last DEVICE_INFO the unit sent (empty until it sent one)."""
         with self._cond:
             return dict(self._info)
 
     @property
     def closed(self) -> bool:
+        """True after :meth:`close`."""
         return self._closed
 
     @property
@@ -212,19 +219,29 @@ class SerialDevice(Device):
     # -- commands ------------------------------------------------------------------------------
 
     def get_info(self, timeout: float = 1.0, retries: int = 2) -> dict[str, Any]:
+        """Ask the unit who it is (GET_INFO): serial, model, firmware, rate_hz.
+
+        Parameters
+        ----------
+        timeout : seconds to wait for the answer to each try.
+        retries : tries after the first when no answer comes.
+        """
         message = self.command(native.GET_INFO, b"", timeout, retries)
         return native.parse_device_info(message.payload)
 
     def set_rate(self, rate_hz: int, timeout: float = 1.0, retries: int = 2) -> None:
+        """Set the output data rate (SET_RATE); raises ``CommandRejected`` if the unit refuses it."""
         if not 1 <= rate_hz <= 0xFFFF:
             raise CommandRejected(f"{self.port}: rate {rate_hz} Hz does not fit SET_RATE (1..65535 Hz)",
                                   self.port, native.ACK_BAD_ARGUMENT)
         self.command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout, retries)
 
     def start(self, timeout: float = 1.0, retries: int = 2) -> None:
+        """Start streaming samples (START_STREAM)."""
         self.command(native.START_STREAM, b"", timeout, retries)
 
     def stop(self, timeout: float = 1.0, retries: int = 2) -> None:
+        """Stop streaming samples (STOP_STREAM)."""
         self.command(native.STOP_STREAM, b"", timeout, retries)
 
     def command(self, command_id: int, payload: bytes = b"", timeout: float = 1.0,
@@ -290,6 +307,7 @@ class SerialDevice(Device):
     # -- closing -------------------------------------------------------------------------------
 
     def close(self) -> None:
+        """Stop the reader thread and release the port; safe to call twice."""
         if self._closed:
             return
         self._stop.set()

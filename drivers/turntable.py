@@ -40,12 +40,22 @@ ERR_UNKNOWN, ERR_ARGUMENT, ERR_BUSY, ERR_FAULT = 1, 2, 3, 4
 
 @dataclass(frozen=True)
 class TableState:
-    state: str  # IDLE, MOVING or FAULT
+    """The table's answer to STATE?: its state, the sensor axis pointing up, the angle turned.
+
+    Parameters
+    ----------
+    state : IDLE, MOVING or FAULT.
+    up : the signed axes pointing up, e.g. ``+z`` or ``+x+y``.
+    turned_deg : the angle of the current (or last) turn, degrees.
+    """
+
+    state: str
     up: str
     turned_deg: float
 
     @property
     def idle(self) -> bool:
+        """True when the table is still and takes a new move."""
         return self.state == "IDLE"
 
 
@@ -67,6 +77,7 @@ class Turntable:
         self._buffer = b""
 
     def close(self) -> None:
+        """Release the port."""
         self._serial.close()
 
     def __enter__(self) -> Turntable:
@@ -110,6 +121,7 @@ class Turntable:
     # ---- commands ------------------------------------------------------------------------------------
 
     def identify(self) -> dict[str, str]:
+        """Ask the table who it is (ID?): ``model``, ``serial`` and ``firmware``."""
         reply = self.command("ID?")
         if not reply.startswith("ID "):
             raise CommandRejected(f"{self.port}: unexpected answer to ID?: {reply!r}; is this a turntable "
@@ -118,6 +130,7 @@ class Turntable:
         return dict(zip(("model", "serial", "firmware"), fields, strict=True))
 
     def state(self) -> TableState:
+        """Ask where the table is (STATE?); a table in FAULT raises :class:`TableFault`."""
         reply = self.command("STATE?")
         parts = reply.split()
         if len(parts) != 4 or parts[0] != "STATE":
@@ -129,6 +142,7 @@ class Turntable:
         return state
 
     def wait_idle(self, timeout_s: float = 30.0, poll_s: float = 0.05) -> TableState:
+        """Poll STATE? every ``poll_s`` until the table is idle; ``CommandTimeout`` after ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         while True:
             state = self.state()
@@ -140,6 +154,7 @@ class Turntable:
             time.sleep(poll_s)
 
     def home(self, timeout_s: float = 30.0) -> None:
+        """Start the move to the home pose, once the table is idle (returns at once)."""
         self.wait_idle(timeout_s)
         self.command("HOME")
 
@@ -158,4 +173,5 @@ class Turntable:
         self.command(f"ROT {axis} {angle_deg:g} {rate_dps:g}")
 
     def stop(self) -> None:
+        """Stop any move at once."""
         self.command("STOP")

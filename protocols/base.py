@@ -64,9 +64,11 @@ class DecoderStats:
 
     @property
     def errors(self) -> int:
+        """Frames that arrived damaged: CRC, length, truncation and bad payloads."""
         return self.crc_errors + self.length_errors + self.truncated + self.bad_payloads
 
     def as_dict(self) -> dict[str, int]:
+        """Every counter by name."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
@@ -80,6 +82,18 @@ class StreamDecoderBase:
         self._buf = bytearray()
 
     def feed(self, data: bytes) -> Decoded:  # pragma: no cover - interface
+        """Decode ``data`` after what is buffered: every complete frame's samples and messages.
+
+        Parameters
+        ----------
+        data : the next bytes read from the link, cut anywhere.
+
+        Returns
+        -------
+        Decoded
+            The samples and the other messages of the frames completed by ``data``; a partial frame
+            stays buffered for the next call.
+        """
         raise NotImplementedError
 
     def _seek_sync(self, sync: bytes, pos: int) -> tuple[int, bool]:

@@ -63,6 +63,7 @@ def load_dialect() -> Any:
 
 
 def pymavlink_available() -> bool:
+    """True when pymavlink is installed (the ``mavlink`` extra), so the MAVLink decoder can run."""
     try:
         load_dialect()
     except MavlinkUnavailable:
@@ -143,6 +144,7 @@ class MavlinkDecoder(StreamDecoderBase):
         return False
 
     def feed(self, data: bytes) -> Decoded:
+        """Decode ``data`` after what is buffered (``StreamDecoderBase.feed``)."""
         return self._decode(data, final=False)
 
     def _decode(self, data: bytes, final: bool) -> Decoded:

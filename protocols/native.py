@@ -77,14 +77,17 @@ def encode_samples(samples: np.ndarray) -> bytes:
 
 
 def encode_device_info(info: dict[str, Any]) -> bytes:
+    """A DEVICE_INFO frame: ``info`` as compact JSON."""
     return encode_frame(DEVICE_INFO, json.dumps(info, separators=(",", ":")).encode("utf-8"))
 
 
 def encode_ack(command_id: int, status: int = ACK_OK) -> bytes:
+    """An ACK frame answering ``command_id`` with ``status`` (``ACK_OK`` or an error status)."""
     return encode_frame(ACK, bytes([command_id, status]))
 
 
 def encode_set_rate(rate_hz: int) -> bytes:
+    """A SET_RATE command frame; ``ValueError`` if ``rate_hz`` does not fit its u16."""
     if not 1 <= rate_hz <= 0xFFFF:
         raise ValueError(f"rate {rate_hz} Hz does not fit the u16 of SET_RATE")
     return encode_frame(SET_RATE, struct.pack("<H", rate_hz))
@@ -92,21 +95,26 @@ def encode_set_rate(rate_hz: int) -> bytes:
 
 @dataclass(frozen=True)
 class Ack:
+    """An ACK's payload: the command it answers and its status (``ACK_OK`` or an error)."""
+
     command_id: int
     status: int
 
     @property
     def ok(self) -> bool:
+        """True when the command was accepted."""
         return self.status == ACK_OK
 
 
 def parse_ack(payload: bytes) -> Ack:
+    """The :class:`Ack` in an ACK payload; ``ValueError`` unless it has 2 bytes."""
     if len(payload) != 2:
         raise ValueError(f"ACK payload has {len(payload)} bytes, expected 2")
     return Ack(payload[0], payload[1])
 
 
 def parse_device_info(payload: bytes) -> dict[str, Any]:
+    """The unit's identity from a DEVICE_INFO payload; ``ValueError`` unless it is a JSON object."""
     info = json.loads(payload.decode("utf-8"))
     if not isinstance(info, dict):
         raise ValueError("DEVICE_INFO payload is not a JSON object")
@@ -178,6 +186,7 @@ class NativeDecoder(StreamDecoderBase):
     name = "native"
 
     def feed(self, data: bytes) -> Decoded:
+        """Decode ``data`` after what is buffered (``StreamDecoderBase.feed``)."""
         buf = self._buf
         buf += data
         batches: list[np.ndarray] = []
