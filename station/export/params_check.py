@@ -26,6 +26,7 @@ Locate = Callable[[Keys], int | None]
 MATRIX_LIMIT = 1e7  # raw per true unit: counts per m/s^2 of a 24-bit accelerometer stay far below
 BIAS_LIMIT = 1e8  # m/s^2, rad/s or counts
 MAX_CONDITION = 1e6  # of M: the correction M^-1 must stay meaningful in float32
+MAX_MISALIGNMENT = 10.0  # |S_ij| of M = K (I + S), rad; a real one is below 0.1
 G_SENSITIVITY_LIMIT = 10.0  # rad/s per m/s^2
 TEMP_RANGE = (-100.0, 200.0)  # degC
 DTEMP_LIMIT = 100.0  # degC/s
@@ -66,7 +67,7 @@ class _Checker:
 
     def number(self, value: Any, keys: Keys, lo: float, hi: float, unit: str) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(keys, f"must be a number ({unit}), not {_shown(value)}")
+            raise self.fail(keys, f"must be a number{f' ({unit})' if unit else ''}, not {_shown(value)}")
         # Compared before float(): an integer of 400 digits has no float.
         if not (isinstance(value, int) or math.isfinite(value)) or not lo <= value <= hi:
             raise self.fail(keys, f"{_shown(value)} {unit} is outside the plausible range "
@@ -183,6 +184,12 @@ def _invertible(c: _Checker, matrix: Any, keys: Keys) -> None:
     if abs(np.linalg.det(m)) < 1e-12 or np.linalg.cond(m) > MAX_CONDITION:
         raise c.fail(keys, f"is singular or nearly so (condition number {np.linalg.cond(m):.3g}, the most "
                      f"read is {MAX_CONDITION:g}): it cannot be inverted into a correction")
+    # M = K (I + S): the scale K is the diagonal, and S = K^-1 M - I must be a misalignment.
+    scale = np.abs(np.diag(m))
+    if np.any(scale * MAX_MISALIGNMENT < np.max(np.abs(m), axis=1)):
+        raise c.fail(keys, f"has a diagonal (the scale factors) of {np.diag(m).tolist()} that is not the "
+                     f"largest part of its row: a misalignment beyond {MAX_MISALIGNMENT:g} rad is no "
+                     "sensor's")
 
 
 def _thermal(c: _Checker, value: Any) -> None:
@@ -231,10 +238,10 @@ def _thermal_triad(c: _Checker, value: Any, keys: Keys, unit: str) -> None:
         t_max = c.number(seg["t_max"], (*at, "t_max"), *TEMP_RANGE, "degC")
         # Compared as the float32 the firmware holds, the rule of station.export.blob.
         if not np.float32(t_min) < np.float32(t_max):
-            raise c.fail(at, f"t_min {t_min:g} degC must be below t_max {t_max:g} degC")
+            raise c.fail((*at, "t_max"), f"t_min {t_min:g} degC must be below t_max {t_max:g} degC")
         if previous_max is not None and np.float32(t_min) < np.float32(previous_max):
-            raise c.fail(at, f"segment {i} starts at {t_min:g} degC, before the previous one ends "
-                         f"({previous_max:g} degC); segments must be in increasing order")
+            raise c.fail((*at, "t_min"), f"segment {i} starts at {t_min:g} degC, before the previous one "
+                         f"ends ({previous_max:g} degC); segments must be in increasing order")
         c.array(seg["coeffs"], (*at, "coeffs"), (3, len(TERMS)), COEFF_LIMIT,
                 f"{unit} per degC^k (degC/s)^l")
         previous_max = t_max
