@@ -35,13 +35,13 @@ from timing import median_wall_cpu  # noqa: E402
 from mocks.rig import handheld_session, sequence_segments, simulate  # noqa: E402
 from mocks.truth import UnitTruth  # noqa: E402
 from station.engines.calibration_common import convert_convention  # noqa: E402
-from station.engines.calibration_free import (  # noqa: E402
-    FreeSettings,
-    calibrate_free,
-    fit_gyroscope,
-    gyro_blocks,
+from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free  # noqa: E402
+from station.engines.calibration_free_gyro import fit_gyroscope, gyro_blocks  # noqa: E402
+from station.engines.calibration_turntable import (  # noqa: E402
+    TurntableCapture,
+    TurntableSettings,
+    calibrate_turntable,
 )
-from station.engines.calibration_turntable import calibrate_turntable  # noqa: E402
 from station.engines.static_detect import moving_variance_norm, static_intervals, variance_norm  # noqa: E402
 
 XSENS = REPO.parent / "shared" / "data" / "xsens-imu_tk"
@@ -64,7 +64,8 @@ def compare_with_imucal(seeds: int, hold_s: float, rate_hz: float) -> None:
         truth = UnitTruth.random(seed)
         segments = sequence_segments("six-position", True, hold_s=hold_s)
         rec = simulate(truth, segments, rate_hz=rate_hz, seed=seed)
-        rep = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+        rep = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                                  TurntableSettings(gravity=truth.gravity))
         ours.append(errors(rep.accel.matrix, rep.accel.bias, rep.gyro.matrix, rep.gyro.bias, truth))
         regions = {}
         for label, name in IMUCAL_REGIONS:
@@ -103,16 +104,19 @@ def time_free(repeats: int) -> None:
     gyro = _read(XSENS / "xsens_gyro.txt.gz")
     t = acc[:, 0]
     print(f"2. turntable-free method on imu_tk's Xsens session ({len(t)} rows), median of {repeats} runs")
-    runs = {"imu_tk settings (upper, 101-sample window)": (50.0, "upper", FreeSettings.imu_tk()),
-            "station defaults (lower, 1 s window, detected still)": (None, "lower", FreeSettings())}
-    for name, (still, convention, settings) in runs.items():
-        run = partial(calibrate_free, t, acc[:, 1:], gyro[:, 1:], 9.81744, still, convention, settings)
+    runs = {"imu_tk settings (upper, 101-sample window)":
+            (50.0, FreeSettings.imu_tk(gravity=9.81744, convention="upper")),
+            "station defaults (lower, 1 s window, detected still)": (None, FreeSettings(gravity=9.81744))}
+    for name, (still, settings) in runs.items():
+        data = FreeCapture(t, acc[:, 1:], gyro[:, 1:], initial_still_s=still)
+        run = partial(calibrate_free, data, settings)
         wall_s, cpu_s, report = median_wall_cpu(run, repeats)
         print(f"   {name:54s} total {wall_s:.3f} s wall, {cpu_s:.3f} s CPU, "
               f"k = {report.details['chosen_multiplier']:g}, "
               f"{report.accel.extra['static_intervals']} intervals")
     # the gyroscope stage alone, as imu_tk's 0.3 s figure is for its gyro stage
-    report = calibrate_free(t, acc[:, 1:], gyro[:, 1:], 9.81744, 50.0, "upper", FreeSettings.imu_tk())
+    report = calibrate_free(FreeCapture(t, acc[:, 1:], gyro[:, 1:], initial_still_s=50.0),
+                            FreeSettings.imu_tk(gravity=9.81744, convention="upper"))
     vnorm = moving_variance_norm(acc[:, 1:], 101)
     intervals = static_intervals(vnorm, 6 * variance_norm(acc[:5001, 1:]), 50)
     intervals = intervals[(intervals[:, 1] - intervals[:, 0]) >= 100]
@@ -147,7 +151,8 @@ def _z_groups(cal, matrix: np.ndarray, bias: np.ndarray, realized: np.ndarray, t
 def _turntable_capture(sequence: str, hold_s: float, seed: int) -> tuple[dict, dict]:
     truth = UnitTruth.random(seed)
     rec = simulate(truth, sequence_segments(sequence, True, hold_s=hold_s), rate_hz=100.0, seed=seed)
-    rep = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+    rep = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                              TurntableSettings(gravity=truth.gravity))
     static = np.array([s != "" and not s.startswith("rot") for s in rec.step])
     acc_real = rec.acc_bias[static].mean(axis=0)
     if sequence == "six-position":  # Ferraris' bias: the pair along each axis
@@ -161,7 +166,7 @@ def _handheld_capture(seed: int) -> tuple[dict, dict]:
     truth = UnitTruth.random(seed)
     segments = handheld_session(n_poses=36, seed=seed, hold_s=8.0, initial_still_s=30.0)
     rec = simulate(truth, segments, rate_hz=100.0, seed=seed)
-    rep = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity)
+    rep = calibrate_free(FreeCapture(rec.t, rec.acc, rec.gyro), FreeSettings(gravity=truth.gravity))
     acc_c, gyro_c, _ = convert_convention(np.linalg.inv(truth.accel.matrix), np.linalg.inv(truth.gyro.matrix),
                                           "lower")
     inside = [(rec.t >= p["t0"]) & (rec.t <= p["t1"]) for p in rep.poses]

@@ -29,7 +29,7 @@ import numpy as np
 from mocks.chamber import ChamberSweep, chamber_sweep, cubic_rate_unit
 from mocks.truth import ThermalTruth, UnitTruth
 from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal import fit_thermal
+from station.engines.thermal import ThermalSweep, fit_thermal
 from station.engines.thermal_model import estimate_dtemp
 
 RATE_HZ = 10.0
@@ -146,7 +146,8 @@ def main() -> None:
         }
         run = chamber_sweep(truth, sweep, rate_hz=RATE_HZ, seed=1, **extra)
         r = run.recording
-        t_ours, fit = median_time(lambda r=r, cal=cal: fit_thermal(r.t, r.temp, r.acc, r.gyro, r.step, **cal))
+        data = ThermalSweep(r.t, r.temp, r.acc, r.gyro, r.step, **cal)
+        t_ours, fit = median_time(lambda data=data: fit_thermal(data))
         # The peers filter T lightly; their dT only decides "rising", so any smooth estimate serves.
         # They get the exact bias (the true specific force removed) of the still samples: an advantage.
         rising = estimate_dtemp(r.t, r.temp, fit.model.dtemp_filter)

@@ -14,7 +14,7 @@ import pytest
 from mocks.rig import handheld_session, simulate
 from mocks.truth import UnitTruth
 from station.engines.calibration_common import convert_convention
-from station.engines.calibration_free import FreeSettings, calibrate_free
+from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
 from station.errors import EngineInputError
 
 
@@ -29,7 +29,8 @@ def session():
 @pytest.fixture(scope="module")
 def lower(session):
     truth, rec = session
-    return calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity, None, "lower")
+    return calibrate_free(FreeCapture(rec.t, rec.acc, rec.gyro),
+                          FreeSettings(gravity=truth.gravity, convention="lower"))
 
 
 def test_handheld_session_recovers_truth_in_the_lecture_body_frame(session, lower) -> None:
@@ -54,7 +55,9 @@ def test_handheld_session_recovers_truth_in_the_lecture_body_frame(session, lowe
 
 def test_upper_convention_is_the_exact_rotation_of_the_lower_one(session, lower) -> None:
     truth, rec = session
-    upper = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity, lower.details["initial_still_s"], "upper")
+    still = lower.details["initial_still_s"]
+    upper = calibrate_free(FreeCapture(rec.t, rec.acc, rec.gyro, initial_still_s=still),
+                           FreeSettings(gravity=truth.gravity, convention="upper"))
     acc_c, gyro_c, _ = convert_convention(lower.details["accel_correction"], lower.details["gyro_correction"],
                                           "upper")
     np.testing.assert_allclose(upper.details["accel_correction"], acc_c, rtol=1e-6, atol=1e-9)
@@ -68,8 +71,8 @@ def test_reversed_gyro_axes_and_per_interval_bias() -> None:
     truth.gyro.scale = truth.gyro.scale * np.array([-1.0, 1.0, -1.0])   # x and z gyro mounted reversed
     segments = handheld_session(n_poses=30, seed=14, hold_s=6.0, initial_still_s=20.0)
     rec = simulate(truth, segments, rate_hz=100.0, seed=14)
-    report = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity, None, "lower",
-                            FreeSettings(gyro_bias="intervals"))
+    report = calibrate_free(FreeCapture(rec.t, rec.acc, rec.gyro),
+                            FreeSettings(gravity=truth.gravity, convention="lower", gyro_bias="intervals"))
     _, gyro_c, _ = convert_convention(np.linalg.inv(truth.accel.matrix), np.linalg.inv(truth.gyro.matrix),
                                       "lower")
     assert np.abs(report.gyro.matrix - np.linalg.inv(gyro_c)).max() < 2e-4
@@ -81,7 +84,8 @@ def test_refuses_saturated_moves(session) -> None:
     truth, rec = session
     limit = 0.6 * np.abs(rec.gyro).max()
     with pytest.raises(EngineInputError, match=r"gyroscope . axis is saturated at t = "):
-        calibrate_free(rec.t, rec.acc, np.clip(rec.gyro, -limit, limit), truth.gravity)
+        calibrate_free(FreeCapture(rec.t, rec.acc, np.clip(rec.gyro, -limit, limit)),
+                       FreeSettings(gravity=truth.gravity))
 
 
 def _read_imu_tk(path) -> np.ndarray:
@@ -101,7 +105,8 @@ def xsens(reference_data):
 
 def test_reproduces_imu_tk_on_its_xsens_session(xsens) -> None:
     acc, gyro = xsens
-    report = calibrate_free(acc[:, 0], acc[:, 1:], gyro[:, 1:], 9.81744, 50.0, "upper", FreeSettings.imu_tk())
+    report = calibrate_free(FreeCapture(acc[:, 0], acc[:, 1:], gyro[:, 1:], initial_still_s=50.0),
+                            FreeSettings.imu_tk(gravity=9.81744, convention="upper"))
     # imu_tk's still period ends at the sample nearest t0 + 50 s: t0 = 0.02984 s and the timestamps are
     # irregular, so that is sample 5001 (t = 50.0346 s), not 5000; the gyro bias is their mean
     assert report.details["still_samples"] == 5002
@@ -138,7 +143,7 @@ def test_reproduces_imu_tk_on_its_xsens_session(xsens) -> None:
 
 def test_default_settings_give_xsens_factory_gains(xsens) -> None:
     acc, gyro = xsens
-    report = calibrate_free(acc[:, 0], acc[:, 1:], gyro[:, 1:], 9.81744)
+    report = calibrate_free(FreeCapture(acc[:, 0], acc[:, 1:], gyro[:, 1:]), FreeSettings(gravity=9.81744))
     # the initial still period (about 50 s) is found without being told
     assert 45 <= report.details["initial_still_s"] <= 55
     np.testing.assert_allclose(report.accel.scale, [415, 413, 415], rtol=3e-3)   # counts per m/s^2
@@ -151,10 +156,11 @@ def test_refuses_too_few_static_intervals_and_a_moving_start() -> None:
     segments = handheld_session(n_poses=6, seed=9, hold_s=3.0, initial_still_s=15.0)
     rec = simulate(truth, segments, rate_hz=100.0, seed=9)
     with pytest.raises(EngineInputError, match="too few static intervals"):
-        calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity)
+        calibrate_free(FreeCapture(rec.t, rec.acc, rec.gyro), FreeSettings(gravity=truth.gravity))
     start = int(16.0 * 100)  # cut the still period: the data start with a move
     with pytest.raises(EngineInputError, match="no initial still period"):
-        calibrate_free(rec.t[start:], rec.acc[start:], rec.gyro[start:], truth.gravity)
+        calibrate_free(FreeCapture(rec.t[start:], rec.acc[start:], rec.gyro[start:]),
+                       FreeSettings(gravity=truth.gravity))
 
 
 def _interval_mean(values: np.ndarray, t: np.ndarray, poses: list[dict]) -> np.ndarray:
@@ -172,7 +178,7 @@ def test_monte_carlo_over_fresh_handheld_sessions() -> None:
         truth = UnitTruth.random(seed)
         segments = handheld_session(n_poses=36, seed=seed, hold_s=8.0, initial_still_s=30.0)
         rec = simulate(truth, segments, rate_hz=100.0, seed=seed)
-        report = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity)
+        report = calibrate_free(FreeCapture(rec.t, rec.acc, rec.gyro), FreeSettings(gravity=truth.gravity))
         acc_c, gyro_c, _ = convert_convention(np.linalg.inv(truth.accel.matrix),
                                               np.linalg.inv(truth.gyro.matrix), "lower")
         for cal, c_true, tr, realized, tol in (

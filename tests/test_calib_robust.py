@@ -16,8 +16,8 @@ from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
 from station import cli
 from station.acquisition.capture_csv import write_csv
 from station.engines.calibration_common import convert_convention, covariance
-from station.engines.calibration_free import _check_gyro_saturation, calibrate_free
-from station.engines.calibration_turntable import calibrate_turntable
+from station.engines.calibration_free import FreeCapture, FreeSettings, _check_gyro_saturation, calibrate_free
+from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.errors import EngineInputError
 from station.export.params_file import ParamsFile
 
@@ -63,13 +63,15 @@ def _relabel(step: np.ndarray, mapping: dict[str, str]) -> np.ndarray:
 
 def test_large_errors_recovered_and_swapped_rotations_warned(labelled) -> None:
     truth, rec = labelled
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                                 TurntableSettings(gravity=truth.gravity))
     assert np.abs(report.accel.matrix - truth.accel.matrix).max() < 1e-3
     assert np.abs(report.gyro.matrix - truth.gyro.matrix).max() < 1e-3
     assert report.warnings == []
     # rot+y and rot-y swapped is a reversed y axis to the data: accepted with a warning that says both
     swapped = _relabel(rec.step, {"rot+y": "rot-y", "rot-y": "rot+y"})
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, swapped, truth.gravity)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, swapped),
+                                 TurntableSettings(gravity=truth.gravity))
     assert report.gyro.scale[1] < 0
     assert any("y axis turns opposite to the labels" in w and "rot+y and rot-y were swapped" in w
                for w in report.warnings)
@@ -85,7 +87,8 @@ def test_large_errors_recovered_and_swapped_rotations_warned(labelled) -> None:
 def test_mislabelled_steps_are_refused_by_name(labelled, mapping, message) -> None:
     truth, rec = labelled
     with pytest.raises(EngineInputError, match=message):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, _relabel(rec.step, mapping), truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, _relabel(rec.step, mapping)),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def test_six_position_with_swapped_poses_is_refused() -> None:
@@ -94,14 +97,16 @@ def test_six_position_with_swapped_poses_is_refused() -> None:
     rec = simulate(truth, sequence_segments("six-position", True, hold_s=2.0), rate_hz=50.0, seed=42)
     step = _relabel(rec.step, {"+z": "-z", "-z": "+z"})
     with pytest.raises(EngineInputError, match=r"the steps \+z and -z are swapped"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, step, truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, step),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def test_labels_that_reach_into_the_moves_are_refused(labelled) -> None:
     truth, rec = labelled
     late = np.concatenate([np.array([""] * 25, dtype=object), rec.step[:-25]])   # labels 0.5 s late
     with pytest.raises(EngineInputError, match=r"moved during static step .* of the gravity reading"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, late, truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, late),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def test_a_steady_turn_under_coarse_resolution_is_not_saturation() -> None:
@@ -113,7 +118,8 @@ def test_a_steady_turn_under_coarse_resolution_is_not_saturation() -> None:
     rec = simulate(truth, sequence_segments("six-position", True, hold_s=2.0), rate_hz=100.0, seed=45)
     turn = rec.step == "rot-y"
     assert _longest_run(rec.gyro[turn, 1]) >= 10
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                                 TurntableSettings(gravity=truth.gravity))
     assert np.abs(report.gyro.matrix - truth.gyro.matrix).max() < 2e-3
 
 
@@ -170,7 +176,8 @@ def test_lost_samples_inside_a_move_are_refused() -> None:
                    rate_hz=50.0, seed=44)
     keep = (rec.t < 10.9) | (rec.t > 11.2)    # the move from 10 to 12 s loses 0.3 s
     with pytest.raises(EngineInputError, match=r"move at t = .* has a gap of 0\.3.. s .*lost samples"):
-        calibrate_free(rec.t[keep], rec.acc[keep], rec.gyro[keep], truth.gravity)
+        calibrate_free(FreeCapture(rec.t[keep], rec.acc[keep], rec.gyro[keep]),
+                       FreeSettings(gravity=truth.gravity))
 
 
 def test_a_quantized_smooth_peak_is_not_saturation() -> None:
@@ -201,5 +208,5 @@ def test_short_holds_keep_every_static_interval() -> None:
     truth = UnitTruth.random(46)
     rec = simulate(truth, handheld_session(n_poses=16, seed=46, hold_s=2.2, initial_still_s=5.0),
                    rate_hz=50.0, seed=46)
-    report = calibrate_free(rec.t, rec.acc, rec.gyro, truth.gravity)
+    report = calibrate_free(FreeCapture(rec.t, rec.acc, rec.gyro), FreeSettings(gravity=truth.gravity))
     assert report.accel.extra["static_intervals"] == 17

@@ -25,7 +25,7 @@ from imucal.ferraris_calibration import FerrarisSignalRegions
 from mocks.rig import Move, Rotation, Static, sequence_segments, simulate
 from mocks.truth import UnitTruth
 from station.engines.calibration_static import fit_poses, six_position
-from station.engines.calibration_turntable import calibrate_turntable
+from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.errors import EngineInputError
 
 HOLD_S = 60.0
@@ -74,7 +74,8 @@ def _check_recovery(report, truth, bias_tolerance: bool = True) -> None:
 
 def test_twelve_position_with_rotations_recovers_truth(twelve) -> None:
     truth, rec = twelve
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity, rate_hz=RATE_HZ)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step, rate_hz=RATE_HZ),
+                                 TurntableSettings(gravity=truth.gravity))
     _check_recovery(report, truth)
     assert report.warnings == []
     assert "12-pose" in report.accel.method
@@ -86,7 +87,8 @@ def test_twelve_position_with_rotations_recovers_truth(twelve) -> None:
 
 def test_six_position_with_rotations_recovers_truth_and_matches_imucal(six) -> None:
     truth, rec = six
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                                 TurntableSettings(gravity=truth.gravity))
     _check_recovery(report, truth)
     assert "six-position" in report.accel.method
 
@@ -125,8 +127,10 @@ def test_earth_rate_compensation_on_a_unit_that_sees_it() -> None:
     truth.earth_rate = True
     truth.latitude_deg = 45.0
     rec = simulate(truth, sequence_segments("six-position", True, hold_s=20.0), rate_hz=RATE_HZ, seed=5)
-    plain = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
-    comp = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity, latitude_deg=45.0)
+    plain = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                                TurntableSettings(gravity=truth.gravity))
+    comp = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                               TurntableSettings(gravity=truth.gravity, latitude_deg=45.0))
     # the vertical Earth rate adds Omega sin(45 deg) * duration to every turn's integrated angle;
     # compensating it brings the gyro scale closer to the truth
     err_plain = np.abs(plain.gyro.scale - truth.gyro.scale).max()
@@ -147,7 +151,8 @@ def test_refuses_too_few_poses(short_six) -> None:
     for lab in ("-y", "+z", "-z"):
         step = _relabel(step, lab, "")
     with pytest.raises(EngineInputError, match="only 3 static poses"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, step, truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, step),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def test_rank_deficiency_names_the_axis_the_poses_miss(short_six) -> None:
@@ -155,9 +160,11 @@ def test_rank_deficiency_names_the_axis_the_poses_miss(short_six) -> None:
     step = _relabel(_relabel(rec.step, "+z", ""), "-z", "")
     step = _relabel(step, "rot+z", "")  # keep the accel problem the only one
     with pytest.raises(EngineInputError, match="no pose has gravity along the z axis"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, step, truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, step),
+                            TurntableSettings(gravity=truth.gravity))
     # without -x the other poses still fix the bias, so it is solvable but flagged
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, _relabel(rec.step, "-x", ""), truth.gravity)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, _relabel(rec.step, "-x", "")),
+                                 TurntableSettings(gravity=truth.gravity))
     assert any("x axis was never held near both up and down" in w for w in report.warnings)
 
 
@@ -165,9 +172,11 @@ def test_missing_rotations_are_named(short_six) -> None:
     truth, rec = short_six
     step = _relabel(_relabel(rec.step, "rot+y", ""), "rot-y", "")
     with pytest.raises(EngineInputError, match="no rotation about the y axis"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, step, truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, step),
+                            TurntableSettings(gravity=truth.gravity))
     no_rotations = np.array([s if not s.startswith("rot") else "" for s in rec.step], dtype=object)
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, no_rotations, truth.gravity)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, no_rotations),
+                                 TurntableSettings(gravity=truth.gravity))
     assert report.gyro is None
     assert any("no rotation steps" in w for w in report.warnings)
 
@@ -181,31 +190,36 @@ def test_refuses_a_unit_that_moved_during_a_static_step() -> None:
     moving = np.flatnonzero(step == "")[-150:]  # the last move, labelled as if it were still
     step[moving] = "+x+y"
     with pytest.raises(EngineInputError, match=r"moved during static step '\+x\+y'"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, step, truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, step),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def test_refuses_saturated_rotation(short_six) -> None:
     truth, rec = short_six
     gyro = np.clip(rec.gyro, -1.2, 1.2)  # the turns reach 90 deg/s = 1.57 rad/s
     with pytest.raises(EngineInputError, match="gyroscope . axis is saturated"):
-        calibrate_turntable(rec.t, rec.acc, gyro, rec.step, truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, gyro, rec.step),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def test_refuses_a_wrong_sample_rate_and_gaps_in_rotations(short_six) -> None:
     truth, rec = short_six
     with pytest.raises(EngineInputError, match="stated sample rate 200 Hz disagrees"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity, rate_hz=200.0)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step, rate_hz=200.0),
+                            TurntableSettings(gravity=truth.gravity))
     rows = np.flatnonzero(rec.step == "rot+z")
     keep = np.ones(len(rec.t), bool)
     keep[rows[100:140]] = False
     with pytest.raises(EngineInputError, match="rotation step 'rot\\+z'.*gap"):
-        calibrate_turntable(rec.t[keep], rec.acc[keep], rec.gyro[keep], rec.step[keep], truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t[keep], rec.acc[keep], rec.gyro[keep], rec.step[keep]),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def test_refuses_unlabelled_data(short_six) -> None:
     truth, rec = short_six
     with pytest.raises(EngineInputError, match="no step labels"):
-        calibrate_turntable(rec.t, rec.acc, rec.gyro, np.full(len(rec.t), "", dtype=object), truth.gravity)
+        calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, np.full(len(rec.t), "", dtype=object)),
+                            TurntableSettings(gravity=truth.gravity))
 
 
 def _imucal_session(reference_data):
@@ -227,7 +241,8 @@ def _imucal_session(reference_data):
 
 def test_real_ferraris_session_against_imucal(reference_data) -> None:
     t, acc, gyr, step = _imucal_session(reference_data)
-    report = calibrate_turntable(t, acc, gyr, step, 9.81, rate_hz=204.8)
+    report = calibrate_turntable(TurntableCapture(t, acc, gyr, step, rate_hz=204.8),
+                                 TurntableSettings(gravity=9.81))
     for pose in report.poses:
         if pose["kind"] == "static":
             assert abs(pose["norm_error"]) < 0.01, pose
@@ -250,7 +265,8 @@ def test_rotations_by_any_angle_in_any_order() -> None:
                  Rotation("-x", 180.0), Rotation("+y", 540.0, rate_dps=120.0), Rotation("-z", 270.0)]
     rec = simulate(truth, segments, rate_hz=RATE_HZ, seed=17)
     assert {"rot+x:180", "rot-y:540", "rot+z:270"} <= set(rec.step)
-    report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+    report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                                 TurntableSettings(gravity=truth.gravity))
     dm = report.gyro.matrix - truth.gyro.matrix
     assert np.abs(dm).max() < 2e-4
     assert np.all(np.abs(dm) < 3 * report.gyro.stddev["matrix"])
@@ -286,7 +302,8 @@ def test_monte_carlo_over_fresh_units(sequence: str) -> None:
     for seed in MC_SEEDS:
         truth = UnitTruth.random(seed)
         rec = simulate(truth, sequence_segments(sequence, True, hold_s=30.0), rate_hz=RATE_HZ, seed=seed)
-        report = calibrate_turntable(rec.t, rec.acc, rec.gyro, rec.step, truth.gravity)
+        report = calibrate_turntable(TurntableCapture(rec.t, rec.acc, rec.gyro, rec.step),
+                                     TurntableSettings(gravity=truth.gravity))
         acc_real, gyro_real = _realized_bias(rec, sequence)
         for cal, real, tol in ((report.accel, acc_real, 1e-3), (report.gyro, gyro_real, 1e-4)):
             assert np.abs(cal.bias - real).max() < tol, (seed, cal.bias - real)

@@ -20,7 +20,7 @@ from mocks.truth import UnitTruth
 from station.acquisition.capture import read_capture
 from station.acquisition.capture_csv import write_csv
 from station.cli import main
-from station.engines.thermal import fit_thermal
+from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
 from station.export.params_file import ParamsFile
 
 SWEEP = ChamberSweep(low_degc=0.0, high_degc=40.0, start_degc=20.0, ramp_degc_per_min=4.0, soak_s=120.0)
@@ -38,8 +38,9 @@ def engine_unit(tmp_path_factory: pytest.TempPathFactory) -> dict:
     assert main(argv) == 0
     sweep = chamber_sweep(truth, SWEEP, rate_hz=5.0, seed=2).recording
     params = ParamsFile.load(params_path)
-    fit = fit_thermal(sweep.t, sweep.temp, sweep.acc, sweep.gyro, sweep.step, accel_cal=params.accel,
-                      gyro_cal=params.gyro, segments=2, tau_s=10.0)
+    data = ThermalSweep(sweep.t, sweep.temp, sweep.acc, sweep.gyro, sweep.step, accel_cal=params.accel,
+                        gyro_cal=params.gyro)
+    fit = fit_thermal(data, ThermalSettings(segments=2, tau_s=10.0))
     params.thermal = fit.model
     params.save(params_path)
     write_csv(work / "sweep.csv", sweep.to_capture())

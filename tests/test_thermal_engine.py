@@ -10,7 +10,7 @@ import pytest
 from mocks.chamber import ChamberRun, ChamberSweep, chamber_sweep, cubic_rate_unit
 from mocks.truth import NoiseSpec, ThermalTruth, UnitTruth
 from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal import fit_thermal
+from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
 from station.engines.thermal_model import TERMS, estimate_dtemp
 from station.errors import EngineInputError
 
@@ -24,9 +24,12 @@ def calibration(truth: UnitTruth) -> dict[str, SensorCalibration]:
             "gyro_cal": SensorCalibration(truth.gyro.matrix, truth.gyro.bias)}
 
 
-def fit_run(run: ChamberRun, **kw):
+def fit_run(run: ChamberRun, accel_cal: SensorCalibration | None = None,
+            gyro_cal: SensorCalibration | None = None, progress=None, **settings):
+    """``fit_thermal`` on a run's labelled recording; ``settings`` are those of ``ThermalSettings``."""
     r = run.recording
-    return fit_thermal(r.t, r.temp, r.acc, r.gyro, r.step, **kw)
+    sweep = ThermalSweep(r.t, r.temp, r.acc, r.gyro, r.step, accel_cal=accel_cal, gyro_cal=gyro_cal)
+    return fit_thermal(sweep, ThermalSettings(**settings), progress)
 
 
 def residual_share(fit, run: ChamberRun, triad: str, window_s: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
@@ -225,11 +228,14 @@ def test_unlabelled_recording_finds_its_poses() -> None:
     sweep = replace(SWEEP, poses=("+z", "-x"), pose_hold_s=120.0, ramp_degc_per_min=4.0)
     run = chamber_sweep(truth, sweep, rate_hz=10.0, seed=6)
     r = run.recording
-    fit = fit_thermal(r.t, r.temp, r.acc, r.gyro, None, tau_s=5.0, **calibration(truth))
+    fit = fit_thermal(ThermalSweep(r.t, r.temp, r.acc, r.gyro, None, **calibration(truth)),
+                      ThermalSettings(tau_s=5.0))
     assert sorted(fit.poses) == ["+z", "-x"]
     assert np.all(residual_share(fit, run, "accel")[0] < 0.03)
     empty = np.full(len(r.t), "", dtype=object)  # a step column nobody filled in
-    assert sorted(fit_thermal(r.t, r.temp, r.acc, r.gyro, empty, tau_s=5.0, segments=1).poses) == ["+z", "-x"]
+    unlabelled = fit_thermal(ThermalSweep(r.t, r.temp, r.acc, r.gyro, empty),
+                             ThermalSettings(tau_s=5.0, segments=1))
+    assert sorted(unlabelled.poses) == ["+z", "-x"]
 
 
 def test_warns_of_a_narrow_span() -> None:
@@ -262,14 +268,14 @@ def test_refuses_what_cannot_determine_a_model() -> None:
                         rate_hz=5.0, seed=1)
     r = run.recording
     with pytest.raises(EngineInputError, match="no temperature"):
-        fit_thermal(r.t, np.full(len(r.t), np.nan), r.acc, r.gyro, r.step)
+        fit_thermal(ThermalSweep(r.t, np.full(len(r.t), np.nan), r.acc, r.gyro, r.step))
     with pytest.raises(EngineInputError, match="still blocks"):
-        fit_thermal(r.t[:50], r.temp[:50], r.acc[:50], r.gyro[:50], r.step[:50])
+        fit_thermal(ThermalSweep(r.t[:50], r.temp[:50], r.acc[:50], r.gyro[:50], r.step[:50]))
     with pytest.raises(EngineInputError, match="unknown terms"):
-        fit_thermal(r.t, r.temp, r.acc, r.gyro, r.step, terms=["t4"])
+        fit_thermal(ThermalSweep(r.t, r.temp, r.acc, r.gyro, r.step), ThermalSettings(terms=["t4"]))
     moving = np.array(["rot+z"] * len(r.t), dtype=object)
     with pytest.raises(EngineInputError, match="no still period"):
-        fit_thermal(r.t, r.temp, r.acc, r.gyro, moving)
+        fit_thermal(ThermalSweep(r.t, r.temp, r.acc, r.gyro, moving))
 
 
 def test_single_warm_up_leaves_out_the_rate_terms() -> None:

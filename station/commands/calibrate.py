@@ -16,8 +16,8 @@ from rich.table import Table
 
 from station.acquisition.capture import Capture, read_capture
 from station.engines.calibration_common import CalibrationReport
-from station.engines.calibration_free import FreeSettings, calibrate_free
-from station.engines.calibration_turntable import calibrate_turntable, check_rate
+from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
+from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.engines.earth import STANDARD_GRAVITY, normal_gravity
 from station.errors import StationError
 from station.export.params_file import ParamsFile, sensor_to_dict, to_plain
@@ -110,15 +110,14 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
     rate = float(rate) if rate is not None else None
     if method == "turntable":
         latitude = None if args.no_earth_rate else args.latitude
-        return calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
-                                   latitude_deg=latitude, rate_hz=rate)
+        return calibrate_turntable(TurntableCapture(capture.t, capture.acc, capture.gyro, capture.step, rate),
+                                   TurntableSettings(gravity=gravity, latitude_deg=latitude))
     settings = FreeSettings.imu_tk() if args.imu_tk else FreeSettings(window_s=args.window)
+    settings = dataclasses.replace(settings, gravity=gravity, convention=args.convention)
     if args.gyro_bias is not None:
         settings = dataclasses.replace(settings, gyro_bias=args.gyro_bias)
-    if rate is not None:
-        check_rate(capture.t, rate)
-    return calibrate_free(capture.t, capture.acc, capture.gyro, gravity, args.initial_still,
-                          args.convention, settings)
+    data = FreeCapture(capture.t, capture.acc, capture.gyro, initial_still_s=args.initial_still, rate_hz=rate)
+    return calibrate_free(data, settings)
 
 
 def report_dict(report: CalibrationReport, source: str) -> dict[str, Any]:

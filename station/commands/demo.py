@@ -274,7 +274,7 @@ def calibrate_unit(ctx: DemoContext) -> None:
     """The turntable method on the labelled capture read back from its file, as `calibrate` does;
     the accel and gyro sections, with the unit's info, go to ``out_dir/params.yaml``."""
     from station.acquisition.capture import read_capture
-    from station.engines.calibration_turntable import calibrate_turntable
+    from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
     from station.export.params_file import ParamsFile
 
     assert ctx.sequence_path is not None
@@ -282,10 +282,10 @@ def calibrate_unit(ctx: DemoContext) -> None:
     # The simulated site's gravity; on a real station it comes from --gravity or --latitude.
     gravity = ctx.server.device.truth.gravity
     rate = capture.device.get("rate_hz")
-    # A capture without step labels is refused by calibrate_turntable itself (its annotation omits None).
-    ctx.report = calibrate_turntable(capture.t, capture.acc, capture.gyro,
-                                     capture.step,
-                                     gravity, rate_hz=float(rate) if rate is not None else None)
+    # A capture without step labels is refused by TurntableCapture itself.
+    data = TurntableCapture(capture.t, capture.acc, capture.gyro, capture.step,
+                            rate_hz=float(rate) if rate is not None else None)
+    ctx.report = calibrate_turntable(data, TurntableSettings(gravity=gravity))
     report = ctx.report
     accel, gyro = _both_triads(report.accel, report.gyro, "the turntable calibration")
     labels = [label for label, _ in capture.segments()]

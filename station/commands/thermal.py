@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from station.acquisition.capture import read_capture
-from station.engines.thermal import STANDARD_GRAVITY, ThermalFit, fit_thermal
+from station.engines.thermal import STANDARD_GRAVITY, ThermalFit, ThermalSettings, ThermalSweep, fit_thermal
 from station.engines.thermal_model import TERMS
 from station.errors import InputFileError
 from station.export.params_file import ParamsFile, to_plain
@@ -144,14 +144,14 @@ def run(args: argparse.Namespace) -> int:
             raise InputFileError(args.input, "has no temperature; a thermal fit needs the 'temp' column",
                                  column="temp")
         progress.update(task, description="fitting the thermal model", completed=0.0)
-        fit = fit_thermal(
-            capture.t, capture.temp, capture.acc, capture.gyro, capture.step,
-            accel_cal=params.accel, gyro_cal=params.gyro, gravity=args.gravity,
-            segments=args.joins if args.joins else args.segments, terms=args.terms,
+        settings = ThermalSettings(
+            gravity=args.gravity, segments=args.joins if args.joins else args.segments, terms=args.terms,
             max_segments=args.max_segments,
             reference_temp=args.reference_temp, tau_s=args.tau, fit_scale=not args.no_scale,
-            progress=lambda done: progress.update(task, completed=done),
         )
+        sweep = ThermalSweep(capture.t, capture.temp, capture.acc, capture.gyro, capture.step,
+                             accel_cal=params.accel, gyro_cal=params.gyro)
+        fit = fit_thermal(sweep, settings, progress=lambda done: progress.update(task, completed=done))
         if args.plot:
             progress.update(task, description=f"plotting {args.plot}")
             from station.plots.thermal_plot import plot_thermal

@@ -440,6 +440,7 @@ class AllanCurve:
 
     @property
     def duration_s(self) -> float:
+        """Length of the record, n_samples / rate_hz, s."""
         return self.n_samples / self.rate_hz
 
     def with_alpha(self, alpha: np.ndarray) -> AllanCurve:

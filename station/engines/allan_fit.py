@@ -119,6 +119,7 @@ class AxisNoise:
     fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
 
     def value(self, term: str) -> float | None:
+        """The estimate of noise term ``term`` (N, B, K, ...) in its own unit, or None if not resolved."""
         return self.terms[term].value
 
     def model(self, tau: np.ndarray) -> np.ndarray:

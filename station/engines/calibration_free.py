@@ -3,36 +3,18 @@
 The unit is held still in many arbitrary orientations, joined by hand-held moves, after an
 initial still period. Static intervals are found by moving variance (``static_detect``).
 
-Accelerometer (paper sec. IV-B): the calibrated specific force of a static sample is
+Accelerometer (paper sec. IV-B, ``calibration_free_accel``): the calibrated specific force
+a = T K (x - b) of every static interval must have the magnitude of local gravity,
+r = g - |a| (eqs. 8-11). The detector is run for several threshold multipliers and the result
+with the lowest cost kept.
 
-    a = T K (x - b)                                                                 (8)
+Gyroscope (paper sec. IV-C, ``calibration_free_gyro``): bias b_g from the still periods, a full
+3x3 correction C fitted so that the calibrated rates, integrated over each move, turn one
+interval's gravity direction into the next one's, r_k = R_k^T u_k - u_{k+1} (eq. 15).
 
-with K diagonal and T unit triangular (3 misalignment parameters: the body frame is tied to
-the sensor). Its magnitude must equal local gravity; the residual is
-
-    r = g - |a|          (paper eq. 10; imu_tk's MultiPosAccResidual)                 (10)
-
-minimised by Levenberg-Marquardt with the analytic Jacobian, n = a/|a|, u = x - b, v = K u:
-
-    dr/dT_ij = -n_i v_j,   dr/dk_j = -(n . T_:j) u_j,   dr/db_j = (n . T_:j) k_j      (11)
-
-``upper``: T = [[1, -m_yz, m_zy], [0, 1, -m_zx], [0, 0, 1]] (imu_tk's parameters and order);
-``lower``: T = [[1, 0, 0], [t_yx, 1, 0], [t_zx, t_zy, 1]] (the lecture: body x = accel x,
-body xy plane = accel xy plane). The two differ by a rotation of the body frame; see
-``calibration_common.convert_convention``. The detector is run for several threshold
-multipliers and the result with the lowest cost kept.
-
-Gyroscope (paper sec. IV-C): bias b_g = mean over the initial still period; the correction is
-a full 3x3 C = T K (9 parameters: 6 misalignments and 3 scales). Between consecutive static
-intervals k and k+1 the calibrated rates w = C (x - b_g) are integrated with an RK4 quaternion
-step (``quaternion.rk4_step_matrices``) to R_k, and with u the unit gravity directions of the
-calibrated accelerometer (interval means)
-
-    r_k = R_k^T u_k - u_{k+1}          (paper eq. 15)                                (15)
-
-The Jacobian is analytic: each step is q <- A(w_n, w_{n+1}) q, linear in q, so
-dq = sum_n A_N..A_{n+1} dA_n A_{n-1}..A_1 q_0; it is evaluated in adjoint form for all
-intervals at once (see ``_GyroModel``) and chained through R^T u (``quaternion.rotate_inverse``).
+:func:`calibrate_free` takes a :class:`FreeCapture` (the arrays, checked once) and
+:class:`FreeSettings`, and runs the stages below in turn: the initial still period, the
+threshold trials of the accelerometer fit, the gyroscope fit over the moves, the uncertainties.
 """
 
 from __future__ import annotations
@@ -41,9 +23,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult
 
-from station.engines import quaternion as quat
 from station.engines.calibration_common import (
     CalibrationReport,
     covariance,
@@ -54,46 +35,79 @@ from station.engines.calibration_common import (
     pinned_run,
     stddev_from,
 )
+from station.engines.calibration_free_accel import (
+    ACC_PARAM_NAMES,
+    CONVENTIONS,
+    AccFit,
+    acc_correction,
+    fit_accelerometer,
+)
+from station.engines.calibration_free_gyro import (
+    GYRO_PARAM_NAMES,
+    GyroBlocks,
+    GyroModel,
+    bias_covariance,
+    direction_covariance,
+    fit_gyroscope,
+    gyro_blocks,
+)
+from station.engines.earth import STANDARD_GRAVITY
+from station.engines.samples import as_samples, check_rate
 from station.engines.sensor_model import SensorCalibration
 from station.engines.static_detect import moving_variance_norm, static_intervals, variance_norm
 from station.errors import EngineInputError
 
-_MIS_INDEX = {
-    "upper": [(0, 1, -1.0), (0, 2, 1.0), (1, 2, -1.0)],   # m_yz, m_zy, m_zx (imu_tk)
-    "lower": [(1, 0, 1.0), (2, 0, 1.0), (2, 1, 1.0)],     # t_yx, t_zx, t_zy
-}
-ACC_PARAM_NAMES = {
-    "upper": ["m_yz", "m_zy", "m_zx", "k_x", "k_y", "k_z", "b_x", "b_y", "b_z"],
-    "lower": ["t_yx", "t_zx", "t_zy", "k_x", "k_y", "k_z", "b_x", "b_y", "b_z"],
-}
-GYRO_PARAM_NAMES = [f"C_{i}{j}" for i in "xyz" for j in "xyz"]
 # Fewest consecutive samples, and shortest time, pinned at an axis's extreme that count as saturation:
 # a quantized rate reads one value for a few samples at the smooth peak of a move (about 30 ms at
 # 1 LSB of a 16-bit +-2000 deg/s gyro, 2 rad/s peak); a clipped move stays pinned far longer.
 SATURATION_RUN = 5
 SATURATION_S = 0.1
+# Fewest samples a session needs at all (minutes of data are usual).
+MIN_SAMPLES = 100
+GYRO_BIAS_MODES = ("intervals", "still")
 
 
 @dataclass(frozen=True)
 class FreeSettings:
-    """Detector and fit settings. The defaults are the station's; :meth:`imu_tk` gives imu_tk's.
+    """How to run the free method. The defaults are the station's; :meth:`imu_tk` gives imu_tk's.
 
-    window_s / window_samples: moving-variance window (odd number of samples; samples win).
-    multipliers: threshold multipliers tried, threshold = k * variance norm of the still period.
-    interval_samples: None: fit the mean of each static interval (one residual per pose); an
-        integer n: fit the first n samples of each interval (imu_tk), intervals with
-        end - start >= n only.
-    min_interval_s: shortest static interval used when fitting means.
-    cost: "mean" (mean of r^2, comparable across thresholds) or "half_sum" (1/2 sum r^2, Ceres).
-    min_intervals: fewest static intervals a fit accepts (imu_tk: 12).
-    inclusive_still_end: the still period ends at the sample nearest t0 + S, inclusive (imu_tk's
-        initialInterval), rather than before t0 + S.
-    gyro_bias: "intervals" (the station's default): each move between static intervals k and k+1
-        subtracts the mean of the gyro over those two intervals, following a bias that drifts during
-        the session, and the reported bias is the mean over all static intervals (the rate is zero
-        in each, so they all measure it); "still": the mean of the initial still period (imu_tk).
+    Attributes
+    ----------
+    gravity : float
+        Local gravity magnitude g of eq. (10), m/s^2.
+    convention : str
+        "lower" (lecture) or "upper" (imu_tk) triangular accelerometer misalignment.
+    window_s, window_samples : float, int or None
+        Moving-variance window (odd number of samples; samples win).
+    multipliers : tuple of float
+        Threshold multipliers tried, threshold = k * variance norm of the still period.
+    interval_samples : int or None
+        None: fit the mean of each static interval (one residual per pose); an integer n: fit
+        the first n samples of each interval (imu_tk), intervals with end - start >= n only.
+    min_interval_s : float
+        Shortest static interval used when fitting means.
+    cost : str
+        "mean" (mean of r^2, comparable across thresholds) or "half_sum" (1/2 sum r^2, Ceres).
+    min_intervals : int
+        Fewest static intervals a fit accepts (imu_tk: 12).
+    inclusive_still_end : bool
+        The still period ends at the sample nearest t0 + S, inclusive (imu_tk's initialInterval),
+        rather than before t0 + S.
+    gyro_bias : str
+        "intervals" (the station's default): each move between static intervals k and k+1
+        subtracts the mean of the gyro over those two intervals, following a bias that drifts
+        during the session, and the reported bias is the mean over all static intervals (the
+        rate is zero in each, so they all measure it); "still": the mean of the initial still
+        period (imu_tk).
+
+    Raises
+    ------
+    ValueError
+        An unknown convention or gyro bias mode.
     """
 
+    gravity: float = STANDARD_GRAVITY
+    convention: str = "lower"
     window_s: float = 1.0
     window_samples: int | None = None
     multipliers: tuple[float, ...] = (2, 3, 4, 5, 6, 7, 8, 9, 10)
@@ -104,341 +118,85 @@ class FreeSettings:
     inclusive_still_end: bool = False
     gyro_bias: str = "intervals"
 
+    def __post_init__(self) -> None:
+        if self.convention not in CONVENTIONS:
+            raise ValueError(f"convention must be 'lower' or 'upper', got {self.convention!r}")
+        if self.gyro_bias not in GYRO_BIAS_MODES:
+            raise ValueError(f"gyro_bias must be 'still' or 'intervals', got {self.gyro_bias!r}")
+
     @classmethod
-    def imu_tk(cls) -> FreeSettings:
+    def imu_tk(cls, **changes: Any) -> FreeSettings:
         """imu_tk's demo settings: 101-sample window, first 100 samples per interval, Ceres cost,
-        gyro bias from the still period."""
-        return cls(window_samples=101, interval_samples=100, cost="half_sum", inclusive_still_end=True,
-                   gyro_bias="still")
+        gyro bias from the still period; ``changes`` set other fields (gravity, convention).
+
+        Returns
+        -------
+        FreeSettings
+        """
+        imu_tk = {"window_samples": 101, "interval_samples": 100, "cost": "half_sum",
+                  "inclusive_still_end": True, "gyro_bias": "still"}
+        return cls(**{**imu_tk, **changes})
 
     def window(self, rate_hz: float) -> int:
+        """The moving-variance window in samples at ``rate_hz``: odd, at least 11.
+
+        Parameters
+        ----------
+        rate_hz : float
+            The sample rate.
+
+        Returns
+        -------
+        int
+        """
         w = self.window_samples if self.window_samples else int(round(self.window_s * rate_hz))
         return max(11, w + (1 - w % 2))
 
 
-# ----------------------------------------------------------------------------------- accelerometer
+@dataclass(frozen=True)
+class FreeCapture:
+    """An unlabelled hand-held session, checked once on construction.
 
-def _acc_matrix(p: np.ndarray, convention: str) -> np.ndarray:
-    t = np.eye(3)
-    for (i, j, sign), m in zip(_MIS_INDEX[convention], p[:3], strict=True):
-        t[i, j] = sign * m
-    return t
+    Parameters
+    ----------
+    t : array_like, (N,)
+        Sample times, s, increasing.
+    acc, gyro : array_like, (N, 3)
+        Raw samples in any unit (counts, m/s^2, rad/s).
+    initial_still_s : float or None
+        Length of the initial still period, s; detected when None.
+    rate_hz : float or None
+        The sample rate the device was set to, checked against the timestamps when given.
 
-
-def acc_residual(p: np.ndarray, x: np.ndarray, g: float, convention: str) -> np.ndarray:
-    """Eq. (10): r = g - |T K (x - b)| for samples ``x`` (n, 3) and parameters ``p`` (9)."""
-    t = _acc_matrix(p, convention)
-    a = ((x - p[6:9]) * p[3:6]) @ t.T
-    return g - np.linalg.norm(a, axis=1)
-
-
-def acc_jacobian(p: np.ndarray, x: np.ndarray, g: float, convention: str) -> np.ndarray:
-    """Eq. (11): the analytic Jacobian (n, 9) of :func:`acc_residual`."""
-    t = _acc_matrix(p, convention)
-    u = x - p[6:9]
-    v = u * p[3:6]
-    a = v @ t.T
-    n = a / np.linalg.norm(a, axis=1, keepdims=True)
-    nt = n @ t                                   # (n . T_:j)
-    jac = np.empty((len(x), 9))
-    for col, (i, j, sign) in enumerate(_MIS_INDEX[convention]):
-        jac[:, col] = -sign * n[:, i] * v[:, j]
-    jac[:, 3:6] = -nt * u
-    jac[:, 6:9] = nt * p[3:6]
-    return jac
-
-
-def acc_initial_guess(x: np.ndarray, g: float) -> np.ndarray:
-    """Data-driven start: an axis-aligned ellipsoid through the static samples (any raw unit).
-
-    Solves sum_i a_i x_i^2 + c_i x_i = 1 by linear least squares; the centre is the bias and
-    g / semi-axis the scale. Falls back to the mean and the spread where that is degenerate.
-    """
-    x = np.asarray(x, float)
-    centre = x.mean(axis=0)
-    spread = np.median(np.linalg.norm(x - centre, axis=1))
-    span = spread if spread > 0 else 1.0
-    z = (x - centre) / span
-    design = np.hstack([z**2, z])
-    coef, *_ = np.linalg.lstsq(design, np.ones(len(z)), rcond=None)
-    a, c = coef[:3], coef[3:]
-    if np.all(a > 0):
-        b = -c / (2 * a)
-        level = 1 + np.sum(c**2 / (4 * a))
-        radius = np.sqrt(level / a)
-        if level > 0 and np.all(np.isfinite(radius)) and np.all(np.abs(b) < 2 * radius):
-            return np.concatenate([np.zeros(3), g / (radius * span), centre + b * span])
-    return np.concatenate([np.zeros(3), np.full(3, g / span), centre])
-
-
-@dataclass
-class AccFit:
-    params: np.ndarray
-    cost: float
-    residual: np.ndarray
-    jacobian: np.ndarray
-    n_intervals: int
-
-
-def fit_accelerometer(x: np.ndarray, g: float, convention: str, cost: str = "mean",
-                      start: np.ndarray | None = None) -> AccFit:
-    """Levenberg-Marquardt on eq. (10) with the Jacobian of eq. (11); samples (n, 3) in any unit."""
-    p0 = acc_initial_guess(x, g) if start is None else np.asarray(start, float)
-    sol = least_squares(acc_residual, p0, jac=acc_jacobian, args=(x, g, convention), method="lm",
-                        x_scale="jac", ftol=1e-14, xtol=1e-14, gtol=1e-14, max_nfev=2000)
-    r = sol.fun
-    value = float(np.mean(r**2)) if cost == "mean" else float(0.5 * r @ r)
-    return AccFit(sol.x, value, r, acc_jacobian(sol.x, x, g, convention), 0)
-
-
-def acc_correction(p: np.ndarray, convention: str) -> np.ndarray:
-    """C = T K of eq. (8)."""
-    return _acc_matrix(p, convention) * p[3:6]
-
-
-# ---------------------------------------------------------------------------------------- gyroscope
-
-@dataclass
-class GyroBlocks:
-    """Motion between consecutive static intervals, padded to one length for batch integration.
-
-    ``x0``/``x1`` (B, L, 3): de-biased raw rates at each step's start and end; ``dt`` (B, L);
-    padding steps have dt = 0 (an identity step). ``u0``/``u1`` (B, 3): gravity directions.
+    Raises
+    ------
+    EngineInputError
+        Arrays of the wrong shape or with non-finite values, a rate the timestamps contradict,
+        fewer than ``MIN_SAMPLES`` samples.
     """
 
-    x0: np.ndarray
-    x1: np.ndarray
-    dt: np.ndarray
-    u0: np.ndarray
-    u1: np.ndarray
-    spans: list[tuple[int, int]]
+    t: np.ndarray
+    acc: np.ndarray
+    gyro: np.ndarray
+    initial_still_s: float | None = None
+    rate_hz: float | None = None
 
+    def __post_init__(self) -> None:
+        t, acc, gyro = as_samples(self.t, self.acc, self.gyro)
+        if self.rate_hz is not None:
+            check_rate(t, self.rate_hz)
+        if len(t) < MIN_SAMPLES:
+            raise EngineInputError(f"only {len(t)} samples: a turntable-free calibration needs minutes of "
+                                   "data")
+        for name, value in (("t", t), ("acc", acc), ("gyro", gyro)):
+            object.__setattr__(self, name, value)
 
-def gyro_blocks(t: np.ndarray, gyro_unbiased: np.ndarray, intervals: np.ndarray,
-                directions: np.ndarray) -> GyroBlocks:
-    """Integration ranges as imu_tk takes them: from the last sample of static interval k
-    (t >= its end time) to the last sample before the start of interval k+1."""
-    spans = []
-    for k in range(len(intervals) - 1):
-        i0 = int(np.searchsorted(t, t[intervals[k, 1]], side="left"))
-        i1 = int(np.searchsorted(t, t[intervals[k + 1, 0]], side="left")) - 1
-        spans.append((i0, max(i1, i0)))
-    n_steps = [b - a for a, b in spans]
-    length = max(1, max(n_steps, default=1))
-    nb = len(spans)
-    x0 = np.zeros((nb, length, 3))
-    x1 = np.zeros((nb, length, 3))
-    dt = np.zeros((nb, length))
-    for k, (a, b) in enumerate(spans):
-        m = b - a
-        x0[k, :m] = gyro_unbiased[a:b]
-        x1[k, :m] = gyro_unbiased[a + 1:b + 1]
-        dt[k, :m] = np.diff(t[a:b + 1])
-    u = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    return GyroBlocks(x0, x1, dt, u[:-1], u[1:], spans)
-
-
-def _product(a: np.ndarray) -> np.ndarray:
-    """a[:, 0] (x) a[:, 1] (x) ... (x) a[:, L-1] for every row, by pairwise reduction over L."""
-    while a.shape[1] > 1:
-        if a.shape[1] % 2:
-            identity = np.zeros((a.shape[0], 1, 4))
-            identity[..., 0] = 1.0
-            a = np.concatenate([a, identity], axis=1)
-        a = quat.qmul(a[:, 0::2], a[:, 1::2])
-    return a[:, 0]
-
-
-def _scan(a: np.ndarray) -> np.ndarray:
-    """Inclusive products along axis 1, element n = a[:, 0] (x) .. (x) a[:, n], by a Hillis-Steele
-    scan: log2(L) vectorised passes instead of L sequential ones."""
-    p = a.copy()
-    shift = 1
-    while shift < p.shape[1]:
-        p[:, shift:] = quat.qmul(p[:, :-shift], p[:, shift:])
-        shift *= 2
-    return p
-
-
-class _GyroModel:
-    """Eq. (15) over all blocks for one C, and its Jacobian.
-
-    Forward: s_{n+1} = s_n (x) a_n from s_0 = (1, 0, 0, 0) (``quaternion.rk4_step``), i.e.
-    s_{n+1} = A_n s_n with A_n = R(a_n); the end quaternion by pairwise products. Jacobian: the adjoint rows
-    lambda_n = (dr/dq) A_{N-1} .. A_{n+1} run backwards, and since dA_n s_n = s_n (x) da_n,
-
-        dr/dC_ij = sum_n lambda_n L(s_n) (da_n/dw0_i x0_j + da_n/dw1_i x1_j)
-
-    (w = C x, L the left-multiplication matrix). Padding steps (dt = 0, x = 0) are identities
-    and add nothing.
-    """
-
-    def __init__(self, blocks: GyroBlocks):
-        self.blocks = blocks
-        self._key: bytes | None = None
-        # Real steps only (padding has dt = 0), in block order, for the per-step algebra.
-        self.mask = blocks.dt > 0
-        self.x0 = blocks.x0[self.mask]
-        self.x1 = blocks.x1[self.mask]
-        self.dt = blocks.dt[self.mask]
-        self.block_of = np.nonzero(self.mask)[0]
-        self.first = np.searchsorted(self.block_of, np.arange(len(blocks.dt)))   # each block's first step
-        self.empty = self.mask.sum(axis=1) == 0
-
-    def _block_sums(self, per_step: np.ndarray) -> np.ndarray:
-        """Sums of ``per_step`` (S, ...) over each block's steps (zero for a block without steps)."""
-        sums = np.add.reduceat(per_step, np.minimum(self.first, len(per_step) - 1), axis=0)
-        sums[self.empty] = 0.0
-        return sums
-
-    def _forward(self, cflat: np.ndarray) -> None:
-        key = np.asarray(cflat, float).tobytes()
-        if key == self._key:
-            return
-        c = np.asarray(cflat, float).reshape(3, 3)
-        step, self.stages = quat.rk4_step(self.x0 @ c.T, self.x1 @ c.T, self.dt)
-        nb, length = self.mask.shape
-        a = np.zeros((nb, length, 4))
-        a[..., 0] = 1.0
-        a[self.mask] = step
-        self.a = a
-        self.final = _product(a)
-        self.r, self.dr_dq = quat.rotate_inverse(self.final, self.blocks.u0)
-        self._key = key
-
-    def residual(self, cflat: np.ndarray) -> np.ndarray:
-        self._forward(cflat)
-        return (self.r - self.blocks.u1).ravel()
-
-    def jacobian(self, cflat: np.ndarray) -> np.ndarray:
-        self._forward(cflat)
-        nb, length = self.mask.shape
-        # s_n = P_{n-1} with P_n = a_0 (x) .. (x) a_n (a log-depth scan), and as A_{L-1} .. A_{n+1} =
-        # R(a_{n+1} (x) .. (x) a_{L-1}) = R(P_n^-1 (x) q_final), lambda_n = (dr/dq) R(P_n^-1 (x) q_final)
-        prefix = _scan(self.a)
-        states = np.empty((nb, length, 4))
-        states[:, 0] = (1.0, 0.0, 0.0, 0.0)
-        states[:, 1:] = prefix[:, :-1]
-        inverse = prefix * (np.array([1.0, -1.0, -1.0, -1.0]) / np.sum(prefix**2, axis=-1, keepdims=True))
-        after = quat.qmul(inverse[self.mask], self.final[self.block_of])
-        lam = self.dr_dq[self.block_of] @ quat.right_matrix(after)                   # (S, 3, 4)
-        u = lam @ quat.left_matrix(states[self.mask])
-        g0, g1 = quat.rk4_step_gradients(u, self.dt, self.stages)                   # (S, 3 res, 3 w)
-        # dr/dw summed over each block: a constant rate offset d (a bias error) moves r by this @ d
-        self.rate_gradient = self._block_sums(g0 + g1)
-        per_step = g0[..., None] * self.x0[:, None, None, :] + g1[..., None] * self.x1[:, None, None, :]
-        return self._block_sums(per_step).reshape(-1, 9)
-
-
-def gyro_residual(cflat: np.ndarray, blocks: GyroBlocks) -> np.ndarray:
-    """Eq. (15) for every block, stacked (3B,)."""
-    return _GyroModel(blocks).residual(cflat)
-
-
-def gyro_jacobian(cflat: np.ndarray, blocks: GyroBlocks) -> np.ndarray:
-    """The analytic Jacobian (3B, 9) of :func:`gyro_residual` with respect to C (row-major)."""
-    return _GyroModel(blocks).jacobian(cflat)
-
-
-def gyro_initial_guess(blocks: GyroBlocks) -> np.ndarray:
-    """Data-driven start C = diag(+-s): s from the angles between consecutive gravity directions
-    over the integrated raw rate magnitude, signs and s refined on coarse grids of the residual."""
-    angle = np.arccos(np.clip(np.sum(blocks.u0 * blocks.u1, axis=1), -1, 1)).sum()
-    rate = np.sum(0.5 * (np.linalg.norm(blocks.x0, axis=2) + np.linalg.norm(blocks.x1, axis=2)) * blocks.dt)
-    s0 = angle / rate if rate > 0 and angle > 0 else 1.0
-    # the angle between gravity directions underestimates each move's rotation: search upwards
-    model = _GyroModel(blocks)
-
-    def cost(diagonal: np.ndarray) -> float:
-        return float(np.sum(model.residual(np.diag(diagonal).ravel()) ** 2))
-
-    # a gyro axis may be mounted reversed relative to the accelerometer's: pick the sign pattern
-    # first (at a typical scale), then the scale with those signs
-    signs = np.array([[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)], float)
-    sign = signs[int(np.argmin([cost(1.7 * s0 * sg) for sg in signs]))]
-    grid = s0 * np.geomspace(1.0, 3.0, 5)
-    scale = grid[int(np.argmin([cost(s * sign) for s in grid]))]
-    return np.diag(scale * sign).ravel()
-
-
-def _direction_covariance(model: _GyroModel, cflat: np.ndarray, jac: np.ndarray, acc: np.ndarray,
-                          intervals: np.ndarray, acc_params: np.ndarray, acc_cov: np.ndarray,
-                          convention: str) -> np.ndarray:
-    """Covariance the gyroscope's C inherits from the accelerometer fit through the gravity
-    directions u_k (implicit-function theorem at the optimum of eq. 15):
-
-        dC/dp_a = -(J^T J)^-1 J^T dr/dp_a,  dr/dp_a = R_k^T du_k/dp_a - du_{k+1}/dp_a,
-
-    with du/dp_a by central differences of u = normalise(T K (mean - b)); cov = D cov_a D^T.
-    """
-    means = np.array([acc[a:b + 1].mean(axis=0) for a, b in intervals])
-
-    def directions(p: np.ndarray) -> np.ndarray:
-        u = (means - p[6:9]) @ acc_correction(p, convention).T
-        return u / np.linalg.norm(u, axis=1, keepdims=True)
-
-    du = np.empty((len(means), 3, len(acc_params)))
-    for k in range(len(acc_params)):
-        h = 1e-6 * max(abs(acc_params[k]), 1e-9) + 1e-3 * np.sqrt(max(acc_cov[k, k], 0.0))
-        dp = np.zeros(len(acc_params))
-        dp[k] = h
-        du[:, :, k] = (directions(acc_params + dp) - directions(acc_params - dp)) / (2 * h)
-    model.residual(cflat)
-    rot = quat.to_rotation(model.final)
-    dr = np.einsum("bji,bjk->bik", rot, du[:-1]) - du[1:]
-    d = -np.linalg.pinv(jac.T @ jac) @ jac.T @ dr.reshape(-1, len(acc_params))
-    return d @ acc_cov @ d.T
-
-
-def bias_sensitivity(model: _GyroModel, cflat: np.ndarray) -> np.ndarray:
-    """dr/db (3B, 3) of eq. (15) for the bias subtracted before integration: a bias error d shifts
-    every rate by -C d, so dr/db = -(sum over the block's steps of dr/dw) C, from the adjoint pass
-    of ``model.jacobian`` (which must have run at ``cflat``)."""
-    return -(model.rate_gradient @ np.asarray(cflat, float).reshape(3, 3)).reshape(-1, 3)
-
-
-def _bias_covariance(model: _GyroModel, cflat: np.ndarray, jac: np.ndarray,
-                     bias_sd: np.ndarray) -> np.ndarray:
-    """Covariance C inherits from the bias subtracted before integration (implicit-function theorem,
-    as in :func:`_direction_covariance`)."""
-    dr = bias_sensitivity(model, cflat)
-    d = -np.linalg.pinv(jac.T @ jac) @ jac.T @ dr
-    return d @ np.diag(np.asarray(bias_sd, float) ** 2) @ d.T
-
-
-# A converged gyro fit leaves unit-vector residuals of a few hundredths at most.
-GYRO_CONVERGED_RMS = 0.05
-
-
-def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None):
-    """Levenberg-Marquardt on eq. (15) with its analytic Jacobian; returns scipy's solution.
-
-    Should the data-driven start lead to a poor minimum, every sign pattern of the start's
-    diagonal is tried and the best solution kept.
-    """
-    c0 = gyro_initial_guess(blocks) if start is None else np.asarray(start, float).ravel()
-    model = _GyroModel(blocks)
-
-    def solve(c: np.ndarray):
-        return least_squares(model.residual, c, jac=model.jacobian, method="lm",
-                             x_scale="jac", ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=200)
-
-    best = solve(c0)
-    if start is None and np.sqrt(np.mean(best.fun**2)) > GYRO_CONVERGED_RMS:
-        diagonal = np.abs(np.diag(c0.reshape(3, 3)))
-        for sx in (1, -1):
-            for sy in (1, -1):
-                for sz in (1, -1):
-                    trial = solve(np.diag(diagonal * [sx, sy, sz]).ravel())
-                    if trial.cost < best.cost:
-                        best = trial
-    return best
-
-
-# ------------------------------------------------------------------------------------ the method
 
 @dataclass
 class ThresholdTrial:
+    """One detector threshold tried: k, the threshold k * base, the static intervals it found and,
+    when there were enough, the cost and parameters of the accelerometer fit (eq. 10) on them."""
+
     multiplier: float
     threshold: float
     n_intervals: int
@@ -552,36 +310,43 @@ def _coverage_warnings(u: np.ndarray, what: str) -> list[str]:
     return warnings
 
 
-def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: float,
-                   initial_still_s: float | None = None, convention: str = "lower",
-                   settings: FreeSettings | None = None) -> CalibrationReport:
-    """Turntable-free calibration of both triads (module docstring, eqs. 8-15).
+# ----------------------------------------------------------------------------------- the stages
+
+@dataclass
+class StillPeriod:
+    """The initial still period: the gyro bias's and the detector threshold's reference."""
+
+    seconds: float
+    samples: int
+    window: int     # moving-variance window, samples
+    rate: float     # 1 / median time step, Hz
+    base: float     # variance norm of the accelerometer over the still period
+
+
+def find_still_period(data: FreeCapture, settings: FreeSettings) -> StillPeriod:
+    """The initial still period (given, or detected by :func:`detect_initial_still`) and the
+    accelerometer's variance norm over it, the unit of the detector thresholds.
 
     Parameters
     ----------
-    t : (N,) s, increasing.  acc, gyro : (N, 3) raw samples in any unit (counts, m/s^2, rad/s).
-    gravity : local gravity magnitude g of eq. (10), m/s^2.
-    initial_still_s : length of the initial still period; detected when None.
-    convention : "lower" (lecture) or "upper" (imu_tk) triangular accelerometer misalignment.
-    settings : detector and cost settings (:class:`FreeSettings`; ``FreeSettings.imu_tk()``).
+    data : FreeCapture
+        The checked session.
+    settings : FreeSettings
+        Window and still-period rules.
 
     Returns
     -------
-    CalibrationReport with accel and gyro :class:`SensorCalibration` (forward model
-    raw = M true + b, M = C^-1), per-threshold trials, per-pose residuals and warnings.
+    StillPeriod
+
+    Raises
+    ------
+    EngineInputError
+        No still period at the start, one shorter than the detector window, or one with no noise.
     """
-    settings = settings or FreeSettings()
-    t = np.asarray(t, float)
-    acc = np.asarray(acc, float)
-    gyro = np.asarray(gyro, float)
-    if convention not in _MIS_INDEX:
-        raise ValueError(f"convention must be 'lower' or 'upper', got {convention!r}")
-    if len(t) < 100:
-        raise EngineInputError(f"only {len(t)} samples: a turntable-free calibration needs minutes of data")
+    t, acc = data.t, data.acc
     rate = 1.0 / float(np.median(np.diff(t)))
     window = settings.window(rate)
-    half = window // 2
-    warnings: list[str] = []
+    initial_still_s = data.initial_still_s
     if initial_still_s is None:
         initial_still_s = detect_initial_still(t, acc, window)
         # two detector windows: enough samples for the threshold's variance (imu_tk asks for more)
@@ -597,20 +362,64 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
     if base <= 0:
         raise EngineInputError("the accelerometer does not vary at all during the still period (constant "
                                "values): the variance threshold needs sensor noise; is the stream frozen?")
-    vnorm = moving_variance_norm(acc, window)
-    min_len = max(2, int(round(settings.min_interval_s * rate)))
+    return StillPeriod(float(initial_still_s), n_still, window, rate, base)
 
+
+@dataclass
+class AccelStage:
+    """The accelerometer's fit (eqs. 8-11) at the chosen threshold and what the gyroscope needs of it."""
+
+    trials: list[ThresholdTrial]
+    trial: ThresholdTrial       # the chosen threshold
+    fit: AccFit
+    intervals: np.ndarray       # (K, 2) first and last sample of each static interval
+    correction: np.ndarray      # C = T K of eq. (8)
+    bias: np.ndarray
+    cov: np.ndarray             # (9, 9) of ``fit.params``
+    directions: np.ndarray      # (K, 3) calibrated mean specific force of each interval
+    pose_residual: list[float]  # eq. (10) on each interval's mean, m/s^2
+    warnings: list[str]
+
+
+def fit_accelerometer_thresholds(data: FreeCapture, settings: FreeSettings,
+                                 still: StillPeriod) -> AccelStage:
+    """Eq. (10) fitted on the static intervals of each threshold k * base; the lowest cost wins.
+
+    Parameters
+    ----------
+    data : FreeCapture
+        The checked session.
+    settings : FreeSettings
+        Thresholds, interval rules, cost, convention and gravity.
+    still : StillPeriod
+        The initial still period.
+
+    Returns
+    -------
+    AccelStage
+        The chosen fit, its covariance (Gauss-Newton, ``calibration_common.covariance``), the
+        gravity directions of its intervals and coverage warnings.
+
+    Raises
+    ------
+    EngineInputError
+        Too few static intervals at every threshold, or poses that leave a parameter free.
+    """
+    acc = data.acc
+    half = still.window // 2
+    vnorm = moving_variance_norm(acc, still.window)
+    min_len = max(2, int(round(settings.min_interval_s * still.rate)))
     trials: list[ThresholdTrial] = []
     best: tuple[ThresholdTrial, AccFit, np.ndarray, np.ndarray] | None = None
     for k in settings.multipliers:
-        intervals = static_intervals(vnorm, k * base, half)
+        intervals = static_intervals(vnorm, k * still.base, half)
         samples, valid = _interval_samples(acc, intervals, settings, min_len, half)
-        trial = ThresholdTrial(float(k), float(k * base), len(valid), None, intervals=valid)
+        trial = ThresholdTrial(float(k), float(k * still.base), len(valid), None, intervals=valid)
         trials.append(trial)
         if len(valid) < settings.min_intervals:
             continue
         # thresholds close to each other find nearly the same intervals: start from the best fit so far
-        fit = fit_accelerometer(samples, gravity, convention, settings.cost,
+        fit = fit_accelerometer(samples, settings.gravity, settings.convention, settings.cost,
                                 start=None if best is None else best[1].params)
         fit.n_intervals = len(valid)
         trial.cost, trial.params = fit.cost, fit.params
@@ -620,27 +429,54 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
         found = ", ".join(f"k={tr.multiplier:g}: {tr.n_intervals}" for tr in trials)
         raise EngineInputError(
             f"too few static intervals ({found}; at least {settings.min_intervals} needed): hold the unit "
-            f"still for {max(settings.interval_samples or 0, min_len) / rate:.1f} s or more in each of "
+            f"still for {max(settings.interval_samples or 0, min_len) / still.rate:.1f} s or more in each of "
             f"{settings.min_intervals}+ orientations")
-    trial, fit, samples, intervals = best
-    _check_rank(fit.jacobian, ACC_PARAM_NAMES[convention], "accelerometer")
-    acc_c = acc_correction(fit.params, convention)
+    trial, fit, _, intervals = best
+    _check_rank(fit.jacobian, ACC_PARAM_NAMES[settings.convention], "accelerometer")
+    acc_c = acc_correction(fit.params, settings.convention)
     acc_b = fit.params[6:9]
     cov_a, _ = covariance(fit.jacobian, fit.residual)
-
-    def acc_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return np.linalg.inv(acc_correction(p, convention)), p[6:9]
-
     calibrated = (acc - acc_b) @ acc_c.T
     # Gravity directions: means over each whole interval (imu_tk).
     directions = np.array([calibrated[a:b + 1].mean(axis=0) for a, b in intervals])
-    warnings += _coverage_warnings(directions, "accelerometer")
-    pose_res = [float(g) for g in gravity - np.linalg.norm(directions, axis=1)]
+    warnings = _coverage_warnings(directions, "accelerometer")
+    pose_res = [float(g) for g in settings.gravity - np.linalg.norm(directions, axis=1)]
+    return AccelStage(trials, trial, fit, intervals, acc_c, acc_b, cov_a, directions, pose_res, warnings)
 
-    # Gyroscope
-    _check_gyro_saturation(t, gyro, n_still)
-    gyro_bias = gyro[:n_still].mean(axis=0)
-    blocks = gyro_blocks(t, gyro - gyro_bias, intervals, directions)
+
+def move_blocks(data: FreeCapture, settings: FreeSettings, still: StillPeriod,
+                accel: AccelStage) -> tuple[GyroBlocks, np.ndarray]:
+    """The moves between static intervals, de-biased, as eq. (15) integrates them, and the bias.
+
+    With ``settings.gyro_bias == "intervals"`` each move subtracts the mean gyro of the two
+    intervals around it and the bias is the mean over all intervals; with "still", the mean of
+    the still period.
+
+    Parameters
+    ----------
+    data : FreeCapture
+        The checked session.
+    settings : FreeSettings
+        The gyro bias mode.
+    still : StillPeriod
+        The initial still period.
+    accel : AccelStage
+        The static intervals and their gravity directions.
+
+    Returns
+    -------
+    tuple
+        The blocks (:class:`GyroBlocks`) and the gyro bias b_g (3,).
+
+    Raises
+    ------
+    EngineInputError
+        A saturated gyro axis or lost samples inside a move.
+    """
+    t, gyro, intervals = data.t, data.gyro, accel.intervals
+    _check_gyro_saturation(t, gyro, still.samples)
+    gyro_bias = gyro[:still.samples].mean(axis=0)
+    blocks = gyro_blocks(t, gyro - gyro_bias, intervals, accel.directions)
     _check_gaps(t, blocks.spans)
     if settings.gyro_bias == "intervals":
         means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals]) - gyro_bias
@@ -648,74 +484,212 @@ def calibrate_free(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, gravity: fl
         blocks = GyroBlocks(blocks.x0 - drift, blocks.x1 - drift, blocks.dt, blocks.u0, blocks.u1,
                             blocks.spans)
         gyro_bias = gyro_bias + means.mean(axis=0)
-    elif settings.gyro_bias != "still":
-        raise ValueError(f"gyro_bias must be 'still' or 'intervals', got {settings.gyro_bias!r}")
-    sol = fit_gyroscope(blocks)
-    model = _GyroModel(blocks)
-    jac_g = model.jacobian(sol.x)
-    _check_rank(jac_g, GYRO_PARAM_NAMES, "gyroscope")
-    # eq. (15) compares unit vectors: two of each block's three residual components carry noise
-    cov_g, _ = covariance(jac_g, sol.fun, observations=2 * len(blocks.spans))
-    cov_g += _direction_covariance(model, sol.x, jac_g, acc, intervals, fit.params, cov_a, convention)
-    gyro_c = sol.x.reshape(3, 3)
-    # The rate is zero in every static interval, so the scatter of their gyro means shows how far
-    # the bias wanders during the session (white noise alone would understate it). Drift budget as
-    # in ``calibration_turntable``: the session-common offset is budgeted as the drift between intervals.
+    return blocks, gyro_bias
+
+
+def gyro_bias_sd(data: FreeCapture, settings: FreeSettings, still: StillPeriod,
+                 intervals: np.ndarray) -> np.ndarray:
+    """1-sigma of the gyro bias: white noise of its mean plus what the bias wandered.
+
+    The rate is zero in every static interval, so the scatter of their gyro means shows how far
+    the bias wanders during the session (white noise alone would understate it). With the
+    "intervals" bias, drift budget as in ``calibration_turntable``:
+    D = max(s^2 - w, 0) + s^2 sqrt(2 / d) (``calibration_common.drift_budget``).
+
+    Parameters
+    ----------
+    data : FreeCapture
+        The checked session.
+    settings : FreeSettings
+        The gyro bias mode.
+    still : StillPeriod
+        The initial still period.
+    intervals : ndarray, (K, 2)
+        The static intervals.
+
+    Returns
+    -------
+    ndarray, (3,)
+    """
+    gyro, n_still = data.gyro, still.samples
     interval_means = np.array([gyro[a:b + 1].mean(axis=0) for a, b in intervals])
     if settings.gyro_bias == "intervals":
         one_white = np.mean([gyro[a:b + 1].var(axis=0, ddof=1) / (b + 1 - a) for a, b in intervals], axis=0)
         drift = drift_budget(interval_means - interval_means.mean(axis=0), 1, one_white)
-        bias_sd = np.sqrt(one_white / len(intervals) + drift)
-    else:
-        wander = interval_means.std(axis=0, ddof=1)
-        bias_sd = np.sqrt(gyro[:n_still].var(axis=0, ddof=1) / n_still + wander**2)
-    cov_g += _bias_covariance(model, sol.x, jac_g, bias_sd)
+        return np.sqrt(one_white / len(intervals) + drift)
+    wander = interval_means.std(axis=0, ddof=1)
+    return np.sqrt(gyro[:n_still].var(axis=0, ddof=1) / n_still + wander**2)
 
-    def gyro_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return np.linalg.inv(p.reshape(3, 3)), gyro_bias
 
+@dataclass
+class GyroStage:
+    """The gyroscope's fit of eq. (15) and its covariance."""
+
+    solution: OptimizeResult    # scipy's, ``x`` = C row-major
+    blocks: GyroBlocks
+    correction: np.ndarray      # C (3, 3)
+    bias: np.ndarray
+    bias_sd: np.ndarray
+    cov: np.ndarray             # (9, 9) of C: fit, plus what the gravity directions and bias carry
+    warnings: list[str]
+
+
+def fit_gyroscope_moves(data: FreeCapture, settings: FreeSettings, still: StillPeriod,
+                        accel: AccelStage) -> GyroStage:
+    """C of eq. (15) by Levenberg-Marquardt over the moves, and its covariance: the fit's own
+    (two noisy components per unit-vector residual) plus what it inherits from the accelerometer
+    fit through the gravity directions and from the bias subtracted before integration
+    (implicit-function theorem, ``calibration_free_gyro``).
+
+    Parameters
+    ----------
+    data : FreeCapture
+        The checked session.
+    settings : FreeSettings
+        Gyro bias mode and convention.
+    still : StillPeriod
+        The initial still period.
+    accel : AccelStage
+        The accelerometer's fit.
+
+    Returns
+    -------
+    GyroStage
+        With a warning for a move that disagrees with the gravity directions by over 0.2 (chord).
+
+    Raises
+    ------
+    EngineInputError
+        Saturation, lost samples in a move, or moves that leave part of C free.
+    """
+    blocks, gyro_bias = move_blocks(data, settings, still, accel)
+    sol = fit_gyroscope(blocks)
+    model = GyroModel(blocks)
+    jac_g = model.jacobian(sol.x)
+    _check_rank(jac_g, GYRO_PARAM_NAMES, "gyroscope")
+    # eq. (15) compares unit vectors: two of each block's three residual components carry noise
+    cov_g, _ = covariance(jac_g, sol.fun, observations=2 * len(blocks.spans))
+    cov_g += direction_covariance(model, sol.x, jac_g, data.acc, accel.intervals, accel.fit.params,
+                                  accel.cov, settings.convention)
+    bias_sd = gyro_bias_sd(data, settings, still, accel.intervals)
+    cov_g += bias_covariance(model, sol.x, jac_g, bias_sd)
+    warnings = []
     block_norm = np.linalg.norm(sol.fun.reshape(-1, 3), axis=1)
     if np.max(block_norm) > 0.2:
         worst = int(np.argmax(block_norm))
         a, b = blocks.spans[worst]
+        t = data.t
         warnings.append(f"gyroscope: the move between static intervals {worst} and {worst + 1} "
                         f"(t = {t[a]:.2f}..{t[b]:.2f} s) disagrees with the gravity directions by "
                         f"{np.degrees(2 * np.arcsin(min(1.0, block_norm[worst] / 2))):.1f} deg: "
                         "check for saturation or missed samples there")
+    return GyroStage(sol, blocks, sol.x.reshape(3, 3), gyro_bias, bias_sd, cov_g, warnings)
 
-    acc_sd = stddev_from(acc_forward, fit.params, cov_a)
-    # Bias drift during the session is correlated in time, so the pose-to-pose scatter of the
-    # residuals is added to the bias uncertainty without dividing it by the number of poses.
-    # (pose_res is in m/s^2: an offset of that size in the true frame is M times it in raw units)
-    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2
-                             + np.mean(np.asarray(pose_res) ** 2) * np.sum(np.linalg.inv(acc_c) ** 2, axis=1))
-    gyro_sd = stddev_from(gyro_forward, sol.x, cov_g)
-    gyro_sd["bias"] = bias_sd
-    method = f"free (Tedaldi 2014), {convention}-triangular accel misalignment"
-    accel = SensorCalibration(np.linalg.inv(acc_c), acc_b, method=method,
-                              residual_rms=float(np.sqrt(np.mean(fit.residual**2))), stddev=acc_sd,
-                              extra={"convention": convention, "residual": "g - |a| (m/s^2)",
-                                     "threshold_multiplier": trial.multiplier,
-                                     "static_intervals": len(intervals)})
-    gyro_cal = SensorCalibration(np.linalg.inv(gyro_c), gyro_bias, method=method,
-                                 residual_rms=float(np.sqrt(np.mean(sol.fun**2))), stddev=gyro_sd,
-                                 extra={"residual": "R^T u_k - u_k+1 (unit vectors)",
-                                        "blocks": len(blocks.spans)})
-    poses = [{"label": f"static {i}", "t0": float(t[a]), "t1": float(t[b]), "residual": pose_res[i],
+
+def accel_calibration(accel: AccelStage, settings: FreeSettings, method: str) -> SensorCalibration:
+    """The accelerometer's :class:`SensorCalibration`, M = C^-1, with its 1-sigma.
+
+    Bias drift during the session is correlated in time, so the pose-to-pose scatter of the
+    residuals of eq. (10) is added to the bias uncertainty without dividing it by the number of
+    poses (in m/s^2: an offset of that size in the true frame is M times it in raw units).
+
+    Parameters
+    ----------
+    accel : AccelStage
+        The accelerometer's fit.
+    settings : FreeSettings
+        Convention.
+    method : str
+        The method string stored in the calibration.
+
+    Returns
+    -------
+    SensorCalibration
+    """
+    convention, acc_c, fit = settings.convention, accel.correction, accel.fit
+
+    def acc_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.linalg.inv(acc_correction(p, convention)), p[6:9]
+
+    acc_sd = stddev_from(acc_forward, fit.params, accel.cov)
+    acc_sd["bias"] = np.sqrt(acc_sd["bias"] ** 2 + np.mean(np.asarray(accel.pose_residual) ** 2)
+                             * np.sum(np.linalg.inv(acc_c) ** 2, axis=1))
+    return SensorCalibration(np.linalg.inv(acc_c), accel.bias, method=method,
+                             residual_rms=float(np.sqrt(np.mean(fit.residual**2))), stddev=acc_sd,
+                             extra={"convention": convention, "residual": "g - |a| (m/s^2)",
+                                    "threshold_multiplier": accel.trial.multiplier,
+                                    "static_intervals": len(accel.intervals)})
+
+
+def gyro_calibration(gyro: GyroStage, method: str) -> SensorCalibration:
+    """The gyroscope's :class:`SensorCalibration`, M = C^-1, with its 1-sigma.
+
+    Parameters
+    ----------
+    gyro : GyroStage
+        The gyroscope's fit.
+    method : str
+        The method string stored in the calibration.
+
+    Returns
+    -------
+    SensorCalibration
+    """
+    def gyro_forward(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.linalg.inv(p.reshape(3, 3)), gyro.bias
+
+    gyro_sd = stddev_from(gyro_forward, gyro.solution.x, gyro.cov)
+    gyro_sd["bias"] = gyro.bias_sd
+    return SensorCalibration(np.linalg.inv(gyro.correction), gyro.bias, method=method,
+                             residual_rms=float(np.sqrt(np.mean(gyro.solution.fun**2))), stddev=gyro_sd,
+                             extra={"residual": "R^T u_k - u_k+1 (unit vectors)",
+                                    "blocks": len(gyro.blocks.spans)})
+
+
+def calibrate_free(data: FreeCapture, settings: FreeSettings = FreeSettings()) -> CalibrationReport:
+    """Turntable-free calibration of both triads (Tedaldi et al. 2014, eqs. 8-15).
+
+    Parameters
+    ----------
+    data : FreeCapture
+        The hand-held session, checked on construction.
+    settings : FreeSettings
+        Gravity, convention, detector and cost settings (``FreeSettings.imu_tk()`` for imu_tk's).
+
+    Returns
+    -------
+    CalibrationReport
+        accel and gyro :class:`SensorCalibration` (forward model raw = M true + b, M = C^-1),
+        per-threshold trials, per-pose residuals and warnings.
+
+    Raises
+    ------
+    EngineInputError
+        No usable still period, too few static intervals, saturation, lost samples in a move,
+        orientations that leave a parameter free.
+    """
+    still = find_still_period(data, settings)
+    accel = fit_accelerometer_thresholds(data, settings, still)
+    gyro = fit_gyroscope_moves(data, settings, still, accel)
+    method = f"free (Tedaldi 2014), {settings.convention}-triangular accel misalignment"
+    t, fit, sol = data.t, accel.fit, gyro.solution
+    block_norm = np.linalg.norm(sol.fun.reshape(-1, 3), axis=1)
+    poses = [{"label": f"static {i}", "t0": float(t[a]), "t1": float(t[b]),
+              "residual": accel.pose_residual[i],
               "gyro_residual": float(block_norm[i - 1]) if i > 0 else None}
-             for i, (a, b) in enumerate(intervals)]
+             for i, (a, b) in enumerate(accel.intervals)]
     details: dict[str, Any] = {
         "trials": [{"multiplier": tr.multiplier, "threshold": tr.threshold, "intervals": tr.n_intervals,
-                    "cost": tr.cost} for tr in trials],
-        "chosen_multiplier": trial.multiplier,
-        "acc_params": dict(zip(ACC_PARAM_NAMES[convention], fit.params.tolist(), strict=True)),
+                    "cost": tr.cost} for tr in accel.trials],
+        "chosen_multiplier": accel.trial.multiplier,
+        "acc_params": dict(zip(ACC_PARAM_NAMES[settings.convention], fit.params.tolist(), strict=True)),
         "acc_cost": fit.cost,
         "gyro_cost": float(0.5 * sol.fun @ sol.fun),
-        "initial_still_s": float(initial_still_s),
-        "still_samples": n_still,
-        "window_samples": window,
-        "accel_correction": acc_c,
-        "gyro_correction": gyro_c,
+        "initial_still_s": still.seconds,
+        "still_samples": still.samples,
+        "window_samples": still.window,
+        "accel_correction": accel.correction,
+        "gyro_correction": gyro.correction,
     }
-    return CalibrationReport(accel, gyro_cal, "free", gravity, poses, warnings, details)
-
+    return CalibrationReport(accel_calibration(accel, settings, method), gyro_calibration(gyro, method),
+                             "free", settings.gravity, poses, accel.warnings + gyro.warnings, details)

@@ -30,6 +30,8 @@ from station.errors import EngineInputError
 
 @dataclass
 class RotationFit:
+    """Result of eq. (1) over the rotations: M, its covariance and each rotation's angle error."""
+
     matrix: np.ndarray
     bias_rotation: np.ndarray   # b of eq. (1), a by-product
     cov: np.ndarray             # (12, 12) over [M.ravel(), b of eq. (1)]
@@ -44,6 +46,8 @@ def integrate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def explain_rotations(axes: np.ndarray, labels: list[str]) -> str:
+    """Why the rotations cannot determine M in eq. (1): an axis never turned about, or turned one
+    way only (the bias column then cannot separate from the scale), for the error message."""
     axes = np.asarray(axes, float)
     reasons = []
     for i, name in enumerate("xyz"):

@@ -54,6 +54,7 @@ class SensorCalibration:
 
     @property
     def correction(self) -> np.ndarray:
+        """M^-1: true = M^-1 (raw - b)."""
         return np.linalg.inv(self.matrix)
 
     def correct(self, raw: np.ndarray, extra_bias: np.ndarray | float = 0.0) -> np.ndarray:
@@ -66,4 +67,5 @@ class SensorCalibration:
 
     @staticmethod
     def identity() -> SensorCalibration:
+        """M = I, b = 0: raw readings taken as they are."""
         return SensorCalibration(np.eye(3), np.zeros(3), method="identity")

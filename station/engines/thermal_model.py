@@ -54,10 +54,12 @@ class ThermalBias:
 
     @property
     def t_min(self) -> float:
+        """Lower end of the calibrated temperature range, degC."""
         return self.segments[0].t_min
 
     @property
     def t_max(self) -> float:
+        """Upper end of the calibrated temperature range, degC."""
         return self.segments[-1].t_max
 
     def evaluate(self, temp: np.ndarray, dtemp: np.ndarray, reference_temp: float) -> np.ndarray:
@@ -75,6 +77,7 @@ class ThermalBias:
         return np.einsum("nk,njk->nj", terms, coeffs[index])
 
     def to_dict(self) -> dict[str, Any]:
+        """The ``accel``/``gyro`` entry of the ``thermal`` section (``shared/specs/params-file.md``)."""
         return {
             "terms": list(TERMS),
             "clamp": {"temp": [self.t_min, self.t_max], "dtemp": [self.dt_min, self.dt_max]},
@@ -86,6 +89,7 @@ class ThermalBias:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ThermalBias:
+        """Read an entry written by :meth:`to_dict`; refuses unknown terms or no segments (ValueError)."""
         if list(d.get("terms", TERMS)) != list(TERMS):
             raise ValueError(f"thermal terms {d.get('terms')} are not the known {list(TERMS)}")
         clamp = d.get("clamp", {})
@@ -110,10 +114,12 @@ class DtempFilter:
     tau_s: float = 10.0
 
     def to_dict(self) -> dict[str, Any]:
+        """The ``dtemp_filter`` entry of the ``thermal`` section."""
         return {"kind": self.kind, "tau_s": self.tau_s}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DtempFilter:
+        """Read an entry written by :meth:`to_dict`; refuses a filter kind other than ``ema`` (ValueError)."""
         if d.get("kind") != "ema":
             raise ValueError(f"dT filter kind {d.get('kind')!r} is unknown; this station knows 'ema'")
         return cls("ema", float(d["tau_s"]))
@@ -185,6 +191,7 @@ class ThermalModel:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """The ``thermal`` section of the parameter file (``shared/specs/params-file.md``)."""
         out: dict[str, Any] = {
             "reference_temp": self.reference_temp,
             "dtemp_filter": self.dtemp_filter.to_dict(),
@@ -197,6 +204,7 @@ class ThermalModel:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ThermalModel:
+        """Read a section written by :meth:`to_dict`; keys it does not know are kept in ``extra``."""
         known = {"reference_temp", "dtemp_filter", "accel", "gyro"}
         return cls(
             reference_temp=float(d["reference_temp"]),

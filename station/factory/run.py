@@ -38,7 +38,7 @@ from station.acquisition.recorder import Recorder
 from station.acquisition.runner import RecorderSink, RunOptions, RunResult, SequenceRunner
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
 from station.commands import export
-from station.engines.calibration_turntable import calibrate_turntable
+from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.engines.earth import STANDARD_GRAVITY, normal_gravity
 from station.errors import StationError
 from station.export.params_file import ParamsFile
@@ -415,11 +415,10 @@ class UnitRun:
             gravity = normal_gravity(plan.latitude, plan.height)
         else:
             gravity = STANDARD_GRAVITY
-        # The runner labels every sample; calibrate_turntable refuses an unlabelled capture itself
-        # (its annotation omits None).
-        report = calibrate_turntable(capture.t, capture.acc, capture.gyro,
-                                     capture.step,
-                                     gravity, latitude_deg=plan.latitude, rate_hz=float(plan.rate_hz))
+        # The runner labels every sample; TurntableCapture refuses an unlabelled capture itself.
+        data = TurntableCapture(capture.t, capture.acc, capture.gyro, capture.step,
+                                rate_hz=float(plan.rate_hz))
+        report = calibrate_turntable(data, TurntableSettings(gravity=gravity, latitude_deg=plan.latitude))
         phase.measurements += measure(plan, CALIBRATION_QUANTITIES, report, self._link)
         phase.notes += list(report.warnings)
         if any(m.outcome == "FAIL" for m in phase.measurements):

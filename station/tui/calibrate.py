@@ -5,7 +5,7 @@ from __future__ import annotations
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import Capture
 from station.engines.calibration_common import CalibrationReport
-from station.engines.calibration_turntable import calibrate_turntable
+from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.errors import EngineInputError
 
 
@@ -14,5 +14,6 @@ def calibrate_run(capture: Capture, gravity: float = STANDARD_GRAVITY) -> Calibr
     if capture.step is None or not capture.segments():
         raise EngineInputError("no step was captured: run the sequence (w) before computing a calibration")
     rate = capture.device.get("rate_hz")
-    return calibrate_turntable(capture.t, capture.acc, capture.gyro, capture.step, gravity,
-                               rate_hz=float(rate) if rate else None)
+    data = TurntableCapture(capture.t, capture.acc, capture.gyro, capture.step,
+                            rate_hz=float(rate) if rate else None)
+    return calibrate_turntable(data, TurntableSettings(gravity=gravity))

@@ -12,7 +12,7 @@ from textual.widgets import Static
 
 from station.acquisition.runner import samples_to_capture
 from station.commands.thermal import format_report
-from station.engines.thermal import fit_thermal
+from station.engines.thermal import ThermalSweep, fit_thermal
 from station.errors import StationError
 from station.export.params_file import ParamsFile
 from station.tui.messages import LinkFailed, Snapshot
@@ -115,8 +115,8 @@ class ThermalScreen(LongRecordingScreen):
             if capture.temp is None:
                 raise StationError("the recording has no temperature readings; the unit must send its "
                                    "temperature for a thermal model")
-            fit = fit_thermal(capture.t, capture.temp, capture.acc, capture.gyro,
-                              accel_cal=params.accel, gyro_cal=params.gyro)
+            fit = fit_thermal(ThermalSweep(capture.t, capture.temp, capture.acc, capture.gyro,
+                                           accel_cal=params.accel, gyro_cal=params.gyro))
         except (StationError, ValueError) as exc:
             self.post_message(LinkFailed(StationError(f"the thermal fit failed: {exc}")))
             return
