@@ -28,6 +28,7 @@ def parse_signed_axes(text: str) -> np.ndarray:
 
 
 def skew(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrix [v]x of v (3,): [v]x w = v x w."""
     x, y, z = v
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 

@@ -57,10 +57,12 @@ class FaultSpec:
 
     @property
     def per_frame(self) -> bool:
+        """True when any per-frame fault (garbage, bit flip, truncation, drop, stall) can happen."""
         return any((self.garbage, self.bitflip, self.truncate, self.drop, self.stall))
 
     @property
     def active(self) -> bool:
+        """True when any fault is set, per-frame or a disconnection."""
         ends = (self.disconnect_after_bytes, self.disconnect_after_s)
         return self.per_frame or any(e is not None for e in ends)
 
@@ -86,6 +88,7 @@ class FaultSpec:
         return cls(**values)  # type: ignore[arg-type]
 
     def describe(self) -> str:
+        """The spec as :meth:`parse` reads it, the fields that differ from the defaults only ("none")."""
         defaults = FaultSpec()
         parts = [f"{k}={v}" for k, v in asdict(self).items() if v != getattr(defaults, k)]
         return ",".join(parts) if parts else "none"
@@ -93,6 +96,8 @@ class FaultSpec:
 
 @dataclass
 class FaultCounts:
+    """What the injector did so far: frames seen, intact, dropped, truncated, bit-flipped; garbage, stalls."""
+
     frames: int = 0
     intact: int = 0
     dropped: int = 0
@@ -133,6 +138,13 @@ class FaultInjector:
         return np.concatenate(self._intact) if self._intact else np.zeros(0, dtype=np.int64)
 
     def intact_frames(self) -> list[bytes]:
+        """The frames that went out intact, in order (for a test's reference).
+
+        Raises
+        ------
+        ValueError
+            The injector was made with ``record=False``.
+        """
         if not self.record:
             raise ValueError("the injector was made with record=False; it kept no frame bytes")
         return list(self._intact_frames)

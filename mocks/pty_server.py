@@ -39,6 +39,8 @@ MAX_PENDING_BYTES = 256 * 1024  # beyond this the host is not reading: new outpu
 
 @dataclass
 class ServerStats:
+    """What the pty server did: samples produced, sent, unheard and overrun, bytes, commands, timing."""
+
     samples: int = 0  # samples produced while streaming
     samples_sent: int = 0  # samples handed to a connected host (before faults)
     samples_unheard: int = 0  # samples produced while no host had the port open
@@ -101,6 +103,7 @@ class PtyServer(PtyService):
     # --- life cycle ----------------------------------------------------------------------
 
     def start(self) -> PtyServer:
+        """Open the pty (and its symlink ``link``), start serving in a thread; returns self."""
         self._master, self.port_path = open_serving_pty()
         if self.link is not None:
             with contextlib.suppress(FileNotFoundError):
@@ -113,6 +116,7 @@ class PtyServer(PtyService):
 
     @property
     def running(self) -> bool:
+        """True while the serving thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
     @property

@@ -47,6 +47,7 @@ class PtyService:
         self._error: BaseException | None = None
 
     def start(self) -> Self:
+        """Open the pty and start serving it in a thread; returns self (each subclass its own)."""
         raise NotImplementedError
 
     def _run(self) -> None:
@@ -57,6 +58,7 @@ class PtyService:
         self._thread.start()
 
     def stop(self) -> None:
+        """Stop the thread, close the pty, and raise what the thread failed with, if anything."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)

@@ -80,6 +80,7 @@ class Rotation:
         return AXES[self.axis[1]], sign * math.radians(self.angle_deg)
 
     def default_label(self) -> str:
+        """The capture-csv label of this turn: ``rot+z``, or ``rot-x:90`` when not a full turn."""
         index, angle = self.signed()
         sign = "+" if angle >= 0 else "-"
         degrees = abs(math.degrees(angle))
@@ -170,11 +171,13 @@ class Piece:
     label: str
 
     def attitude_at(self, t: float) -> np.ndarray:
+        """Attitude (3, 3) at time ``t`` (s), held at the end attitude after ``t1``."""
         phi = self.profile.angle(np.array([min(t, self.t1) - self.t0]))
         return self.r0 @ axis_angle_matrix(self.axis, phi)[0]
 
     @property
     def r1(self) -> np.ndarray:
+        """Attitude (3, 3) at the end of the piece."""
         return self.r0 @ axis_angle_matrix(self.axis, np.array([self.profile.total]))[0]
 
 
@@ -272,6 +275,7 @@ class Timeline:
         del self.pieces[:keep]
 
     def attitude_at(self, t: float) -> np.ndarray:
+        """Attitude (3, 3) of the unit at time ``t`` (s), extending the timeline as needed."""
         self._extend(t)
         for p in self.pieces:
             if p.t0 <= t < p.t1:
@@ -385,14 +389,17 @@ class TemperatureProfile:
 
     @staticmethod
     def constant(temp_degc: float = 25.0) -> TemperatureProfile:
+        """A constant temperature ``temp_degc``: :func:`constant`."""
         return constant(temp_degc)
 
     @staticmethod
     def ramp(points: Sequence[tuple[float, float]]) -> TemperatureProfile:
+        """Piecewise-linear through ``points``: :func:`ramp`."""
         return ramp(points)
 
 
 def constant(temp_degc: float = 25.0) -> TemperatureProfile:
+    """A profile that holds ``temp_degc`` throughout."""
     return TemperatureProfile([0.0], [temp_degc])
 
 
@@ -518,6 +525,7 @@ class UnitSampler:
         return max(0, last + 1 - self.count)
 
     def set_rate(self, rate_hz: float) -> None:
+        """Change the sample rate from the next sample on (time stays continuous)."""
         self._t_base = self.time_of(self.count)
         self._k_base = self.count
         self.rate_hz = float(rate_hz)
@@ -525,6 +533,7 @@ class UnitSampler:
         self._gyro_noise.set_rate(rate_hz)
 
     def next(self, n: int) -> Recording:
+        """The next ``n`` samples of the unit as a :class:`Recording` (labels, truth and noise included)."""
         k = np.arange(self.count, self.count + n)
         t = self._t_base + (k - self._k_base) / self.rate_hz
         worlds = [self._gravity_world] + ([self._earth_world] if self._earth_world is not None else [])

@@ -73,6 +73,7 @@ class TurntableSim(PtyService):
     # ---- life cycle -------------------------------------------------------------------------------
 
     def start(self) -> TurntableSim:
+        """Open the pty and start serving the turntable protocol in a thread; returns self."""
         self._master, self.port_path = open_serving_pty()
         self._start_thread()
         return self
@@ -110,6 +111,7 @@ class TurntableSim(PtyService):
         return self.device.next_due_s()
 
     def moving(self) -> bool:
+        """True while a commanded move is under way."""
         return self._now() < self._move_end
 
     def handle(self, line: str) -> str:

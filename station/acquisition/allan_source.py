@@ -53,14 +53,17 @@ class TimingReport:
 
     @property
     def span_s(self) -> float:
+        """Time from the first to the last sample, s."""
         return self.last_t - self.first_t
 
     @property
     def mean_rate_hz(self) -> float:
+        """(samples - 1) / span: the rate the timestamps show, Hz (NaN with fewer than two)."""
         return (self.samples - 1) / self.span_s if self.samples > 1 and self.span_s > 0 else float("nan")
 
     @property
     def missing_fraction(self) -> float:
+        """Missing samples over the samples there should have been."""
         total = self.samples + self.missing_samples
         return self.missing_samples / total if total else 0.0
 
@@ -81,6 +84,7 @@ class TimingReport:
         return out
 
     def as_dict(self) -> dict[str, Any]:
+        """Plain-data form of the report, for ``--json`` and the results file."""
         return {"samples": self.samples, "rate_hz": self.rate_hz, "mean_rate_hz": self.mean_rate_hz,
                 "first_t": self.first_t, "last_t": self.last_t, "gaps": self.gaps,
                 "missing_samples": self.missing_samples, "missing_fraction": self.missing_fraction,
@@ -97,6 +101,18 @@ class TimingChecker:
         self._last = -math.inf
 
     def check(self, t: np.ndarray) -> np.ndarray:
+        """Account one chunk of timestamps ``t`` (s) in the report: rate, duplicates, gaps.
+
+        Returns
+        -------
+        ndarray of bool
+            Which samples to keep (those later than every earlier timestamp).
+
+        Raises
+        ------
+        EngineInputError
+            The rate is neither given nor readable from the first timestamps.
+        """
         r = self.report
         if not math.isfinite(r.rate_hz):
             steps = np.diff(t)
@@ -147,9 +163,11 @@ class IntegratedRecord:
 
     @property
     def n_samples(self) -> int:
+        """Number of rate samples integrated (one less than the phase points)."""
         return len(self.phase[0]) - 1
 
     def close(self) -> None:
+        """Drop the phase arrays and remove the temporary files behind them."""
         self.phase = []
         if self._tmp is not None:
             self._tmp.cleanup()

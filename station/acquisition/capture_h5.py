@@ -80,6 +80,7 @@ class H5CaptureWriter:
         self._with_step = with_step
 
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
+        """Append a batch of samples (and their step labels) to the capture's datasets."""
         n = len(samples)
         if n == 0:
             return
@@ -122,9 +123,11 @@ class H5CaptureWriter:
                                   f"damaged; free space and capture again") from None
 
     def set_device(self, device: dict[str, Any]) -> None:
+        """Store the device description (JSON) in the file's ``device`` attribute."""
         self._file.attrs["device"] = json.dumps(device)
 
     def close(self, link: dict[str, Any] | None = None) -> None:
+        """Flush with the final link statistics ``link`` and close the file."""
         if self._broken or not self._file:
             return
         self.flush(link)

@@ -42,10 +42,12 @@ class Stillness:
 
     @property
     def still(self) -> bool:
+        """True when every measure is within its limit (level <= 1)."""
         return self.level <= 1.0
 
     @property
     def score(self) -> float:
+        """1 when still, else 1 / level: a bar for the operator."""
         return 1.0 if self.level <= 1.0 else 1.0 / self.level
 
 
@@ -137,6 +139,7 @@ class Saturation:
 
     @property
     def ok(self) -> bool:
+        """True when no accelerometer or gyroscope sample is clipped."""
         return self.acc_samples == 0 and self.gyro_samples == 0
 
 
@@ -187,6 +190,7 @@ class Dropouts:
 
     @property
     def lost_fraction(self) -> float:
+        """Lost frames over the frames sent (received + lost)."""
         total = self.received + self.lost
         return self.lost / total if total else 0.0
 
@@ -227,10 +231,12 @@ class RotationCheck:
 
     @property
     def error_deg(self) -> float:
+        """Integrated angle minus the target angle, deg."""
         return self.angle_deg - self.target_deg
 
     @property
     def ok(self) -> bool:
+        """True when the angle error is within the tolerance."""
         return abs(self.error_deg) <= self.tolerance_deg
 
     @property

@@ -53,7 +53,8 @@ class Prompt:
 class Operator(Protocol):
     """What the runner needs of whoever handles the unit. See the module docstring."""
 
-    def begin(self, sequence: Sequence) -> None: ...
+    def begin(self, sequence: Sequence) -> None:
+        """The run of ``sequence`` starts."""
 
     def place(self, step: Step, index: int, total: int) -> None:
         """Ask for the unit in the step's pose (a rotation's start pose); returns at once."""
@@ -70,37 +71,41 @@ class Operator(Protocol):
     def confirm(self, prompt: Prompt) -> Action:
         """Block until the operator answers one of ``prompt.choices``."""
 
-    def step_finished(self, record: StepRecord) -> None: ...
+    def step_finished(self, record: StepRecord) -> None:
+        """A step ended (accepted, repeated or skipped): its record."""
 
-    def end(self, result: RunResult) -> None: ...
+    def end(self, result: RunResult) -> None:
+        """The run ended: its result."""
 
 
 class BaseOperator:
     """Does nothing on every call and accepts every prompt's default; subclass what you need."""
 
     def begin(self, sequence: Sequence) -> None:
-        pass
+        """Nothing to do when the run starts."""
 
     def place(self, step: Step, index: int, total: int) -> None:
-        pass
+        """Nothing to do: the unit is assumed in place."""
 
     def rotate(self, step: RotationStep) -> None:
-        pass
+        """Nothing to do: the rotation is assumed done."""
 
     def status(self, status: LiveStatus) -> None:
-        pass
+        """Ignore the live status."""
 
     def poll(self) -> Action | None:
+        """No request from the operator."""
         return None
 
     def confirm(self, prompt: Prompt) -> Action:
+        """Accept the prompt's default action."""
         return prompt.default
 
     def step_finished(self, record: StepRecord) -> None:
-        pass
+        """Nothing to do when a step ends."""
 
     def end(self, result: RunResult) -> None:
-        pass
+        """Nothing to do when the run ends."""
 
 
 Answer = Action | str | Callable[[Prompt], Action | str]
@@ -118,6 +123,8 @@ FACTORY_ANSWERS: dict[str, Answer] = {"start": Action.ACCEPT, "review": redo_the
 
 @dataclass
 class TranscriptEntry:
+    """One event a scripted operator saw: its kind, the step label and a detail."""
+
     event: str
     label: str = ""
     detail: str = ""
@@ -149,26 +156,32 @@ class ScriptedOperator(BaseOperator):
             self._requests.append(Action(action))
 
     def begin(self, sequence: Sequence) -> None:
+        """Note the start in the transcript."""
         self.transcript.append(TranscriptEntry("begin", sequence.name))
 
     def place(self, step: Step, index: int, total: int) -> None:
+        """Note the placement, then call ``on_place`` if given (a test moves the unit there)."""
         self.transcript.append(TranscriptEntry("place", step.label, f"{index + 1}/{total}"))
         if self.on_place is not None:
             self.on_place(step, index, total)
 
     def rotate(self, step: RotationStep) -> None:
+        """Note the rotation, then call ``on_rotate`` if given."""
         self.transcript.append(TranscriptEntry("rotate", step.label))
         if self.on_rotate is not None:
             self.on_rotate(step)
 
     def status(self, status: LiveStatus) -> None:
+        """Count the live status updates."""
         self.statuses += 1
 
     def poll(self) -> Action | None:
+        """The oldest queued request (``request``), if any."""
         with self._lock:
             return self._requests.pop(0) if self._requests else None
 
     def confirm(self, prompt: Prompt) -> Action:
+        """The scripted answer for the prompt's kind (or its default), noted in the transcript."""
         answer: Any = self.answers.get(prompt.kind, prompt.default)
         if callable(answer) and not isinstance(answer, Action):
             answer = answer(prompt)
@@ -181,9 +194,11 @@ class ScriptedOperator(BaseOperator):
         return action
 
     def step_finished(self, record: StepRecord) -> None:
+        """Note the step's outcome in the transcript."""
         self.transcript.append(TranscriptEntry("finished", record.label, record.status))
 
     def end(self, result: RunResult) -> None:
+        """Note the run's outcome in the transcript."""
         self.transcript.append(TranscriptEntry("end", result.outcome))
 
 
@@ -191,9 +206,11 @@ class Rig(Protocol):
     """What moves a simulated (or motorized) unit: a pose by label, a turn about a sensor axis."""
 
     # What they return (the simulator: the move's duration) is not used.
-    def set_pose(self, pose: str, move_s: float = ...) -> object: ...
+    def set_pose(self, pose: str, move_s: float = ...) -> object:
+        """Turn the unit to the pose label ``pose`` over ``move_s``."""
 
-    def rotate(self, axis: str, angle_deg: float, rate_dps: float, settle_s: float = ...) -> object: ...
+    def rotate(self, axis: str, angle_deg: float, rate_dps: float, settle_s: float = ...) -> object:
+        """Turn the unit about ``axis`` (+x, -z, ...) by ``angle_deg`` at ``rate_dps``, then settle."""
 
 
 class SimulatedOperator(BaseOperator):
@@ -211,29 +228,37 @@ class SimulatedOperator(BaseOperator):
         self.settle_s = settle_s
 
     def begin(self, sequence: Sequence) -> None:
+        """Pass the start on to ``inner``."""
         self.inner.begin(sequence)
 
     def place(self, step: Step, index: int, total: int) -> None:
+        """Tell ``inner``, then move the simulated unit to the step's pose."""
         self.inner.place(step, index, total)
         pose = step.label if isinstance(step, PoseStep) else step.start_pose
         self.rig.set_pose(pose, self.move_s)
 
     def rotate(self, step: RotationStep) -> None:
+        """Tell ``inner``, then turn the simulated unit as the step asks."""
         self.inner.rotate(step)
         sign = "+" if step.angle_deg > 0 else "-"
         self.rig.rotate(sign + "xyz"[step.axis], abs(step.angle_deg), step.rate_dps, self.settle_s)
 
     def status(self, status: LiveStatus) -> None:
+        """Pass the live status on to ``inner``."""
         self.inner.status(status)
 
     def poll(self) -> Action | None:
+        """``inner``'s request, if any."""
         return self.inner.poll()
 
     def confirm(self, prompt: Prompt) -> Action:
+        """``inner``'s answer to the prompt."""
         return self.inner.confirm(prompt)
 
     def step_finished(self, record: StepRecord) -> None:
+        """Pass the step's record on to ``inner``."""
         self.inner.step_finished(record)
 
     def end(self, result: RunResult) -> None:
+        """Pass the result on to ``inner``."""
         self.inner.end(result)

@@ -42,6 +42,8 @@ from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
 
 
 class State(enum.Enum):
+    """Where the runner is in the sequence (the TUI shows it)."""
+
     STARTING = "starting"
     PLACING = "placing"
     CAPTURING = "capturing"
@@ -111,6 +113,7 @@ class StepRecord:
 
     @property
     def ok(self) -> bool:
+        """True when the step was accepted with no problem noted."""
         return self.status == "accepted" and not self.problems
 
 
@@ -127,13 +130,15 @@ class RunResult:
 
     @property
     def accepted(self) -> list[str]:
+        """The labels of the accepted steps, in order."""
         return [s.label for s in self.steps if s.status == "accepted"]
 
 
 class SampleSink(Protocol):
     """Where samples go once their label is final (in memory, or streamed to a capture file)."""
 
-    def write(self, samples: np.ndarray, label: str) -> None: ...
+    def write(self, samples: np.ndarray, label: str) -> None:
+        """Take a batch of samples recorded during ``label`` ("" between steps)."""
 
 
 class MemorySink:
@@ -143,6 +148,7 @@ class MemorySink:
         self._chunks: list[tuple[np.ndarray, str]] = []
 
     def write(self, samples: np.ndarray, label: str) -> None:
+        """Keep the batch and its label in memory."""
         if len(samples):
             self._chunks.append((samples, label))
 
@@ -151,6 +157,7 @@ class MemorySink:
 
     def capture(self, device: dict[str, Any] | None = None, link: dict[str, Any] | None = None,
                 source: str = "") -> Capture:
+        """Everything written so far as one labelled :class:`Capture`."""
         samples = np.concatenate([c for c, _ in self._chunks]) if self._chunks else np.zeros(0, SAMPLE_DTYPE)
         labels = np.empty(len(samples), dtype=object)
         i = 0
@@ -168,6 +175,7 @@ class RecorderSink:
         self.device = device
 
     def write(self, samples: np.ndarray, label: str) -> None:
+        """Write the batch, labelled, to the recorder's capture file."""
         self.recorder.step = label
         self.recorder.write(samples, self.device.stats.as_dict() if self.device is not None else None)
 

@@ -86,6 +86,7 @@ class PoseStep:
 
     @property
     def up(self) -> np.ndarray:
+        """Unit vector (sensor frame) that points up in this pose."""
         return pose_vector(self.label)
 
 
@@ -112,14 +113,17 @@ class RotationStep:
 
     @property
     def axis(self) -> int:
+        """Index (0, 1, 2) of the sensor axis turned about."""
         return parse_rotation(self.label)[0]
 
     @property
     def angle_deg(self) -> float:
+        """Signed angle of the turn, deg (negative for rot-)."""
         return parse_rotation(self.label)[1]
 
     @property
     def axis_vector(self) -> np.ndarray:
+        """Unit vector of the turn's axis, sensor frame."""
         v = np.zeros(3)
         v[self.axis] = 1.0
         return v
@@ -179,6 +183,7 @@ class Sequence:
 
     @property
     def labels(self) -> list[str]:
+        """The step labels, in order."""
         return [s.label for s in self.steps]
 
     @property
