@@ -251,3 +251,15 @@ def test_hostile_unit_strings_stay_in_comments(target: str, tmp_path: Path) -> N
     written = {name: v[0] if isinstance(v, tuple) else v for name, v in values.items()}
     assert written == result.values()
     assert text.isascii()
+
+
+@pytest.mark.parametrize("target", ["px4", "ardupilot"])
+def test_six_pose_errors_at_the_reference_temperature_with_a_grid_point_beside_it(target: str) -> None:
+    # The chamber scenario's range with T_ref mid-way: a point of the report's temperature grid lies
+    # 1.4e-4 degC from T_ref; the errors "at the reference" were taken there too (12, not 6).
+    params = make_params(seed=3, breaks=(-20.0021, 60.0018))
+    params.thermal.reference_temp = 20.0
+    result = TARGETS[target][0](params)
+    for name in ("accel", "gyro"):
+        errors = result.pose_errors[name]
+        assert len(errors["at_reference"]) == len(errors["poses"]) == 6

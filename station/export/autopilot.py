@@ -192,7 +192,8 @@ def assess(params: ParamsFile, values: dict[str, float],
     ours = apply_calibration(raw_acc, raw_gyr, grid_t, np.zeros_like(grid_t), params.accel, params.gyro,
                              thermal)
     theirs = correct(values, raw_acc, raw_gyr, grid_t)
-    at_ref = np.isclose(grid_t, t_ref)
+    # Exactly T_ref (it is in the grid): a grid point within isclose's tolerance of it is not it.
+    at_ref = grid_t == t_ref
     is_pose = np.tile(np.arange(7) < 6, len(temps))
     for k, (name, triad) in enumerate((("accel", acc_triad), ("gyro", gyr_triad))):
         err = np.linalg.norm(theirs[k] - ours[k], axis=1)
