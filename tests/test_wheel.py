@@ -8,6 +8,7 @@ with ``pip install --no-deps --target`` and its dependencies come from the runni
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
@@ -35,19 +36,12 @@ def _run(args: list[str], cwd: Path, env: dict[str, str],
     return result
 
 
-@pytest.fixture(scope="module")
-def installed(tmp_path_factory) -> dict:
-    """Build the wheel, install it into a folder of its own; the environment that runs it from there."""
-    base = tmp_path_factory.mktemp("wheel")
-    src = base / "src"
+def _build_and_install(base: Path, env: dict[str, str]) -> None:
+    src, dist, site = base / "src", base / "dist", base / "site"
     for name in PACKAGES:
         shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy2(REPO / name, src / name)
-    dist, site, work = base / "dist", base / "site", base / "work"
-    work.mkdir()
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "PYTHONSAFEPATH")}
-    env["PIP_DISABLE_PIP_VERSION_CHECK"] = "1"
     start = time.monotonic()
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(dist), str(src)], base, env,
          timeout=180)
@@ -56,9 +50,33 @@ def installed(tmp_path_factory) -> dict:
     _run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site), str(wheels[0])],
          base, env)
     print(f"wheel built and installed in {time.monotonic() - start:.1f} s")
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> dict:
+    """Build the wheel, install it into a folder of its own; the environment that runs it from there.
+
+    Under pytest-xdist the workers share one build (the first to take the lock makes it).
+    """
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the folder every worker's own one is in
+    base = root / "wheel"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "PYTHONSAFEPATH")}
+    env["PIP_DISABLE_PIP_VERSION_CHECK"] = "1"
+    with open(root / "wheel.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (base / "built").exists():
+            shutil.rmtree(base, ignore_errors=True)
+            base.mkdir()
+            _build_and_install(base, env)
+            (base / "built").touch()
+    wheel = next((base / "dist").glob("imu_station-*.whl"))
+    site = base / "site"
+    work = tmp_path_factory.mktemp("work")
     env["PYTHONPATH"] = str(site)
     env["PATH"] = f"{site / 'bin'}{os.pathsep}{env.get('PATH', '')}"
-    return {"wheel": wheels[0], "site": site, "work": work, "env": env}
+    return {"wheel": wheel, "site": site, "work": work, "env": env}
 
 
 def test_wheel_holds_the_packages_and_the_version(installed) -> None:
