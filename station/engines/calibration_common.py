@@ -68,9 +68,22 @@ def covariance(jac: np.ndarray, residual: np.ndarray,
     The usual Gauss-Newton estimate at the optimum (e.g. Nocedal & Wright eq. 10.2 with
     the residual variance estimated from the fit), times Student's t variance factor d / (d - 2)
     as in :func:`pooled_scatter`, so that errors over sigma have unit variance with few spare
-    residuals (the factor is 1 + 2/d: negligible for sample-level fits). ``observations``: the
-    number m of residual components that carry noise, when fewer than ``len(residual)`` (a
-    difference of unit vectors has two per vector: its component along them is second order).
+    residuals (the factor is 1 + 2/d: negligible for sample-level fits).
+
+    Parameters
+    ----------
+    jac : ndarray, (m, p)
+        Jacobian of the residuals at the optimum.
+    residual : ndarray, (m,)
+        Residuals at the optimum.
+    observations : int, optional
+        The number m of residual components that carry noise, when fewer than ``len(residual)``
+        (a difference of unit vectors has two per vector: its component along them is second order).
+
+    Returns
+    -------
+    tuple
+        Covariance (p, p) and s^2.
     """
     m, p = jac.shape
     m = m if observations is None else observations
@@ -103,20 +116,33 @@ def pooled_scatter(residual: np.ndarray, unknowns: int) -> float | None:
 
 
 def drift_budget(residual: np.ndarray, unknowns: int, white: np.ndarray) -> np.ndarray:
-    """Variance (3,) budgeted for the session-common bias drift that no single capture can see.
+    """Variance budgeted for the session-common bias drift that no single capture can see.
 
-    ``residual`` (P, 3): per-pose values about a fit with ``unknowns`` parameters per axis (pose
-    means minus their mean, or a pose fit's residuals); ``white`` (3,): the white-noise variance of
-    one pose value. The poses scatter by white noise plus the drift between them; the drift's
-    variance is estimated as the excess s^2 - w (s^2 the scatter pooled over the axes with
-    d = 3 (P - unknowns) degrees of freedom and Student-corrected as in :func:`pooled_scatter`,
-    w the mean white variance), plus one standard error of s^2, s^2 sqrt(2 / d), so a drift
-    hidden in the noise is not budgeted as zero:
+    The poses scatter by white noise plus the drift between them; the drift's variance is
+    estimated as the excess s^2 - w (s^2 the scatter pooled over the axes with d = 3 (P - unknowns)
+    degrees of freedom and Student-corrected as in :func:`pooled_scatter`, w the mean white
+    variance), plus one standard error of s^2, s^2 sqrt(2 / d), so a drift hidden in the noise is
+    not budgeted as zero:
 
         D = max(s^2 - w, 0) + s^2 sqrt(2 / d)
 
     The rule: the bias may be offset from the unit's long-run value by as much as it drifted from
-    pose to pose during the session. With too few spare poses (d <= 2) the budget is ``white``.
+    pose to pose during the session.
+
+    Parameters
+    ----------
+    residual : ndarray, (P, 3)
+        Per-pose values about a fit with ``unknowns`` parameters per axis (pose means minus their
+        mean, or a pose fit's residuals).
+    unknowns : int
+        Parameters per axis of that fit.
+    white : ndarray, (3,)
+        White-noise variance of one pose value.
+
+    Returns
+    -------
+    ndarray, (3,)
+        D per axis; ``white`` itself with too few spare poses (d <= 2).
     """
     r = np.asarray(residual, float)
     w = np.asarray(white, float)
@@ -150,7 +176,22 @@ def _forward_parts(matrix: np.ndarray, bias: np.ndarray) -> np.ndarray:
 
 def stddev_from(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], p: np.ndarray,
                 cov: np.ndarray) -> dict[str, Any]:
-    """1-sigma of matrix, bias, scale and misalignment when (M, b) = fun(p) and cov(p) is known."""
+    """1-sigma of matrix, bias, scale and misalignment by first-order propagation (:func:`propagate`).
+
+    Parameters
+    ----------
+    fun : callable
+        (M, b) = fun(p), the forward model's parts from the fitted parameters.
+    p : ndarray, (n,)
+        Fitted parameters.
+    cov : ndarray, (n, n)
+        Their covariance.
+
+    Returns
+    -------
+    dict
+        ``matrix`` (3, 3), ``bias`` (3,), ``scale`` (3,), ``misalignment`` (3, 3).
+    """
     def parts(q: np.ndarray) -> np.ndarray:
         return _forward_parts(*fun(q))
 
@@ -192,6 +233,23 @@ def triangular_correction(correction: np.ndarray, convention: str) -> tuple[np.n
     sensor xy plane), by QR of the row- and column-reversed C (a "QL" decomposition).
     The two conventions of one sensor therefore differ exactly by the rotation between
     their body frames: C_upper = Q_u^T C = Q_u^T Q_l C_lower.
+
+    Parameters
+    ----------
+    correction : ndarray, (3, 3)
+        C = M^-1.
+    convention : str
+        "lower" or "upper".
+
+    Returns
+    -------
+    tuple of ndarray
+        Q and C'.
+
+    Raises
+    ------
+    ValueError
+        An unknown convention.
     """
     c = np.asarray(correction, float)
     if convention == "upper":
@@ -213,7 +271,20 @@ def convert_convention(accel_correction: np.ndarray, gyro_correction: np.ndarray
 
     The accelerometer's correction becomes triangular (see :func:`triangular_correction`),
     the gyroscope's is rotated with it (its rates are expressed in the same body frame).
-    Returns (accel C', gyro C', Q^T) where Q^T rotates old body vectors into the new frame.
+
+    Parameters
+    ----------
+    accel_correction : ndarray, (3, 3)
+        The accelerometer's C.
+    gyro_correction : ndarray, (3, 3) or None
+        The gyroscope's C.
+    to : str
+        "lower" or "upper".
+
+    Returns
+    -------
+    tuple
+        (accel C', gyro C' or None, Q^T) where Q^T rotates old body vectors into the new frame.
     """
     q, acc_c = triangular_correction(accel_correction, to)
     gyro_c = None if gyro_correction is None else q.T @ np.asarray(gyro_correction, float)

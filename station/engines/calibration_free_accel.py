@@ -109,7 +109,25 @@ class AccFit:
 
 def fit_accelerometer(x: np.ndarray, g: float, convention: str, cost: str = "mean",
                       start: np.ndarray | None = None) -> AccFit:
-    """Levenberg-Marquardt on eq. (10) with the Jacobian of eq. (11); samples (n, 3) in any unit."""
+    """Levenberg-Marquardt on eq. (10) with the Jacobian of eq. (11).
+
+    Parameters
+    ----------
+    x : ndarray, (n, 3)
+        Static samples (or interval means), any unit.
+    g : float
+        Local gravity, m/s^2.
+    convention : str
+        "lower" or "upper" (the form of T).
+    cost : str
+        "mean" (mean of r^2) or "half_sum" (1/2 sum r^2, Ceres).
+    start : ndarray, (9,), optional
+        Start parameters; default :func:`acc_initial_guess`.
+
+    Returns
+    -------
+    AccFit
+    """
     p0 = acc_initial_guess(x, g) if start is None else np.asarray(start, float)
     sol = least_squares(acc_residual, p0, jac=acc_jacobian, args=(x, g, convention), method="lm",
                         x_scale="jac", ftol=1e-14, xtol=1e-14, gtol=1e-14, max_nfev=2000)

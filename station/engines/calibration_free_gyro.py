@@ -43,8 +43,24 @@ class GyroBlocks:
 
 def gyro_blocks(t: np.ndarray, gyro_unbiased: np.ndarray, intervals: np.ndarray,
                 directions: np.ndarray) -> GyroBlocks:
-    """Integration ranges as imu_tk takes them: from the last sample of static interval k
-    (t >= its end time) to the last sample before the start of interval k+1."""
+    """The moves as imu_tk integrates them: from the last sample of static interval k (t >= its end
+    time) to the last sample before the start of interval k+1.
+
+    Parameters
+    ----------
+    t : ndarray, (N,)
+        Sample times, s.
+    gyro_unbiased : ndarray, (N, 3)
+        Raw rates minus the bias.
+    intervals : ndarray, (K, 2)
+        Static intervals [start, end].
+    directions : ndarray, (K, 3)
+        Gravity direction of each interval (any length).
+
+    Returns
+    -------
+    GyroBlocks
+    """
     spans = []
     for k in range(len(intervals) - 1):
         i0 = int(np.searchsorted(t, t[intervals[k, 1]], side="left"))
@@ -241,10 +257,22 @@ GYRO_CONVERGED_RMS = 0.05
 
 
 def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None) -> OptimizeResult:
-    """Levenberg-Marquardt on eq. (15) with its analytic Jacobian; returns scipy's solution.
+    """Levenberg-Marquardt on eq. (15) with its analytic Jacobian.
 
     Should the data-driven start lead to a poor minimum, every sign pattern of the start's
     diagonal is tried and the best solution kept.
+
+    Parameters
+    ----------
+    blocks : GyroBlocks
+        The moves between static intervals.
+    start : ndarray, (9,), optional
+        Start C, row-major; default :func:`gyro_initial_guess`.
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+        ``x`` is C (row-major), ``fun`` the residuals of eq. (15).
     """
     c0 = gyro_initial_guess(blocks) if start is None else np.asarray(start, float).ravel()
     model = GyroModel(blocks)

@@ -40,7 +40,19 @@ class RotationFit:
 
 
 def integrate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Trapezoid-rule integral of x (N, 3) over t (N,)."""
+    """Trapezoid-rule integral of the rates over their own timestamps: Y_r of eq. (1).
+
+    Parameters
+    ----------
+    t : ndarray, (N,)
+        Sample times, s.
+    x : ndarray, (N, 3)
+        Raw rates.
+
+    Returns
+    -------
+    ndarray, (3,)
+    """
     dt = np.diff(t)[:, None]
     return np.sum(0.5 * (x[1:] + x[:-1]) * dt, axis=0)
 
@@ -67,13 +79,37 @@ def fit_rotations(integrals: np.ndarray, angles: np.ndarray, axes: np.ndarray, d
                   earth_terms: np.ndarray | None = None) -> tuple[RotationFit, bool]:
     """Eq. (1) by least squares over rotation steps.
 
-    integrals (R, 3): Y_r; angles (R,) rad; axes (R, 3) unit vectors; durations (R,) s;
-    noise_var (R, 3): variance of each Y_r from the sample noise; static_bias: b of eq. (2);
-    earth_terms (R, 3): Omega_v T_r u_r, or None.
-
     With turns both ways (rank 4) b is solved for and cancels; with one turn per axis only
     (Ferraris' three rotations) the static bias is subtracted instead and M alone is solved.
-    Returns the fit and whether the bias was solved for.
+
+    Parameters
+    ----------
+    integrals : ndarray, (R, 3)
+        Y_r, the integrated raw rate of each rotation.
+    angles : ndarray, (R,)
+        theta_r, rad.
+    axes : ndarray, (R, 3)
+        Unit axis e_r of each rotation.
+    durations : ndarray, (R,)
+        T_r, s.
+    noise_var : ndarray, (R, 3)
+        Variance of each Y_r from the sample noise.
+    labels : list of str
+        Rotation labels, for error messages.
+    static_bias : ndarray, (3,)
+        b of eq. (2).
+    earth_terms : ndarray, (R, 3), optional
+        Omega_v T_r u_r, the Earth rate's share of each integral.
+
+    Returns
+    -------
+    tuple
+        The :class:`RotationFit` and whether the bias was solved for.
+
+    Raises
+    ------
+    EngineInputError
+        Rotations that cannot determine M (the reason is named).
     """
     integrals = np.asarray(integrals, float)
     durations = np.asarray(durations, float)

@@ -80,13 +80,35 @@ def explain_rank_deficiency(up: np.ndarray, labels: list[str]) -> str:
 
 def fit_poses(means: np.ndarray, up: np.ndarray, g: float, mean_var: np.ndarray,
               labels: list[str]) -> PoseFit:
-    """Eq. (2) over poses with mean readings ``means`` (P, 3) and up vectors ``up`` (P, 3).
+    """Eq. (2): M and b by least squares over static poses.
 
-    ``mean_var`` (P, 3) is the variance of each mean from the samples' scatter; the covariance
-    of Theta is sigma_j^2 (X^T X)^-1 per output axis j, with sigma_j^2 the larger of the pose
-    means' white-noise variance on axis j and the pose-to-pose scatter of the residuals
-    (``calibration_common.pooled_scatter``: pooled over the axes, Student-corrected). The scatter
-    is what shows a bias that drifts between poses; white noise alone would understate it.
+    The covariance of Theta is sigma_j^2 (X^T X)^-1 per output axis j, with sigma_j^2 the larger
+    of the pose means' white-noise variance on axis j and the pose-to-pose scatter of the
+    residuals (``calibration_common.pooled_scatter``: pooled over the axes, Student-corrected).
+    The scatter is what shows a bias that drifts between poses; white noise alone would
+    understate it.
+
+    Parameters
+    ----------
+    means : ndarray, (P, 3)
+        Mean raw reading y_p of each pose.
+    up : ndarray, (P, 3)
+        Unit up vector u_p of each pose (sensor frame).
+    g : float
+        Local gravity, m/s^2.
+    mean_var : ndarray, (P, 3)
+        Variance of each mean from the samples' scatter.
+    labels : list of str
+        Pose labels, for error messages.
+
+    Returns
+    -------
+    PoseFit
+
+    Raises
+    ------
+    EngineInputError
+        Fewer than four poses, or poses that do not excite every column of X (named).
     """
     means = np.asarray(means, float)
     x = _design(up, g)
@@ -115,7 +137,25 @@ SIX = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 
 def six_position(means: dict[str, np.ndarray], g: float) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. (3): (M, b) from the mean readings of the poses +x -x +y -y +z -z."""
+    """Eq. (3) (Ferraris et al. 1995, eqs. 19-23): M and b from the six up/down poses.
+
+    Parameters
+    ----------
+    means : dict of str to ndarray (3,)
+        Mean raw reading of each of the poses +x -x +y -y +z -z.
+    g : float
+        Local gravity, m/s^2.
+
+    Returns
+    -------
+    tuple of ndarray
+        M (3, 3) and b (3,).
+
+    Raises
+    ------
+    EngineInputError
+        A pose of the six is missing.
+    """
     missing = [p for p in SIX if p not in means]
     if missing:
         raise EngineInputError(f"the six-position solution needs the poses {missing} as well")
@@ -126,7 +166,21 @@ def six_position(means: dict[str, np.ndarray], g: float) -> tuple[np.ndarray, np
 
 
 def six_position_cov(means: dict[str, np.ndarray], g: float, sigma2: np.ndarray) -> np.ndarray:
-    """Covariance (12, 12) of eq. (3) over [M.ravel(), b] for pose means of variance ``sigma2``."""
+    """Covariance of eq. (3) over [M.ravel(), b] by first-order propagation.
+
+    Parameters
+    ----------
+    means : dict of str to ndarray (3,)
+        Mean raw reading of each of the six poses.
+    g : float
+        Local gravity, m/s^2.
+    sigma2 : ndarray, (3,)
+        Variance of one pose mean, per axis.
+
+    Returns
+    -------
+    ndarray, (12, 12)
+    """
     flat = np.concatenate([np.asarray(means[p], float) for p in SIX])
 
     def solution(v: np.ndarray) -> np.ndarray:

@@ -37,7 +37,25 @@ def apply_calibration(
     gyro_cal: SensorCalibration | None = None,
     thermal: ThermalModel | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Corrected (acc, gyro), each (N, 3), from raw samples and whichever sections exist."""
+    """Corrected samples from raw ones and whichever sections of a parameter file exist (module
+    docstring: acc = M_a^-1 (raw_a - b_a - B_a(T, dT)), likewise the gyro).
+
+    Parameters
+    ----------
+    acc, gyro : ndarray, (N, 3)
+        Raw samples.
+    temp, dtemp : ndarray, (N,), optional
+        Temperature (degC, NaN where unknown) and its filtered rate (degC/s) for the thermal bias B.
+    accel_cal, gyro_cal : SensorCalibration, optional
+        The static sections; identity where absent.
+    thermal : ThermalModel, optional
+        The thermal section; no thermal term where absent or the temperature is unknown.
+
+    Returns
+    -------
+    tuple of ndarray
+        Corrected (acc, gyro), each (N, 3).
+    """
     acc = np.asarray(acc, float)
     gyro = np.asarray(gyro, float)
     n = len(acc)

@@ -20,7 +20,7 @@ EARTH_RATE = 7.292115e-5               # rad/s
 
 
 def normal_gravity(latitude_deg: float, height_m: float = 0.0) -> float:
-    """Normal gravity (m/s^2) on the WGS-84 ellipsoid with the free-air height correction.
+    """Normal gravity on the WGS-84 ellipsoid with the free-air height correction.
 
     Somigliana's closed formula (TR8350.2 eq. 4-1):
 
@@ -29,6 +29,18 @@ def normal_gravity(latitude_deg: float, height_m: float = 0.0) -> float:
     and the second-order free-air correction above the ellipsoid (TR8350.2 eq. 4-3):
 
         gamma_h = gamma_0 [1 - 2/a (1 + f + m - 2 f sin^2 phi) h + 3 h^2 / a^2]
+
+    Parameters
+    ----------
+    latitude_deg : float
+        Geodetic latitude phi, deg.
+    height_m : float
+        Height h above the ellipsoid, m.
+
+    Returns
+    -------
+    float
+        gamma_h, m/s^2.
     """
     if not -90.0 <= latitude_deg <= 90.0:
         raise ValueError(f"latitude {latitude_deg} is outside -90..90 degrees")
@@ -40,11 +52,33 @@ def normal_gravity(latitude_deg: float, height_m: float = 0.0) -> float:
 
 
 def earth_rate_vertical(latitude_deg: float) -> float:
-    """The upward component of the Earth's rotation, Omega sin(phi) (rad/s)."""
+    """The upward component of the Earth's rotation, Omega sin(phi).
+
+    Parameters
+    ----------
+    latitude_deg : float
+        Geodetic latitude phi, deg.
+
+    Returns
+    -------
+    float
+        rad/s.
+    """
     return EARTH_RATE * math.sin(math.radians(latitude_deg))
 
 
 def earth_rate_enu(latitude_deg: float) -> np.ndarray:
-    """The Earth's rotation in the local east-north-up frame: (0, Omega cos phi, Omega sin phi)."""
+    """The Earth's rotation in the local east-north-up frame: (0, Omega cos phi, Omega sin phi).
+
+    Parameters
+    ----------
+    latitude_deg : float
+        Geodetic latitude phi, deg.
+
+    Returns
+    -------
+    ndarray, (3,)
+        rad/s.
+    """
     phi = math.radians(latitude_deg)
     return np.array([0.0, EARTH_RATE * math.cos(phi), EARTH_RATE * math.sin(phi)])

@@ -58,11 +58,31 @@ class SensorCalibration:
         return np.linalg.inv(self.matrix)
 
     def correct(self, raw: np.ndarray, extra_bias: np.ndarray | float = 0.0) -> np.ndarray:
-        """true = M^-1 (raw - b - extra_bias), for rows of ``raw`` (N, 3)."""
+        """true = M^-1 (raw - b - extra_bias).
+
+        Parameters
+        ----------
+        raw : ndarray, (N, 3)
+        extra_bias : ndarray or float
+            A bias added to b (the thermal bias, (N, 3)).
+
+        Returns
+        -------
+        ndarray, (N, 3)
+        """
         return (np.asarray(raw, float) - self.bias - extra_bias) @ self.correction.T
 
     def forward(self, true: np.ndarray) -> np.ndarray:
-        """raw = M true + b, for rows of ``true`` (N, 3)."""
+        """raw = M true + b.
+
+        Parameters
+        ----------
+        true : ndarray, (N, 3)
+
+        Returns
+        -------
+        ndarray, (N, 3)
+        """
         return np.asarray(true, float) @ self.matrix.T + self.bias
 
     @staticmethod

@@ -22,10 +22,21 @@ _CHUNK = 4096
 
 
 def moving_variance_norm(x: np.ndarray, window: int) -> np.ndarray:
-    """Eq. (1) for every window centre h .. N-h-1, as an array of length N - 2h.
+    """Eq. (1) for every window centre h .. N-h-1.
 
     Windowed sums from cumulative sums, taken chunk by chunk about each chunk's mean so the
     sums stay small (raw counts around 32768 lose nothing): var = (S2 - S1^2 / w) / (w - 1).
+
+    Parameters
+    ----------
+    x : ndarray, (N, 3)
+        Samples.
+    window : int
+        Window length w = 2h + 1, samples.
+
+    Returns
+    -------
+    ndarray, (N - 2h,)
     """
     x = np.asarray(x, float)
     n = len(x)
@@ -48,7 +59,16 @@ def moving_variance_norm(x: np.ndarray, window: int) -> np.ndarray:
 
 
 def variance_norm(x: np.ndarray) -> float:
-    """Eq. (1) over all of ``x`` (the initial still period): || var(x) ||, unbiased."""
+    """Eq. (1) over all of ``x`` (the initial still period): || var(x) ||, unbiased.
+
+    Parameters
+    ----------
+    x : ndarray, (N, 3)
+
+    Returns
+    -------
+    float
+    """
     x = np.asarray(x, float)
     if len(x) < 2:
         raise ValueError("the still period needs at least two samples")
@@ -56,9 +76,21 @@ def variance_norm(x: np.ndarray) -> float:
 
 
 def static_intervals(vnorm: np.ndarray, threshold: float, half: int) -> np.ndarray:
-    """Intervals (K, 2) of sample indices [start, end], both inclusive, where eq. (1) < ``threshold``.
+    """Intervals of sample indices where eq. (1) stays under ``threshold``.
 
-    ``vnorm`` is :func:`moving_variance_norm`'s output (index 0 is sample ``half``).
+    Parameters
+    ----------
+    vnorm : ndarray
+        :func:`moving_variance_norm`'s output (index 0 is sample ``half``).
+    threshold : float
+        Variance-norm threshold.
+    half : int
+        Half window h.
+
+    Returns
+    -------
+    ndarray, (K, 2)
+        [start, end] of each interval, both inclusive.
     """
     still = np.asarray(vnorm) < threshold
     if len(still) == 0:

@@ -25,13 +25,27 @@ def _axis_name(u: np.ndarray) -> str:
 
 def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
                 step: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
-    """Pose index of every sample (-1: moving or unlabelled) and the pose names.
+    """Pose index of every sample and the pose names.
 
     With step labels (capture-csv spec) every static label is a pose and rows between steps
     or in rotation steps are left out. Without labels (or with a step column left empty, as
     an unlabelled recording writes it), one-second windows whose accelerometer
     or gyroscope spread exceeds five times the median spread are motion; still windows are
     grouped by the direction of their mean specific force (within 5 degrees).
+
+    Parameters
+    ----------
+    t : ndarray, (N,)
+        Sample times, s.
+    acc, gyro : ndarray, (N, 3)
+        Raw samples.
+    step : ndarray of str, (N,), optional
+        Step labels.
+
+    Returns
+    -------
+    tuple
+        Pose index per sample (N,) (-1: moving or unlabelled) and the pose names.
     """
     n = len(t)
     pose = np.full(n, -1, dtype=int)

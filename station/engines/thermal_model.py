@@ -25,7 +25,19 @@ TERMS = ("t3", "t2", "t", "dt2", "dt", "tdt", "1")
 
 
 def term_matrix(t_rel: np.ndarray, dtemp: np.ndarray) -> np.ndarray:
-    """Columns of the seven terms in ``TERMS`` order, for T relative to T_ref and dT (N, 7)."""
+    """Columns of the seven terms of the bias model in ``TERMS`` order (module docstring).
+
+    Parameters
+    ----------
+    t_rel : ndarray, (N,)
+        t = T - T_ref, degC.
+    dtemp : ndarray, (N,)
+        dT, degC/s.
+
+    Returns
+    -------
+    ndarray, (N, 7)
+    """
     t = np.asarray(t_rel, float)
     d = np.asarray(dtemp, float)
     return np.stack([t**3, t**2, t, d**2, d, t * d, np.ones_like(t)], axis=-1)
@@ -63,10 +75,21 @@ class ThermalBias:
         return self.segments[-1].t_max
 
     def evaluate(self, temp: np.ndarray, dtemp: np.ndarray, reference_temp: float) -> np.ndarray:
-        """Thermal bias (N, 3) at temperatures ``temp`` and rates ``dtemp`` (both (N,)).
+        """Thermal bias B(T, dT) of the module docstring, as firmware evaluates it.
 
         Clamps T to [t_min, t_max] and dT to [dt_min, dt_max]; picks the segment whose
         range holds T (the last segment holds t_max itself).
+
+        Parameters
+        ----------
+        temp, dtemp : ndarray, (N,)
+            Temperature (degC) and its filtered rate (degC/s).
+        reference_temp : float
+            T_ref, degC.
+
+        Returns
+        -------
+        ndarray, (N, 3)
         """
         temp = np.clip(np.asarray(temp, float), self.t_min, self.t_max)
         dtemp = np.clip(np.asarray(dtemp, float), self.dt_min, self.dt_max)
@@ -152,7 +175,7 @@ def _ema_scan(alpha: np.ndarray, x: np.ndarray, y0: float) -> np.ndarray:
 
 
 def estimate_dtemp(t_s: np.ndarray, temp: np.ndarray, filt: DtempFilter) -> np.ndarray:
-    """dT (degC/s) from timestamps and temperatures with the filter ``filt`` (see DtempFilter).
+    """dT from timestamps and temperatures with the filter ``filt`` (see :class:`DtempFilter`).
 
     Firmware runs the recursion sample by sample; here it is evaluated as two vectorised
     first-order scans (``_ema_scan``) with each sample's own dt, equal to the sample loop to
@@ -160,6 +183,19 @@ def estimate_dtemp(t_s: np.ndarray, temp: np.ndarray, filt: DtempFilter) -> np.n
     positive leaves the state as it was and repeats the last dT. An unknown (NaN) reading
     counts as the last known one, and the filter starts at the first known reading, as the
     firmware's ``imu_calib_dtemp_update`` does.
+
+    Parameters
+    ----------
+    t_s : ndarray, (N,)
+        Sample times, s.
+    temp : ndarray, (N,)
+        Temperatures, degC (NaN where unknown).
+    filt : DtempFilter
+
+    Returns
+    -------
+    ndarray, (N,)
+        dT, degC/s.
     """
     t_s = np.asarray(t_s, float)
     temp = np.asarray(temp, float)
