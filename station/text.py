@@ -1,0 +1,45 @@
+"""Text a unit supplies (its serial, model, firmware), made safe to show an operator.
+
+A unit's DEVICE_INFO is whatever its firmware, or a faulty link, sends: an escape sequence in a
+serial number would clear the operator's screen or retitle the terminal, a bidirectional override
+would show the text reversed, Rich markup would restyle a TUI table. Everything printed from a
+unit goes through :func:`printable` (the files the station writes escape in their own syntax: C
+string literals, YAML and JSON quoting, ``#`` comments).
+"""
+
+from __future__ import annotations
+
+MAX_CHARS = 120
+
+
+def printable(value: object, max_chars: int = MAX_CHARS) -> str:
+    """``value`` as one line of visible text: every character that is not printable (control
+    characters, format characters such as bidirectional overrides, line separators) and the
+    backslash become Python-style escapes (``\\x1b``, ``\\u202e``), so the text shows what was sent.
+
+    Parameters
+    ----------
+    value : object
+        What the unit reported (``str()`` of it when it is not text).
+    max_chars : int
+        Longer results are cut and end with ``...``.
+
+    Returns
+    -------
+    str
+        Text without a control character, safe on a terminal. Rich markup is not escaped: show it
+        as ``rich.text.Text(printable(value))``, never as a markup string.
+    """
+    text = value if isinstance(value, str) else str(value)
+    if not (text.isprintable() and "\\" not in text):
+        text = "".join(ch if ch.isprintable() and ch != "\\" else _escape(ch) for ch in text)
+    return text if len(text) <= max_chars else text[: max_chars - 3] + "..."
+
+
+def _escape(ch: str) -> str:
+    code = ord(ch)
+    if ch == "\\":
+        return "\\\\"
+    if code <= 0xFF:
+        return f"\\x{code:02x}"
+    return f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"
