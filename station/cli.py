@@ -1,7 +1,9 @@
 """The composition root: one sub-command a module in ``station.commands``.
 
 Each command module has ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
-Errors the user can act on (``StationError``) are printed as one message, never a traceback.
+Errors the user can act on (``StationError``, the one root of every layer's errors) are printed
+as one line, never a traceback, and end the command with their ``ExitCode``; so do usage errors.
+Nothing but this module imports a command module.
 """
 
 from __future__ import annotations
@@ -12,9 +14,8 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-from drivers.errors import DriverError
 from station import __version__
-from station.errors import StationError
+from station.errors import ExitCode, StationError
 
 # Order is the order of ``--help``.
 COMMANDS = [
@@ -32,16 +33,14 @@ COMMANDS = [
     "records",
 ]
 
-EXIT_INTERRUPTED = 130
-EXIT_USAGE = 4
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with the station's exit code for usage errors (4, not argparse's 2)."""
+    """argparse with the station's usage errors: one line and exit 4 (argparse's 2 means aborted
+    on the factory line)."""
 
     def error(self, message: str) -> NoReturn:
-        self.print_usage(sys.stderr)
-        self.exit(EXIT_USAGE, f"{self.prog}: error: {message}\n")
+        self.exit(ExitCode.USAGE, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
 def _load_commands(names: Sequence[str] = COMMANDS) -> list:
@@ -56,7 +55,18 @@ def _load_commands(names: Sequence[str] = COMMANDS) -> list:
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The whole parser, or with ``only`` the one command's (engines are slow to import)."""
+    """The whole parser, or with ``only`` the one command's (engines are slow to import).
+
+    Parameters
+    ----------
+    only : str, optional
+        The module name of the one command to load (``run_many`` for ``run-many``).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        ``imu-station`` with a sub-parser per command; each sets ``_run`` to the command's ``run``.
+    """
     parser = _Parser(
         prog="imu-station",
         description="IMU acquisition and calibration station.",
@@ -84,24 +94,37 @@ def _chosen_command(argv: Sequence[str]) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``imu-station`` with ``argv`` (default: the process's arguments).
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        The arguments after the program name.
+
+    Returns
+    -------
+    int
+        The command's :class:`~station.errors.ExitCode`. A usage error raises ``SystemExit(4)``
+        from argparse after its one-line message.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         parser = build_parser(_chosen_command(argv))
     except KeyboardInterrupt:
         print("imu-station: interrupted while starting", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
-        return EXIT_USAGE
+        return ExitCode.USAGE
     try:
-        return int(args._run(args) or 0)
-    except (StationError, DriverError) as exc:
+        return int(args._run(args) or ExitCode.OK)
+    except StationError as exc:
         print(f"imu-station {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"imu-station {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
 
 
 if __name__ == "__main__":

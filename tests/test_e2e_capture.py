@@ -279,8 +279,10 @@ def test_demo_steps_capture_verify_and_report(tmp_path: Path) -> None:
 def test_capture_sets_the_rate_it_is_given(tmp_path: Path) -> None:
     import io
 
-    from station.commands.capture import capture_to_file
+    from mocks import register_sim_url
+    from station.acquisition.port_capture import capture_to_file
 
+    register_sim_url()  # what --port sim:// does on the command line
     err = io.StringIO()
     path = tmp_path / "rate.h5"
     result = capture_to_file("sim://?seed=5&rate=200", path, duration_s=0.5, rate_hz=500, err=err)

@@ -12,9 +12,10 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
+from station.cli_options import RATE_HZ, add_output_option, number
 from station.engines.allan import allan_curve, cluster_sizes
 from station.engines.allan_fit import identify_noise
-from station.errors import EngineInputError
+from station.errors import EngineInputError, ExitCode
 from station.export import allan_report, kalibr
 from station.export.params_file import ParamsFile, to_plain
 from station.files import atomic_write_text
@@ -40,11 +41,15 @@ examples:
   imu-station allan imu.bag --topic /imu/data --kalibr imu.yaml --vins vins.yaml --json"""
 
 
+MAX_PER_DECADE = 1000  # beyond this the cluster sizes repeat: every integer m is already there
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the allan command's options to ``parser``."""
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz), capture file (.h5) or ROS bag (.bag, ROS 2 dir)")
-    parser.add_argument("-o", "--output", type=Path, metavar="PARAMS",
-                        help="parameter file to write the 'noise' section into (other sections are kept)")
+    add_output_option(parser, metavar="PARAMS",
+                      help="parameter file to write the 'noise' section into (other sections are kept)")
     parser.add_argument("--curve", type=Path, metavar="FILE.csv",
                         help="write the curve: tau, gx..az, n, then EDF and 68%% interval columns per axis")
     parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write the log-log plot as PNG")
@@ -54,27 +59,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.add_argument("--topic", help="IMU topic of a ROS bag holding several (default: the only one)")
     parser.add_argument("--rostopic", help="rostopic for Kalibr's imu.yaml (default: --topic or /imu0)")
-    parser.add_argument("--rate", type=_positive_float, metavar="HZ",
+    parser.add_argument("--rate", type=RATE_HZ, metavar="HZ",
                         help="nominal sample rate (default: from the median timestamp step)")
     parser.add_argument("--max-missing", type=_fraction, default=0.001, metavar="FRACTION",
                         help="refuse records whose gaps miss more than this fraction of samples (0.001)")
-    parser.add_argument("--per-decade", type=int, default=10, metavar="N",
-                        help="cluster sizes per decade of tau, at least 10 (default 10)")
+    parser.add_argument("--per-decade", type=number(int, 1, MAX_PER_DECADE), default=10, metavar="N",
+                        help=f"cluster sizes per decade of tau, 10 to {MAX_PER_DECADE} (default 10)")
     parser.add_argument("--workdir", type=Path, metavar="DIR",
                         help="folder for the temporary cumulative sums (default: the system's temp folder)")
 
 
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
-
-
 def _fraction(text: str) -> float:
-    value = float(text)
+    """A fraction of the samples, in [0, 1)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number: give a fraction in [0, 1)") from None
     if not 0 <= value < 1:
-        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1), got {text}")
+        raise argparse.ArgumentTypeError(f"{text} is outside the allowed range, a fraction in [0, 1)")
     return value
 
 
@@ -138,12 +140,13 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Analyse the recording and print the noise terms (or the JSON result)."""
     result = analyse(args, sys.stderr)
     section = result["noise"]
     if args.json:
         json.dump(result, sys.stdout, indent=1, allow_nan=False)
         sys.stdout.write("\n")
-        return 0
+        return ExitCode.OK
     rec = section["record"]
     print(f"{rec['source']}: {rec['samples']} samples at {rec['rate_hz']:.6g} Hz, "
           f"{rec['duration_s'] / 3600:.3g} h; tau {rec['tau_range_s'][0]:.3g} .. "
@@ -154,4 +157,4 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     for path, what in result["outputs"].items():
         print(f"{path}: {what}")
-    return 0
+    return ExitCode.OK

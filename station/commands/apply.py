@@ -11,8 +11,10 @@ from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from station.acquisition.capture import Capture, read_capture
 from station.acquisition.capture_csv import write_csv
+from station.cli_options import add_output_option
 from station.engines.correction import apply_calibration
 from station.engines.thermal_model import estimate_dtemp
+from station.errors import ExitCode
 from station.export.params_file import ParamsFile
 
 NAME = "apply"
@@ -35,12 +37,12 @@ example:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the apply command's options to ``parser``."""
     parser.add_argument("params", type=Path, metavar="PARAMS",
                         help="parameter file (YAML) written by the station")
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz) or capture file (.h5)")
-    parser.add_argument("-o", "--output", type=Path, required=True, metavar="OUTPUT.csv",
-                        help="corrected capture CSV to write")
+    add_output_option(parser, required=True, metavar="OUTPUT.csv", help="corrected capture CSV to write")
 
 
 def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[str, str]]:
@@ -68,6 +70,7 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
 
 
 def run(args: argparse.Namespace) -> int:
+    """Correct the capture, write it, and say how each section was applied."""
     params = ParamsFile.load(args.params)
     quiet = not sys.stderr.isatty()
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
@@ -81,4 +84,4 @@ def run(args: argparse.Namespace) -> int:
     for section, what in how.items():
         print(f"{section}: {what}")
     print(f"{args.output}: {len(corrected)} samples written")
-    return 0
+    return ExitCode.OK

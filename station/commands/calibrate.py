@@ -14,12 +14,22 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import Capture, read_capture
+from station.cli_options import (
+    DURATION_S,
+    MAX_GRAVITY,
+    MIN_GRAVITY,
+    RATE_HZ,
+    add_output_option,
+    number,
+    positive,
+)
 from station.engines.calibration_common import CalibrationReport
 from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
 from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
-from station.engines.earth import STANDARD_GRAVITY, normal_gravity
-from station.errors import StationError
+from station.engines.earth import normal_gravity
+from station.errors import ExitCode, StationError
 from station.export.params_file import ParamsFile, sensor_to_dict, to_plain
 
 NAME = "calibrate"
@@ -48,29 +58,35 @@ examples:
   imu-station calibrate session.csv --latitude 45.07 --height 240 --json"""
 
 
+# A station's height above the WGS-84 ellipsoid: from below the Dead Sea to above any laboratory.
+MIN_HEIGHT_M, MAX_HEIGHT_M = -1000.0, 10_000.0
+MAX_WINDOW_S = 60.0
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the calibrate command's options to ``parser``."""
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz) or capture file (.h5)")
     parser.add_argument("--method", choices=("auto", "turntable", "free"), default="auto",
                         help="turntable (labelled poses and rotations), free (hand-held), auto (default)")
-    parser.add_argument("-o", "--output", type=Path, metavar="PARAMS.yaml",
-                        help="parameter file to merge the accel and gyro sections into")
+    add_output_option(parser, metavar="PARAMS.yaml",
+                      help="parameter file to merge the accel and gyro sections into")
     parser.add_argument("--gravity", type=float, metavar="G",
                         help=f"local gravity in m/s^2 (default {STANDARD_GRAVITY}, "
                              "or normal gravity from --latitude)")
     parser.add_argument("--latitude", type=float, metavar="DEG",
                         help="latitude: WGS-84 normal gravity (Somigliana + free-air with --height) and, "
                              "for the turntable method, the Earth rate's vertical part")
-    parser.add_argument("--height", type=float, default=0.0, metavar="M",
-                        help="height above the ellipsoid (m)")
+    parser.add_argument("--height", type=number(float, MIN_HEIGHT_M, MAX_HEIGHT_M, unit="m"), default=0.0,
+                        metavar="M", help="height above the ellipsoid (m)")
     parser.add_argument("--no-earth-rate", action="store_true",
                         help="with --latitude, do not compensate the Earth rate (gravity only)")
-    parser.add_argument("--initial-still", type=float, metavar="S",
+    parser.add_argument("--initial-still", type=DURATION_S, metavar="S",
                         help="free method: length of the initial still period (default: detected)")
     parser.add_argument("--convention", choices=("lower", "upper"), default="lower",
                         help="free method: accelerometer misalignment triangle; lower = body x along "
                              "accel x, body xy plane = accel xy plane (default); upper = imu_tk's T")
-    parser.add_argument("--window", type=float, default=1.0, metavar="S",
+    parser.add_argument("--window", type=positive("s", MAX_WINDOW_S), default=1.0, metavar="S",
                         help="free method: moving-variance window in seconds (default 1)")
     parser.add_argument("--imu-tk", action="store_true",
                         help="free method: imu_tk's detector and cost (101-sample window, first 100 "
@@ -79,7 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="free method: gyro bias from all static intervals, each move de-biased with the "
                              "intervals on either side (default; follows a drifting bias), or from the "
                              "initial still period only (imu_tk; the default with --imu-tk)")
-    parser.add_argument("--rate", type=float, metavar="HZ",
+    parser.add_argument("--rate", type=RATE_HZ, metavar="HZ",
                         help="the sample rate the device was set to (default: the capture's device "
                              "info, if any); refused if the timestamps disagree")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
@@ -87,10 +103,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def local_gravity(args: argparse.Namespace) -> float:
+    """g from --gravity, or WGS-84 normal gravity from --latitude and --height, else standard gravity."""
     if args.gravity is not None and args.latitude is not None:
         raise StationError("give either --gravity or --latitude/--height, not both")
     if args.gravity is not None:
-        if not 9.7 <= args.gravity <= 9.9:
+        if not MIN_GRAVITY <= args.gravity <= MAX_GRAVITY:
             raise StationError(f"--gravity {args.gravity}: local gravity on Earth is 9.78..9.84 m/s^2")
         return float(args.gravity)
     if args.latitude is not None:
@@ -121,6 +138,7 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
 
 
 def report_dict(report: CalibrationReport, source: str) -> dict[str, Any]:
+    """The report as the JSON ``--json`` prints: method, gravity, both triads, poses, warnings."""
     out: dict[str, Any] = {"source": source, "method": report.method, "gravity": report.gravity}
     for name in ("accel", "gyro"):
         cal = getattr(report, name)
@@ -139,6 +157,7 @@ def _fmt(value: float, sd: float | None) -> str:
 
 
 def print_report(report: CalibrationReport, console: Console) -> None:
+    """Every parameter with its 1-sigma, the per-pose residuals and the warnings, as tables."""
     console.print(f"[bold]{report.method}[/] calibration, g = {report.gravity:.6f} m/s^2")
     for name, unit in (("accel", "raw per m/s^2"), ("gyro", "raw per rad/s")):
         cal = getattr(report, name)
@@ -191,6 +210,7 @@ def print_report(report: CalibrationReport, console: Console) -> None:
 
 
 def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
+    """PNG of the calibrated gravity magnitude per static pose (and the angle error per rotation)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -229,6 +249,7 @@ def _progress(err: IO[str]) -> Progress:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
     with _progress(sys.stderr) as progress:
         task = progress.add_task(f"reading {args.input}", total=None)
         capture = read_capture(args.input)
@@ -252,9 +273,9 @@ def run(args: argparse.Namespace) -> int:
         result["outputs"] = outputs
         json.dump(result, sys.stdout, indent=1, allow_nan=False)
         sys.stdout.write("\n")
-        return 0
+        return ExitCode.OK
     console = Console(file=sys.stdout, width=140)
     print_report(report, console)
     for path, what in outputs.items():
         console.print(f"{path}: {what}")
-    return 0
+    return ExitCode.OK

@@ -5,32 +5,20 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from serial import SerialException
 
-from drivers import (
-    DEFAULT_BAUDRATE,
-    CommandTimeout,
-    CommandUnsupported,
-    Device,
-    LinkStats,
-    NoSamples,
-    PortLost,
-    SerialDevice,
-    open_device,
-)
+from drivers import DEFAULT_BAUDRATE, NoSamples
 from drivers.serial_device import open_serial
 from protocols.ascii_lines import parse_columns
 from protocols.detect import ENOUGH_BYTES, Detection, detect
 from protocols.mavlink import pymavlink_available
-from protocols.registry import DECODER_OPTIONS, DECODERS, make_decoder
-from station.acquisition.recorder import CaptureResult, record
-from station.cli import EXIT_INTERRUPTED
-from station.errors import StationError
+from station.acquisition.port_capture import capture_to_file
+from station.acquisition.recorder import CaptureResult
+from station.cli_options import DURATION_S, add_output_option, add_port_options, number
+from station.errors import ExitCode, StationError
+from station.status_line import CaptureStatusLine
 
 NAME = "capture"
 HELP = "record samples from a unit (serial port, pty or sim://) into a CSV or HDF5 capture file"
@@ -52,125 +40,23 @@ examples:
       --columns t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps --duration 30 -o arduino.csv"""
 
 
+# SET_RATE carries the rate as an unsigned 16-bit number of Hz (specs/native-protocol.md).
+RATE_HZ = number(int, 1, 0xFFFF, unit="Hz")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--port", required=True,
-                        help="serial device path (/dev/ttyUSB0, a pty), or pyserial URL (sim://, loop://)")
-    parser.add_argument("--protocol", default="native", type=_protocol, metavar="NAME[:OPTION]",
-                        help=f"wire protocol of the unit: {', '.join(sorted(DECODERS))} (default: native); "
-                             f"auto: recognise it from the first bytes and say what was found. "
-                             f"{', '.join(DECODER_OPTIONS)} take an option: xsens:hr (the high-rate "
-                             f"packets), mavlink:SCALED_IMU2 (which IMU message), ascii:COLUMNS@HZ")
+    """Add the capture command's options to ``parser``."""
+    add_port_options(parser, required=True)
     parser.add_argument("--columns", metavar="SPEC",
                         help="with --protocol ascii: CSV columns and units, e.g. t:ms,ax:g,ay:g,az:g,gx:dps,"
                              "gy:dps,gz:dps (default: t,ax,ay,az,gx,gy,gz,temp in s, m/s^2, rad/s, degC)")
-    parser.add_argument("--duration", type=_positive_float, metavar="S",
+    parser.add_argument("--duration", type=DURATION_S, metavar="S",
                         help="seconds of device clock to record (default: until Ctrl-C)")
-    parser.add_argument("--rate", type=int, metavar="HZ",
-                        help="set the unit's output rate first (SET_RATE); with text lines that carry no "
-                             "clock (MotionCal, VectorNav), the rate they come at (default: 100)")
-    parser.add_argument("--baud", type=int, default=DEFAULT_BAUDRATE,
-                        help=f"line speed of a real serial port (default: {DEFAULT_BAUDRATE})")
-    parser.add_argument("-o", "--output", required=True, type=Path, metavar="FILE",
-                        help="capture file to write: .csv, or .h5/.hdf5 for the HDF5 capture file")
-
-
-def _protocol(text: str) -> str:
-    name = text.partition(":")[0]
-    if name not in DECODERS:
-        raise argparse.ArgumentTypeError(f"unknown protocol {name!r}; known: {', '.join(sorted(DECODERS))}")
-    if ":" in text:
-        try:
-            make_decoder(text)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
-
-
-def _get_info_quickly(device: Device) -> dict[str, Any]:
-    """GET_INFO sent at most twice: a unit that does not answer is recorded anyway."""
-    if isinstance(device, SerialDevice):
-        return device.get_info(timeout=0.5, retries=1)
-    return device.get_info(timeout=0.5)  # the Device interface has no retry count
-
-
-def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:
-    """Ask the unit who it is, set its rate if asked, and start it if it does not stream yet.
-
-    A unit that does not answer GET_INFO or START_STREAM is still recorded (a warning says so):
-    a device streams from power-up. A refused or unanswered SET_RATE is an error; after a rate
-    change the capture starts with the samples at the new rate.
-    """
-    try:
-        info = _get_info_quickly(device)
-        print(f"unit: {info.get('model', '?')} serial {info.get('serial', '?')} firmware "
-              f"{info.get('firmware', '?')} at {info.get('rate_hz', '?')} Hz", file=err)
-    except CommandUnsupported:
-        return
-    except CommandTimeout as exc:
-        print(f"warning: {exc}; recording without the unit's info", file=err)
-    if rate_hz is not None:
-        device.set_rate(rate_hz)
-        try:
-            _get_info_quickly(device)  # the file records the unit's info at the new rate
-        except CommandTimeout:
-            pass
-        device.read(0)  # samples at the old rate are not part of this capture
-    if device.stats.samples == 0:
-        try:
-            device.start()
-        except CommandTimeout as exc:
-            print(f"warning: {exc}; recording what it sends", file=err)
-
-
-def capture_to_file(port: str, output: Path, protocol: str = "native", duration_s: float | None = None,
-                    rate_hz: int | None = None, baudrate: int = DEFAULT_BAUDRATE,
-                    err: IO[str] | None = None) -> CaptureResult:
-    """Open the unit at ``port``, prepare it, and record into ``output`` with a live status line."""
-    err = err if err is not None else sys.stderr
-    if port.startswith("sim://"):
-        from mocks import register_sim_url  # the simulated unit, loaded only when asked for
-
-        register_sim_url()
-    with open_device(port, protocol=protocol, baudrate=baudrate) as device:
-        try:
-            prepare_device(device, rate_hz, err)
-        except PortLost:
-            pass  # record() saves what arrived before the loss, then reports it
-        with _StatusLine(err, duration_s) as status:
-            return record(device, output, duration_s=duration_s, on_status=status.update)
-
-
-class _StatusLine:
-    """A live line on stderr: progress (with --duration), rate, samples, errors, lost."""
-
-    def __init__(self, err: IO[str], duration_s: float | None):
-        self._progress = Progress(
-            TextColumn("capturing"), BarColumn(), TextColumn("{task.fields[status]}"), TimeElapsedColumn(),
-            console=Console(file=err), transient=False,
-        )
-        self._task = self._progress.add_task("capture", total=duration_s, status="waiting for samples")
-
-    def __enter__(self) -> _StatusLine:
-        self._progress.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._progress.stop()
-
-    def update(self, stats: LinkStats, rows: int, device_time_s: float) -> None:
-        self._progress.update(self._task, completed=device_time_s, status=_status_text(stats, rows))
-
-
-def _status_text(stats: LinkStats, rows: int) -> str:
-    return (f"{stats.rate_hz:7.1f} Hz  {rows} samples  {stats.errors} errors  {stats.lost} lost"
-            + (f"  {stats.overflow_drops} dropped" if stats.overflow_drops else ""))
+    parser.add_argument("--rate", type=RATE_HZ, metavar="HZ",
+                        help="set the unit's output rate first (SET_RATE, 1..65535 Hz); with text lines that "
+                             "carry no clock (MotionCal, VectorNav), the rate they come at (default: 100)")
+    add_output_option(parser, required=True, metavar="FILE",
+                      help="capture file to write: .csv, or .h5/.hdf5 for the HDF5 capture file")
 
 
 def report(result: CaptureResult, out: IO[str]) -> None:
@@ -185,10 +71,6 @@ def report(result: CaptureResult, out: IO[str]) -> None:
 
 def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 3.0) -> Detection:
     """Read the first bytes at ``port`` until a protocol is recognised, or for ``timeout_s``."""
-    if port.startswith("sim://"):
-        from mocks import register_sim_url  # the simulated unit, loaded only when asked for
-
-        register_sim_url()
     data = bytearray()
     found = detect(b"")
     deadline = time.monotonic() + timeout_s
@@ -237,14 +119,16 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
 
 
 def run(args: argparse.Namespace) -> int:
+    """Capture, print the summary, and exit with the capture's outcome."""
     protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr, args.rate)
     result = capture_to_file(args.port, args.output, protocol=protocol, duration_s=args.duration,
-                             rate_hz=args.rate, baudrate=args.baud)
+                             rate_hz=args.rate, baudrate=args.baud,
+                             status=lambda duration_s: CaptureStatusLine(sys.stderr, duration_s))
     report(result, sys.stdout)
     if result.error is not None:
         print(f"imu-station capture: error: {result.error}", file=sys.stderr)
         return result.error.exit_code
     if result.ended_by == "interrupted":
         print("imu-station capture: interrupted; the file keeps every sample received", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    return 0
+        return ExitCode.INTERRUPTED
+    return ExitCode.OK

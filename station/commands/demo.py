@@ -29,9 +29,11 @@ from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
+from protocols.units import STANDARD_GRAVITY
 from station.acquisition.operator import ScriptedOperator
 from station.acquisition.recorder import CaptureResult
-from station.errors import StationError
+from station.cli_options import SEED, add_output_option, check_range, describe_range
+from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
     from rich.progress import Progress, TaskID
@@ -128,13 +130,14 @@ def start_simulated_unit(ctx: DemoContext) -> None:
 
 def capture_samples(ctx: DemoContext) -> None:
     """Capture ``ctx.seconds`` of device clock into ``out_dir/capture.h5``, as `imu-station capture` does."""
-    from station.commands.capture import capture_to_file
+    from station.acquisition.port_capture import capture_to_file
+    from station.status_line import CaptureStatusLine
 
     ctx.out_dir.mkdir(parents=True, exist_ok=True)
     ctx.capture_path = ctx.out_dir / "capture.h5"
     sent_before = ctx.server.stats.samples_sent
     ctx.capture = capture_to_file(ctx.port, ctx.capture_path, duration_s=ctx.seconds, rate_hz=ctx.rate_hz,
-                                  err=ctx.err)
+                                  err=ctx.err, status=lambda seconds: CaptureStatusLine(ctx.err, seconds))
     if ctx.capture.error is not None:
         raise ctx.capture.error
     ctx.links[ctx.capture_path.name] = (ctx.capture.link, ctx.server.stats.samples_sent - sent_before)
@@ -444,7 +447,7 @@ def compare_with_truth(ctx: DemoContext) -> None:
     within = sum(r <= 3.0 for r in ratios)
     ctx.results["calibration"] = worst
     ctx.results["sigma_ratios"] = ratios
-    g = 9.80665
+    g = STANDARD_GRAVITY
     ctx.say(f"    largest errors: accel scale {worst['accel scale'] * 1e6:.0f} ppm, misalignment "
             f"{worst['accel misalignment'] * 1e6:.0f} urad, bias {worst['accel bias'] / g * 1e6:.0f} ug; "
             f"gyro scale {worst['gyro scale'] * 1e6:.0f} ppm,")
@@ -504,34 +507,36 @@ def run_demo(ctx: DemoContext, steps: list[tuple[str, Step]] | None = None) -> D
     return ctx
 
 
+MAX_STEP_S = 600.0  # the longest pose or first capture the demo takes
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("demo-out"), metavar="DIR",
-                        help="folder for the demo's files (default: ./demo-out)")
-    parser.add_argument("--seconds", type=float, default=5.0,
-                        help="seconds of device clock in the first capture (default: 5)")
+    """Add the demo's options to ``parser`` (each range-checked when the demo starts)."""
+    add_output_option(parser, dest="out", default=Path("demo-out"), metavar="DIR",
+                      help="folder for the demo's files (default: ./demo-out)")
+    parser.add_argument("--seconds", type=float, default=5.0, metavar="S",
+                        help="seconds of device clock in the first capture, "
+                             f"{describe_range(0, MAX_STEP_S, low_open=True)} (default: 5)")
     parser.add_argument("--rate", type=int, default=200, metavar="HZ", help="sample rate (default: 200)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default: 1)")
+    parser.add_argument("--seed", type=SEED, default=1, help="seed of the simulated unit (default: 1)")
     parser.add_argument("--hold", type=float, default=HOLD_S, metavar="S",
                         help=f"seconds of each pose of the sequence (default: {HOLD_S:g})")
     parser.add_argument("--speed", type=float, default=SPEED, metavar="X",
-                        help=f"the simulated unit's clock runs X times faster than the wall clock "
-                             f"(default: {SPEED:g})")
+                        help=f"the simulated unit's clock runs X times faster than the wall clock, at most "
+                             f"{MAX_SPEED:g} (default: {SPEED:g})")
 
 
 def run(args: argparse.Namespace) -> int:
     from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ
 
-    if not MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:
-        raise StationError(f"--rate {args.rate}: the simulated unit runs at {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
-    if not 0 < args.speed <= MAX_SPEED:
-        raise StationError(f"--speed {args.speed:g}: give a factor above 0 and at most {MAX_SPEED:g}")
-    if not 0 < args.hold <= 600:
-        raise StationError(f"--hold {args.hold:g}: give the seconds of each pose, above 0 and at most 600")
-    if not 0 < args.seconds <= 600:
-        raise StationError(f"--seconds {args.seconds:g}: give a capture length above 0 and at most 600 s")
+    check_range("--rate", args.rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")
+    check_range("--speed", args.speed, 0.0, MAX_SPEED, low_open=True, what="a factor")
+    check_range("--hold", args.hold, 0.0, MAX_STEP_S, low_open=True, unit="s", what="seconds per pose")
+    check_range("--seconds", args.seconds, 0.0, MAX_STEP_S, low_open=True, unit="s",
+                what="a capture length")
     started = time.monotonic()
     ctx = DemoContext(out_dir=args.out, seed=args.seed, rate_hz=args.rate, seconds=args.seconds,
                       speed=args.speed, hold_s=args.hold)
     run_demo(ctx)
     ctx.say(f"demo done in {time.monotonic() - started:.1f} s: files in {ctx.out_dir}/")
-    return 0
+    return ExitCode.OK

@@ -10,8 +10,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from station.commands.run import add_db_arguments, db_url, usage_error_exits_4
-from station.errors import StationError
+from station.cli_options import add_db_arguments, db_url
+from station.errors import ExitCode, StationError
 from station.factory.records import OUTCOMES, RecordStore, RunRecord, utc_now
 from station.factory.trend_plot import write_trend_plot
 from station.files import atomic_write_text
@@ -39,7 +39,7 @@ EXPORT_SCHEMA = "imu-station/records-export/1"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    usage_error_exits_4(parser)
+    """Add the records command's options to ``parser``."""
     add_db_arguments(parser)
     parser.add_argument("--serial", metavar="SN", help="only this unit")
     parser.add_argument("--station", metavar="ID", help="only this station")
@@ -104,4 +104,4 @@ def run(args: argparse.Namespace) -> int:
                           + ("all intact" if not problems else f"{len(problems)} problem(s)"))
     for p in problems:
         print(f"imu-station records: {p}", file=sys.stderr)
-    return 1 if problems else 0
+    return ExitCode.OUT_OF_LIMITS if problems else ExitCode.OK

@@ -9,8 +9,9 @@ import os
 import socket
 import sys
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
+from station.cli_options import DURATION_S, SEED, add_db_arguments, check_range, db_url, files_root, port
 from station.errors import StationError
 from station.factory.plan import load_plan
 from station.factory.records import RecordStore, RunRecord
@@ -42,62 +43,25 @@ examples:
   imu-station run --plan plan.yaml --port /dev/ttyUSB0 --table-port /dev/ttyUSB1 --serial A1234 --json
   imu-station run --plan plan.yaml --simulate --seed 3 --serial SIM-3 --db postgresql://line@db/imu"""
 
-DEFAULT_DB = "imu-station-records.sqlite"
-
-
-def usage_error_exits_4(parser: argparse.ArgumentParser) -> None:
-    """argparse exits 2 on a usage error; on the factory line 2 means aborted, so make it 4."""
-    def error(message: str) -> NoReturn:
-        parser.print_usage(sys.stderr)
-        parser.exit(4, f"{parser.prog}: error: {message}\n")
-
-    parse_known = parser.parse_known_args
-
-    def parse_known_args(args: Any = None, namespace: Any = None) -> Any:
-        # Left-over words would be refused by the top-level parser with its exit 2: refuse them here.
-        parsed, extras = parse_known(args, namespace)
-        if extras:
-            error(f"unrecognized arguments: {' '.join(extras)}")
-        return parsed, extras
-
-    parser.error = error  # type: ignore[method-assign]
-    parser.parse_known_args = parse_known_args  # type: ignore[method-assign]
-
-
-def add_db_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--db", default=None, metavar="URL",
-                        help="record database: a SQLite file path (default $IMU_STATION_DB or "
-                             f"{DEFAULT_DB}) or postgresql://user@host/dbname")
-
-
-def db_url(args: argparse.Namespace) -> str:
-    return args.db or os.environ.get("IMU_STATION_DB") or DEFAULT_DB
-
-
-def files_root(args: argparse.Namespace, url: str) -> Path:
-    """Where attachments go: --files, else beside a SQLite database, else ./imu-station-files."""
-    if args.files is not None:
-        return Path(args.files)
-    if "://" in url and not url.startswith("sqlite:///"):
-        return Path("imu-station-files")
-    db = Path(url.removeprefix("sqlite:///"))
-    return db.with_name(db.stem + "-files")
+# The simulated units' clock may run this much faster than the wall clock (rehearsals).
+MIN_SPEED, MAX_SPEED = 0.1, 20.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    usage_error_exits_4(parser)
+    """Add the run command's options to ``parser``."""
     parser.add_argument("--plan", required=True, type=Path, metavar="PLAN.yaml", help="the factory plan")
-    parser.add_argument("--port", metavar="PORT", help="the unit's serial port (device path or pyserial URL)")
-    parser.add_argument("--table-port", metavar="PORT", help="the turntable's serial port")
+    parser.add_argument("--port", type=port, metavar="PORT",
+                        help="the unit's serial port (device path or pyserial URL)")
+    parser.add_argument("--table-port", type=port, metavar="PORT", help="the turntable's serial port")
     parser.add_argument("--simulate", action="store_true",
                         help="a simulated unit on a simulated turntable, both on pseudo-terminals")
-    parser.add_argument("--seed", type=int, default=0, metavar="N",
+    parser.add_argument("--seed", type=SEED, default=0, metavar="N",
                         help="--simulate: the simulated unit's intrinsics and noise (default 0)")
-    parser.add_argument("--unplug-after", type=float, default=None, metavar="S",
+    parser.add_argument("--unplug-after", type=DURATION_S, default=None, metavar="S",
                         help="--simulate: pull the unit's cable after S seconds (to rehearse exit 3)")
     parser.add_argument("--speed", type=float, default=1.0, metavar="X",
-                        help="--simulate: run the simulated unit's clock X times faster than real time "
-                             "(rehearsals; default 1)")
+                        help="--simulate: run the simulated unit's clock X times faster than real time, "
+                             f"{MIN_SPEED:g} to {MAX_SPEED:g} (rehearsals; default 1)")
     parser.add_argument("--serial", required=True, metavar="SN",
                         help="the unit's serial number; 'auto' takes the one the unit reports")
     parser.add_argument("--station", default=None, metavar="ID",
@@ -121,10 +85,7 @@ def _check(args: argparse.Namespace) -> None:
                            "script through the Python API, station.factory.api)")
     if (args.unplug_after is not None or args.seed or args.speed != 1.0) and not args.simulate:
         raise StationError("--seed, --speed and --unplug-after apply to --simulate only")
-    if not 0.1 <= args.speed <= 20:
-        raise StationError(f"--speed {args.speed}: give 0.1 to 20 times real time")
-    if args.unplug_after is not None and args.unplug_after <= 0:
-        raise StationError(f"--unplug-after {args.unplug_after}: must be a positive number of seconds")
+    check_range("--speed", args.speed, MIN_SPEED, MAX_SPEED, unit="times real time")
 
 
 def summary(record: RunRecord) -> str:
@@ -169,25 +130,3 @@ def run(args: argparse.Namespace) -> int:
         print(summary(record))
     return record.exit_code
 
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m station.commands.run``: the run command alone, without importing every other
-    command (run-many starts one such process per unit)."""
-    from drivers.errors import DriverError
-
-    parser = argparse.ArgumentParser(prog="imu-station run", description=DESCRIPTION, epilog=EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except (StationError, DriverError) as exc:
-        print(f"imu-station run: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except KeyboardInterrupt:
-        print("imu-station run: interrupted", file=sys.stderr)
-        return 130
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,8 +9,17 @@ from pathlib import Path
 
 from rich.console import Console
 
-from station.commands.run import add_db_arguments, db_url, files_root, usage_error_exits_4
-from station.errors import StationError
+from station.cli_options import (
+    MAX_SEED,
+    SEED,
+    add_db_arguments,
+    check_range,
+    db_url,
+    files_root,
+    number,
+    port,
+)
+from station.errors import ExitCode, StationError
 from station.factory.many import RunMany, UnitSpec, summary_table, worst_exit_code
 from station.factory.plan import load_plan
 
@@ -32,20 +41,28 @@ examples:
   imu-station run-many --plan plan.yaml --simulate 4 --db line.sqlite --json"""
 
 
+MAX_UNITS = 64  # simulated units one station runs at once
+MIN_SPEED, MAX_SPEED = 0.1, 20.0  # as 'imu-station run --speed'
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    usage_error_exits_4(parser)
+    """Add the run-many command's options to ``parser``."""
     parser.add_argument("--plan", required=True, type=Path, metavar="PLAN.yaml", help="the factory plan")
-    parser.add_argument("--port", action="append", default=[], metavar="PORT",
+    parser.add_argument("--port", action="append", default=[], type=port, metavar="PORT",
                         help="a unit's serial port (repeat for each unit)")
-    parser.add_argument("--table-port", action="append", default=[], metavar="PORT",
+    parser.add_argument("--table-port", action="append", default=[], type=port, metavar="PORT",
                         help="the turntable port of the unit given by the --port in the same position")
     parser.add_argument("--serial", action="append", default=[], metavar="SN",
                         help="serial numbers in --port order (default: each unit's own, as it reports it)")
     parser.add_argument("--simulate", type=int, default=None, metavar="N",
-                        help="N simulated units on simulated turntables (seeds --seed .. --seed+N-1)")
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="--simulate: first seed (default 0)")
-    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
-                        help="--simulate: the simulated units' clocks run X times faster than real time")
+                        help=f"N simulated units on simulated turntables, 1 to {MAX_UNITS} (seeds --seed .. "
+                             "--seed+N-1)")
+    parser.add_argument("--seed", type=SEED, default=0, metavar="N",
+                        help="--simulate: first seed (default 0)")
+    parser.add_argument("--speed", type=number(float, MIN_SPEED, MAX_SPEED, unit="times real time"),
+                        default=1.0, metavar="X",
+                        help="--simulate: the simulated units' clocks run X times faster than real time, "
+                             f"{MIN_SPEED:g} to {MAX_SPEED:g}")
     parser.add_argument("--station", default=None, metavar="ID",
                         help="this station's id (default $IMU_STATION_ID or the host name)")
     add_db_arguments(parser)
@@ -55,11 +72,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def units_of(args: argparse.Namespace) -> list[UnitSpec]:
+    """The units to run, from ``--port``/``--table-port`` pairs or ``--simulate N``; refuses a
+    mismatched or repeated port, or serials that do not match the units."""
     if args.simulate is not None:
         if args.port or args.table_port:
             raise StationError("give either --simulate N or --port/--table-port pairs, not both")
-        if not 1 <= args.simulate <= 64:
-            raise StationError(f"--simulate {args.simulate}: give 1 to 64 simulated units")
+        check_range("--simulate", args.simulate, 1, MAX_UNITS, unit="simulated units")
+        if args.seed + args.simulate - 1 > MAX_SEED:
+            raise StationError(f"--seed {args.seed} with --simulate {args.simulate}: the last seed passes "
+                               f"{MAX_SEED}")
         if args.serial and len(args.serial) != args.simulate:
             raise StationError(f"{len(args.serial)} --serial for {args.simulate} simulated units")
         serials = args.serial or ["auto"] * args.simulate
@@ -83,6 +104,7 @@ def units_of(args: argparse.Namespace) -> list[UnitSpec]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run every unit, print the summary (or JSON); exit with the worst unit's code."""
     units = units_of(args)
     plan = load_plan(args.plan)  # refused here, once, rather than by every child
     url = db_url(args)
@@ -92,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         common += ["--station", args.station]
     console = Console(stderr=True)
     results = RunMany(plan.path.resolve(), units, common, root / "logs", console).run()
-    code = worst_exit_code([u.exit_code if u.exit_code is not None else 3 for u in results])
+    code = worst_exit_code([u.exit_code if u.exit_code is not None else ExitCode.DEVICE for u in results])
     if args.json:
         out = {"plan": plan.name, "exit_code": code, "units": [
             {"unit": u.spec.label, "serial": u.serial or u.spec.serial, "outcome": u.outcome,

@@ -10,7 +10,8 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.errors import StationError
+from station.cli_options import DURATION_S, SEED, check_range
+from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
     from mocks.pty_server import PtyServer
@@ -47,10 +48,11 @@ MAX_SPEED = 100.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the simulate command's options to ``parser``."""
     import mocks.encoders_extra  # noqa: F401  (registers the xsens, mavlink and text encoders)
     from mocks.device import ENCODERS, SCENARIOS
 
-    parser.add_argument("--seed", type=int, default=0, help="unit, noise and scenario seed (default: 0)")
+    parser.add_argument("--seed", type=SEED, default=0, help="unit, noise and scenario seed (default: 0)")
     parser.add_argument("--rate", type=int, default=200, metavar="HZ",
                         help="sample rate at power-up (default: 200)")
     parser.add_argument("--scenario", default="still", choices=list(SCENARIOS),
@@ -71,11 +73,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also make a symlink at PATH to the port (removed at exit)")
     parser.add_argument("--speed", type=float, default=1.0, metavar="X",
                         help="device clock runs X times faster than the wall clock (default: 1)")
-    parser.add_argument("--duration", type=float, metavar="S",
+    parser.add_argument("--duration", type=DURATION_S, metavar="S",
                         help="stop after S seconds of wall clock (default: until Ctrl-C)")
 
 
 def run(args: argparse.Namespace) -> int:
+    """Serve the simulated unit until Ctrl-C, SIGTERM, --duration or a disconnect fault."""
     from mocks.chamber import describe_scenario, parse_chamber_spec
     from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ, SimDevice
     from mocks.faults import FaultSpec
@@ -94,10 +97,8 @@ def run(args: argparse.Namespace) -> int:
             raise StationError(f"--chamber {args.chamber!r}: {exc}") from None
     elif args.chamber:
         raise StationError(f"--chamber applies to --scenario chamber only, not {args.scenario}")
-    if not MIN_RATE_HZ <= args.rate <= MAX_RATE_HZ:
-        raise StationError(f"--rate {args.rate}: the simulated unit runs at {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
-    if not 0 < args.speed <= MAX_SPEED:
-        raise StationError(f"--speed {args.speed:g}: give a factor above 0 and at most {MAX_SPEED:g}")
+    check_range("--rate", args.rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")
+    check_range("--speed", args.speed, 0.0, MAX_SPEED, low_open=True, what="a factor")
     if args.link is not None and os.path.lexists(args.link) and not args.link.is_symlink():
         raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
@@ -126,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, previous)
         server.stop()
     _summary(server)
-    return 0
+    return ExitCode.OK
 
 
 def _wait(server: PtyServer, stop: threading.Event, duration: float | None) -> None:

@@ -10,11 +10,22 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import read_capture
-from station.engines.thermal import STANDARD_GRAVITY, ThermalFit, ThermalSettings, ThermalSweep, fit_thermal
+from station.cli_options import (
+    GRAVITY,
+    MAX_GRAVITY,
+    MIN_GRAVITY,
+    add_output_option,
+    describe_range,
+    number,
+    positive,
+)
+from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
 from station.engines.thermal_model import TERMS
-from station.errors import InputFileError
+from station.errors import ExitCode, InputFileError
 from station.export.params_file import ParamsFile, to_plain
+from station.export.thermal_report import format_report
 
 NAME = "thermal"
 HELP = "fit the bias against temperature and its rate from a still temperature sweep"
@@ -42,11 +53,19 @@ examples:
   imu-station thermal sweep.h5 -o unit42.yaml --segments 2 --json"""
 
 
+# The parameter file holds at most 64 thermal segments (specs/params-file.md).
+MAX_SEGMENTS = 64
+SEGMENTS = number(int, 1, MAX_SEGMENTS)
+MIN_TEMP_DEGC, MAX_TEMP_DEGC = -100.0, 200.0  # beyond any IMU's operating range
+TEMPERATURE = number(float, MIN_TEMP_DEGC, MAX_TEMP_DEGC, unit="degC")
+MAX_TAU_S = 3600.0
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz) or capture file (.h5) with a temp column")
-    parser.add_argument("-o", "--output", required=True, type=Path, metavar="PARAMS",
-                        help="parameter file to write the thermal section into (created if missing)")
+    add_output_option(parser, required=True, metavar="PARAMS",
+                      help="parameter file to write the thermal section into (created if missing)")
     parser.add_argument("--segments", default="auto", type=_segments, metavar="auto|N",
                         help="temperature segments: auto (1 to --max-segments, by cross-validation) or N "
                              "equal-width segments (default: auto)")
@@ -55,27 +74,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--terms", type=_terms, metavar="TERM[,TERM...]",
                         help="fit these terms on every axis instead of choosing them (of t3, t2, t, dt2, dt, "
                              "tdt; the constant is always in)")
-    parser.add_argument("--max-segments", type=int, default=4, metavar="N",
-                        help="most segments --segments auto tries (default: 4)")
-    parser.add_argument("--reference-temp", type=float, metavar="DEGC",
+    parser.add_argument("--max-segments", type=SEGMENTS, default=4, metavar="N",
+                        help=f"most segments --segments auto tries, {describe_range(1, MAX_SEGMENTS)} "
+                             "(default: 4)")
+    parser.add_argument("--reference-temp", type=TEMPERATURE, metavar="DEGC",
                         help="T_ref of the model (default: middle of the swept range)")
-    parser.add_argument("--tau", type=_positive, metavar="S",
+    parser.add_argument("--tau", type=positive("s", MAX_TAU_S), metavar="S",
                         help="dT filter time constant (default: chosen by cross-validation among "
                              "2, 5, 15, 40 s)")
-    parser.add_argument("--gravity", type=_positive, default=STANDARD_GRAVITY, metavar="M/S2",
-                        help=f"local gravity (default: {STANDARD_GRAVITY})")
+    parser.add_argument("--gravity", type=GRAVITY, default=STANDARD_GRAVITY, metavar="M/S2",
+                        help=f"local gravity, {describe_range(MIN_GRAVITY, MAX_GRAVITY)} (default: "
+                             f"{STANDARD_GRAVITY})")
     parser.add_argument("--no-scale", action="store_true",
                         help="do not try the accel scale factor against temperature (several poses)")
     parser.add_argument("--plot", type=Path, metavar="FILE.png",
                         help="write a PNG of the bias against temperature with the fit and its segments")
     parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
 
 
 def _segments(text: str) -> str | int:
@@ -85,16 +99,18 @@ def _segments(text: str) -> str | int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: give 'auto' or a number of segments") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: at least one segment")
+    if not 1 <= value <= MAX_SEGMENTS:
+        raise argparse.ArgumentTypeError(f"{text!r} is outside the allowed range, "
+                                         f"{describe_range(1, MAX_SEGMENTS)} segments")
     return value
 
 
 def _joins(text: str) -> list[float]:
     try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: give temperatures in degC separated by commas") from None
+        return [TEMPERATURE(v.strip()) for v in text.split(",") if v.strip()]
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: give temperatures in degC separated by commas ({exc})") \
+            from None
 
 
 def _terms(text: str) -> list[str]:
@@ -103,34 +119,6 @@ def _terms(text: str) -> list[str]:
     if unknown:
         raise argparse.ArgumentTypeError(f"unknown terms {unknown}; choose among {', '.join(TERMS)}")
     return names
-
-
-SCALES = {"accel": ("mg", 1e3 / STANDARD_GRAVITY), "gyro": ("deg/h", 3600.0 * 57.29577951308232)}
-
-
-def format_report(fit: ThermalFit, calibrated: dict[str, bool]) -> str:
-    """The terminal summary: one line per axis, held-out figures in mg and deg/h."""
-    m = fit.model
-    lines = [
-        f"temperature {fit.block_temp.min():.1f} .. {fit.block_temp.max():.1f} degC, dT "
-        f"{fit.block_dtemp.min() * 60:.2f} .. {fit.block_dtemp.max() * 60:.2f} degC/min, "
-        f"{len(fit.block_temp)} blocks of {fit.block_s:g} s, poses {', '.join(fit.poses)}",
-        f"T_ref {m.reference_temp:g} degC, dT filter ema tau {m.dtemp_filter.tau_s:g} s",
-    ]
-    for name, tri in fit.triads.items():
-        unit, factor = SCALES[name]
-        segs = ", ".join(f"[{s.t_min:.1f}, {s.t_max:.1f}]" for s in tri.bias_model.segments)
-        basis = "relative to the calibration in PARAMS" if calibrated[name] else "absolute (no calibration)"
-        lines.append(f"{name}: segments {segs} degC; bias {basis}")
-        for j, a in enumerate(tri.axes):
-            by_seg = " | ".join(f"{b * factor:.3g}->{c * factor:.3g}" for b, c in
-                                zip(a.cv_rms_before_by_segment, a.cv_rms_after_by_segment, strict=True))
-            extra = f", scale {a.scale_per_degc * 1e6:+.1f} ppm/degC" if a.scale_per_degc is not None else ""
-            per_segment = f" (segments {by_seg})" if len(tri.bias_model.segments) > 1 else ""
-            lines.append(f"  {'xyz'[j]}: {'+'.join(a.terms):<22} held-out RMS "
-                         f"{a.cv_rms_before * factor:.4g} -> {a.cv_rms_after * factor:.4g} {unit}"
-                         + per_segment + extra)
-    return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -171,4 +159,4 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_report(fit, calibrated))
         print(f"wrote the thermal section to {args.output}" + (f", plot {args.plot}" if args.plot else ""))
-    return 0
+    return ExitCode.OK

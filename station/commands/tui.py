@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from protocols.registry import DECODERS
-from station.commands.export import FORMATS
-from station.errors import StationError
+from station.cli_options import SEED, add_output_option, add_port_options, positive
+from station.errors import ExitCode, StationError
+from station.export.writers import FORMATS
 from station.tui.config import TuiConfig
 
 MAX_SPEED = 20.0
@@ -42,64 +42,55 @@ examples:
   imu-station tui --port /dev/ttyACM0 --sequence my-fixture.yaml --no-rotations"""
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"{text} must be positive")
-    return value
-
-
-def _speed(text: str) -> float:
-    value = _positive(text)
-    if value > MAX_SPEED:
-        raise argparse.ArgumentTypeError(f"{text}: at most {MAX_SPEED:g}")
-    return value
+# The simulated unit's rates (mocks.device); a turn faster than 720 deg/s no turntable or hand makes.
+MAX_SIM_RATE_HZ = 4000.0
+MAX_ROTATION_RATE_DPS = 720.0
+MAX_HOLD_S = 600.0
+MAX_ALLAN_MINUTES = 7 * 24 * 60.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the TUI's options to ``parser``."""
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--port", help="serial device path or pyserial URL (default: choose on the connect "
-                       "screen)")
+    add_port_options(parser, required=False, port_group=where, baud=False,
+                     port_help="serial device path or pyserial URL (default: choose on the connect screen)")
     where.add_argument("--simulate", action="store_true",
                        help="a simulated unit on a pseudo-terminal, placed by a simulated operator")
-    parser.add_argument("--protocol", default="native", choices=sorted(DECODERS),
-                        help="wire protocol of the unit (default: native)")
     parser.add_argument("--sequence", default="six-position", metavar="NAME|FILE",
                         help="six-position (default), twelve-position, rotations, or a YAML sequence file")
     parser.add_argument("--no-rotations", action="store_true",
                         help="leave out the six rotations after the poses (the gyroscope section is "
                         "then not written: its scale and misalignment need the turns)")
-    parser.add_argument("--hold", type=_positive, default=5.0, metavar="S",
+    parser.add_argument("--hold", type=positive("s", MAX_HOLD_S), default=5.0, metavar="S",
                         help="seconds of capture per pose (default 5)")
-    parser.add_argument("--rotation-rate", type=_positive, default=90.0, metavar="DPS",
-                        help="turn rate asked of the operator, deg/s (default 90)")
-    parser.add_argument("--out", type=Path, metavar="PARAMS.yaml", help="parameter file to write")
+    parser.add_argument("--rotation-rate", type=positive("deg/s", MAX_ROTATION_RATE_DPS), default=90.0,
+                        metavar="DPS", help="turn rate asked of the operator, deg/s (default 90)")
+    add_output_option(parser, dest="out", metavar="PARAMS.yaml", help="parameter file to write")
     parser.add_argument("--capture", type=Path, metavar="FILE",
                         help="labelled capture of the sequence (.csv or .h5; default beside --out)")
     parser.add_argument("--export", action="append", default=[], choices=FORMATS, metavar="FORMAT",
                         help=f"also export the saved parameters ({', '.join(FORMATS)}); repeatable")
     parser.add_argument("--export-dir", type=Path, metavar="DIR",
                         help="where exports go (default: beside --out)")
-    parser.add_argument("--allan-minutes", type=_positive, default=60.0, metavar="MIN",
+    parser.add_argument("--allan-minutes", type=positive("min", MAX_ALLAN_MINUTES), default=60.0,
+                        metavar="MIN",
                         help="length of the Allan recording before it stops by itself (default 60)")
-    parser.add_argument("--seed", type=int, default=0, help="--simulate: which simulated unit (default 0)")
-    parser.add_argument("--rate", type=_positive, default=200.0, metavar="HZ",
+    parser.add_argument("--seed", type=SEED, default=0, help="--simulate: which simulated unit (default 0)")
+    parser.add_argument("--rate", type=positive("Hz", MAX_SIM_RATE_HZ), default=200.0, metavar="HZ",
                         help="--simulate: the simulated unit's sample rate (default 200)")
-    parser.add_argument("--speed", type=_speed, default=1.0, metavar="X",
+    parser.add_argument("--speed", type=positive("", MAX_SPEED), default=1.0, metavar="X",
                         help="--simulate: run the simulated unit's clock X times faster than the wall clock "
                         "(demos and tests; every hold and turn is timed on the device clock), at most "
                         f"{MAX_SPEED:g}")
 
 
 def config_from_args(args: argparse.Namespace) -> TuiConfig:
+    """The TUI's configuration from the parsed options; a bad sequence is refused here, before the
+    screen opens, with its file and line."""
     from station.acquisition.sequences import resolve
 
     if args.export and args.out is None:
         raise StationError("--export writes from the saved parameter file: give --out PARAMS.yaml too")
-    # Refuse a bad sequence before the screen opens, with its file and line.
     resolve(args.sequence, rotations=not args.no_rotations, hold_s=args.hold,
             rotation_rate_dps=args.rotation_rate)
     return TuiConfig(port=args.port, simulate=args.simulate, protocol=args.protocol, sequence=args.sequence,
@@ -109,10 +100,11 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the TUI; print what it saved; exit 0, or 1 when aborted or a result is out of its limits."""
     from station.tui.app import StationApp
 
     app = StationApp(config_from_args(args))
     code = app.run()
     for path in app.saved:
         print(f"saved {path}")
-    return int(code or 0)
+    return int(code or ExitCode.OK)

@@ -21,10 +21,14 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from station.errors import ExitCode
+
 # Worst last: a configuration error says more about the line than a unit's failure does.
-SEVERITY = (0, 1, 2, 5, 3, 4)
+SEVERITY = (ExitCode.OK, ExitCode.OUT_OF_LIMITS, ExitCode.ABORTED, ExitCode.TIMEOUT, ExitCode.DEVICE,
+            ExitCode.USAGE)
 STOP_WAIT_S = 30.0  # after Ctrl-C, how long the children get to save their records
-OUTCOME_NAMES = {0: "PASS", 1: "FAIL", 2: "ABORTED", 3: "ERROR", 4: "USAGE", 5: "TIMEOUT"}
+OUTCOME_NAMES = {ExitCode.OK: "PASS", ExitCode.OUT_OF_LIMITS: "FAIL", ExitCode.ABORTED: "ABORTED",
+                 ExitCode.DEVICE: "ERROR", ExitCode.USAGE: "USAGE", ExitCode.TIMEOUT: "TIMEOUT"}
 STYLES = {"PASS": "bold green", "FAIL": "bold red", "ABORTED": "yellow", "ERROR": "bold magenta",
           "TIMEOUT": "magenta", "USAGE": "bold magenta"}
 
@@ -105,7 +109,8 @@ class RunMany:
         self._lock = threading.Lock()
 
     def _command(self, spec: UnitSpec) -> list[str]:
-        return [sys.executable, "-m", "station.commands.run", "--plan", str(self.plan), "--json", "--events",
+        # The CLI loads only the command it runs, so each child imports the run command alone.
+        return [sys.executable, "-m", "station.cli", "run", "--plan", str(self.plan), "--json", "--events",
                 *self.common, *spec.arguments()]
 
     def run(self) -> list[UnitProgress]:

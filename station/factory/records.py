@@ -23,11 +23,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from station.errors import StationError
+from station.errors import ExitCode, StationError
 
 SCHEMA = "imu-station/record/1"
 OUTCOMES = ("PASS", "FAIL", "ABORTED", "TIMEOUT", "ERROR")
-EXIT_CODES = {"PASS": 0, "FAIL": 1, "ABORTED": 2, "ERROR": 3, "TIMEOUT": 5}
+EXIT_CODES = {"PASS": ExitCode.OK, "FAIL": ExitCode.OUT_OF_LIMITS, "ABORTED": ExitCode.ABORTED,
+              "ERROR": ExitCode.DEVICE, "TIMEOUT": ExitCode.TIMEOUT}
 
 
 def utc_now() -> str:
@@ -89,7 +90,7 @@ class RunRecord:
     start: str = field(default_factory=utc_now)
     end: str = ""
     outcome: str = "ERROR"
-    exit_code: int = 3
+    exit_code: int = int(ExitCode.DEVICE)
     reason: str = ""
     device: dict[str, Any] = field(default_factory=dict)
     files_dir: str = ""
@@ -100,7 +101,7 @@ class RunRecord:
         if outcome not in OUTCOMES:
             raise ValueError(f"outcome {outcome!r} is not one of {OUTCOMES}")
         self.outcome = outcome
-        self.exit_code = EXIT_CODES[outcome]
+        self.exit_code = int(EXIT_CODES[outcome])  # a plain int in the JSON and the databases
         self.reason = reason
         self.end = utc_now()
 

@@ -16,10 +16,8 @@ time was exceeded). Whatever happens, the record is saved with every file writte
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import datetime as _dt
-import io
 import json
 import logging
 import re
@@ -33,15 +31,16 @@ from drivers import open_device
 from drivers.errors import DriverError
 from drivers.interface import Device
 from drivers.turntable import Turntable
+from protocols.units import STANDARD_GRAVITY
 from station.acquisition.operator import Action, BaseOperator, Operator, Prompt, SimulatedOperator
 from station.acquisition.recorder import Recorder
 from station.acquisition.runner import RecorderSink, RunOptions, RunResult, SequenceRunner
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
-from station.commands import export
 from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
-from station.engines.earth import STANDARD_GRAVITY, normal_gravity
+from station.engines.earth import normal_gravity
 from station.errors import StationError
 from station.export.params_file import ParamsFile
+from station.export.writers import DEFAULT_NAMES, write_export
 from station.factory.measure import measure
 from station.factory.plan import Plan
 from station.factory.records import (
@@ -434,16 +433,11 @@ class UnitRun:
         params.gyro = report.gyro
         params.save(params_path)
         self._attach(phase, params_path, "parameter file")
+        params = ParamsFile.load(params_path)  # exported as saved, as `imu-station export` would read it
         for fmt in plan.export:
-            target = self.files / ("c" if fmt == "c" else export.DEFAULT_NAMES[fmt])
-            parser = argparse.ArgumentParser()
-            export.add_arguments(parser)
-            args = parser.parse_args([str(params_path), "-f", fmt, "-o", str(target), "--json",
-                                      "--station-id", self.record.station])
-            with contextlib.redirect_stdout(io.StringIO()):
-                export.run(args)
-            paths = sorted(p for p in target.rglob("*") if p.is_file()) if target.is_dir() else [target]
-            for path in paths:
+            target = self.files / ("c" if fmt == "c" else DEFAULT_NAMES[fmt])
+            result = write_export(params, fmt, target, source=params_path, station_id=self.record.station)
+            for path in sorted(result.files):
                 self._attach(phase, path, f"export {fmt}: {path.name}")
 
 

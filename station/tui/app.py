@@ -7,6 +7,7 @@ from textual.binding import Binding
 from textual.screen import Screen
 
 from station.acquisition.runner import RunResult
+from station.errors import ExitCode
 from station.tui.config import TuiConfig
 from station.tui.screens.connect import ConnectScreen
 from station.tui.screens.help import HelpScreen
@@ -88,7 +89,7 @@ class StationApp(App[int]):
         screen = self.screen
         cut_short = isinstance(screen, WizardScreen) and screen.result is None and screen.current >= 0
         failed = (run is not None and run.outcome != "completed") or self.results_failed or cut_short
-        return 1 if failed else 0
+        return ExitCode.OUT_OF_LIMITS if failed else ExitCode.OK
 
     def close_session(self) -> None:
         if self.session is not None:

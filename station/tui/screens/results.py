@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import io
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +19,7 @@ from station.engines.calibration_common import CalibrationReport
 from station.engines.sensor_model import SensorCalibration
 from station.errors import StationError
 from station.export.params_file import ParamsFile
+from station.export.writers import write_export
 from station.tui.calibrate import calibrate_run
 from station.tui.limits import ACCEL_LIMITS, GYRO_LIMITS, Verdict, evaluate
 from station.tui.messages import LinkFailed, Snapshot
@@ -211,18 +209,24 @@ class ResultsScreen(StationScreen):
             self.show_status(f"[export failed: {exc}]")
 
     def write_exports(self, params_path: Path) -> list[str]:
-        """Each ``--export`` format through ``imu-station export`` (its report captured, not printed)."""
-        from station.commands import export
+        """Write each ``--export`` format of the saved parameter file, as ``imu-station export`` does.
 
+        Parameters
+        ----------
+        params_path : Path
+            The parameter file just saved.
+
+        Returns
+        -------
+        list of str
+            ``"FORMAT -> where"`` for each format written.
+        """
         config = self.station.config
         out_dir = config.export_dir or Path(params_path).parent
+        params = ParamsFile.load(params_path)
         files: list[str] = []
         for fmt in config.export:
-            parser = argparse.ArgumentParser()
-            export.add_arguments(parser)
             target = out_dir / "c" if fmt == "c" else out_dir
-            args = parser.parse_args([str(params_path), "-f", fmt, "-o", str(target)])
-            with contextlib.redirect_stdout(io.StringIO()):
-                export.run(args)
+            write_export(params, fmt, target, source=params_path)
             files.append(f"{fmt} -> {target}")
         return files

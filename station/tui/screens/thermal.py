@@ -11,10 +11,10 @@ from textual import work
 from textual.widgets import Static
 
 from station.acquisition.runner import samples_to_capture
-from station.commands.thermal import format_report
 from station.engines.thermal import ThermalSweep, fit_thermal
 from station.errors import StationError
 from station.export.params_file import ParamsFile
+from station.export.thermal_report import format_report
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, braille_plot
 from station.tui.pump import pump

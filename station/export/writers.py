@@ -1,0 +1,281 @@
+"""Every export format behind one call: ``write_export(params, fmt, out) -> ExportResult``.
+
+The writers are kept in a table by format name (:data:`WRITERS`), as python-can keeps its log
+writers by file suffix: the ``export`` command, the factory run and the TUI's results screen all
+call :func:`write_export`, and a new format is one entry of the table. Each writer writes its
+files atomically and returns them; :class:`ExportResult` says what was written and what the
+target cannot hold, and renders the report the command prints.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import socket
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from station.errors import StationError
+from station.export import ardupilot, c_export, json_export, px4
+from station.export.autopilot import AutopilotExport
+from station.export.blob import SERIAL_SIZE, STATION_ID_SIZE, build_blob, fixed_utf8
+from station.export.loss_plot import plot_losses
+from station.export.params_file import ParamsFile
+from station.files import atomic_write_bytes, atomic_write_text
+
+DEFAULT_NAMES = {"bin": "imu_calib.bin", "json": "imu_calib.json", "yaml": "imu_calib.yaml",
+                 "px4": "imu_calib.params", "ardupilot": "imu_calib.param"}
+"""The file a format writes when ``out`` is a directory (``c`` always writes three into one)."""
+AUTOPILOTS = ("px4", "ardupilot")
+MAX_INSTANCE = {"px4": px4.MAX_INSTANCE, "ardupilot": ardupilot.MAX_INSTANCE}
+"""The highest sensor instance (0-based) each autopilot has parameters for."""
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    """What every writer may need besides the parameters: who exports, when, for which sensor.
+
+    Parameters
+    ----------
+    source : str
+        Where the parameters came from (their file), for messages.
+    station_id : str
+        This station's name, stored in the blob and the headers.
+    exported_utc : int
+        Export time, seconds since the Unix epoch (UTC).
+    instance : int
+        px4/ardupilot: the sensor instance, 0-based.
+    device_id, gyro_device_id : int, optional
+        px4/ardupilot: the accelerometer's and the gyroscope's device ids.
+    """
+
+    source: str
+    station_id: str
+    exported_utc: int
+    instance: int = 0
+    device_id: int | None = None
+    gyro_device_id: int | None = None
+
+    @property
+    def exported(self) -> str:
+        """The export time as ISO 8601 UTC, to the second."""
+        return _dt.datetime.fromtimestamp(self.exported_utc, _dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+Written = tuple[list[Path], AutopilotExport | None]
+Writer = Callable[[ParamsFile, Path, ExportSettings], Written]
+
+
+@dataclass
+class ExportResult:
+    """What :func:`write_export` wrote.
+
+    Attributes
+    ----------
+    format : str
+        The format (a key of :data:`WRITERS`).
+    params : str
+        The parameter file exported, as named by the caller.
+    station_id, exported : str
+        Who exported, and when (ISO 8601 UTC).
+    files : list of Path
+        Every file written, the loss plot last when one was asked for.
+    autopilot : AutopilotExport, optional
+        px4/ardupilot: the parameters, what the target cannot hold and the error it leaves.
+    notes : list of str
+        What the caller should know (a station id or serial cut to fit the blob).
+    """
+
+    format: str
+    params: str
+    station_id: str
+    exported: str
+    files: list[Path] = field(default_factory=list)
+    autopilot: AutopilotExport | None = None
+    notes: list[str] = field(default_factory=list)
+
+    def report(self) -> dict[str, Any]:
+        """The JSON-able report: format, params, station_id, exported, files, the autopilot's
+        parameters, limitations and pose errors, and notes."""
+        out: dict[str, Any] = {"format": self.format, "params": self.params, "station_id": self.station_id,
+                               "exported": self.exported, "files": [str(p) for p in self.files]}
+        if self.autopilot is not None:
+            out.update(self.autopilot.to_dict())
+        if self.notes:
+            out["notes"] = list(out.get("notes") or []) + self.notes
+        return out
+
+
+def report_lines(report: dict[str, Any]) -> list[str]:
+    """The report of :meth:`ExportResult.report` as the lines the command prints."""
+    lines = [f"wrote {path}" for path in report["files"]]
+    if "parameters" in report:
+        lines.append(f"{len(report['parameters'])} {report['target']} parameters")
+    limits = report.get("limitations") or []
+    if limits:
+        lines.append(f"what {report['target']} cannot hold, and the error it leaves:")
+        for lim in limits:
+            size = f"{lim['size']:10.3g} {lim['unit']:<6}"
+            lines.append(f"  {lim['triad']:<5} {lim['what']:<26} {size} {lim['detail']}")
+    for name, e in (report.get("pose_errors") or {}).items():
+        poses = ", ".join(f"{p} {v:.3g}" for p, v in zip(e["poses"], e["at_reference"], strict=True))
+        lines.append(f"  {name} error at the six poses at {e['reference_temp']:g} degC ({e['unit']}): "
+                     f"{poses}; worst over {e['temperature_range'][0]:g}..{e['temperature_range'][1]:g} "
+                     f"degC: {e['over_temperature']:.3g}")
+    lines += [f"note: {note}" for note in report.get("notes") or []]
+    return lines
+
+
+def export_time() -> int:
+    """Now, or SOURCE_DATE_EPOCH when set, so a build can regenerate identical files.
+
+    Returns
+    -------
+    int
+        Seconds since the Unix epoch (UTC).
+
+    Raises
+    ------
+    StationError
+        SOURCE_DATE_EPOCH is set but is not a whole number of seconds.
+    """
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    if epoch:
+        try:
+            return int(epoch)
+        except ValueError:
+            raise StationError(f"SOURCE_DATE_EPOCH={epoch!r} is not a number of seconds; "
+                               "unset it or fix it") from None
+    return int(_dt.datetime.now(_dt.UTC).timestamp())
+
+
+def _nothing_to_export(source: str) -> StationError:
+    return StationError(f"{source}: no accel, gyro or thermal section, nothing to export; run "
+                        "'imu-station calibrate' or 'imu-station thermal' first")
+
+
+def _file_target(out: Path, fmt: str) -> Path:
+    return out / DEFAULT_NAMES[fmt] if out.is_dir() else out
+
+
+def _write_c(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
+    if out.exists() and not out.is_dir():
+        raise StationError(f"{out}: is a file; --format c writes three files into a directory")
+    return c_export.write_c_export(params, out, settings.station_id, settings.exported_utc), None
+
+
+def _write_bin(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
+    path = _file_target(out, "bin")
+    atomic_write_bytes(path, build_blob(params, settings.station_id, settings.exported_utc))
+    return [path], None
+
+
+def _write_json(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
+    path = _file_target(out, "json")
+    atomic_write_text(path, json_export.render_json(params, settings.station_id, settings.exported))
+    return [path], None
+
+
+def _write_yaml(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
+    path = _file_target(out, "yaml")
+    atomic_write_text(path, json_export.render_yaml(params, settings.station_id, settings.exported))
+    return [path], None
+
+
+def _autopilot_writer(fmt: str, build: Callable[..., AutopilotExport],
+                      render: Callable[[AutopilotExport, ParamsFile, str, str], str]) -> Writer:
+    def write(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
+        try:
+            result = build(params, settings.instance, settings.device_id, settings.gyro_device_id)
+        except ValueError as exc:
+            raise StationError(str(exc)) from None
+        if not result.params:
+            raise _nothing_to_export(settings.source)
+        path = _file_target(out, fmt)
+        atomic_write_text(path, render(result, params, settings.station_id, settings.exported))
+        return [path], result
+
+    return write
+
+
+WRITERS: dict[str, Writer] = {
+    "c": _write_c,
+    "bin": _write_bin,
+    "json": _write_json,
+    "yaml": _write_yaml,
+    "px4": _autopilot_writer("px4", px4.build_px4, px4.render_px4),
+    "ardupilot": _autopilot_writer("ardupilot", ardupilot.build_ardupilot, ardupilot.render_ardupilot),
+}
+"""The writer of each format: ``writer(params, out, settings) -> (files, autopilot export or None)``."""
+FORMATS = tuple(WRITERS)
+
+
+def _cut_notes(params: ParamsFile, station_id: str) -> list[str]:
+    notes = []
+    for what, text, size in (("station id", station_id, STATION_ID_SIZE),
+                             ("unit serial", str(params.device.get("serial", "")), SERIAL_SIZE)):
+        if len(text.encode("utf-8")) >= size:
+            kept = fixed_utf8(text, size, what).decode("utf-8")
+            notes.append(f"the {what} is cut to {size - 1} bytes in the blob: {kept!r}")
+    return notes
+
+
+def write_export(params: ParamsFile, fmt: str, out: str | Path, *, source: str | Path = "<params>",
+                 station_id: str | None = None, exported_utc: int | None = None, instance: int = 0,
+                 device_id: int | None = None, gyro_device_id: int | None = None,
+                 plot: str | Path | None = None) -> ExportResult:
+    """Write ``params`` in format ``fmt`` to ``out``.
+
+    Parameters
+    ----------
+    params : ParamsFile
+        The unit's parameters.
+    fmt : str
+        One of :data:`FORMATS`: c, bin, json, yaml, px4, ardupilot.
+    out : str or Path
+        A directory for ``c`` (created if missing); for the others a file, or a directory that
+        gets the format's default name (:data:`DEFAULT_NAMES`).
+    source : str or Path
+        Where ``params`` came from, for messages and the report.
+    station_id : str, optional
+        This station's name (default: the host name).
+    exported_utc : int, optional
+        Export time in seconds since the epoch (default: :func:`export_time`).
+    instance : int
+        px4/ardupilot: the sensor instance, 0-based, at most :data:`MAX_INSTANCE` of the format.
+    device_id, gyro_device_id : int, optional
+        px4/ardupilot: the accelerometer's device id (also the gyroscope's unless ``gyro_device_id``).
+    plot : str or Path, optional
+        px4/ardupilot: a PNG of the offset the target subtracts against ours, over temperature.
+
+    Returns
+    -------
+    ExportResult
+        The files written, the autopilot's parameters and limitations, and notes.
+
+    Raises
+    ------
+    StationError
+        An unknown format, parameters with nothing to export, an instance the target has no
+        parameters for, an output path of the wrong kind, or a file that cannot be written.
+    """
+    if fmt not in WRITERS:
+        raise StationError(f"unknown export format {fmt!r}; known: {', '.join(FORMATS)}")
+    empty = params.accel is None and params.gyro is None and params.thermal is None
+    if empty and fmt not in ("json", "yaml"):
+        raise _nothing_to_export(str(source))
+    settings = ExportSettings(source=str(source),
+                              station_id=station_id if station_id is not None else socket.gethostname(),
+                              exported_utc=export_time() if exported_utc is None else exported_utc,
+                              instance=instance, device_id=device_id, gyro_device_id=gyro_device_id)
+    files, autopilot = WRITERS[fmt](params, Path(out), settings)
+    result = ExportResult(format=fmt, params=settings.source, station_id=settings.station_id,
+                          exported=settings.exported, files=list(files), autopilot=autopilot)
+    if autopilot is not None and plot is not None:
+        plot_losses(params, autopilot, plot)
+        result.files.append(Path(plot))
+    if fmt in ("c", "bin"):
+        result.notes += _cut_notes(params, settings.station_id)
+    return result
