@@ -85,6 +85,11 @@ def test_wheel_holds_the_packages_and_the_version(installed) -> None:
     for package in PACKAGES:
         assert f"{package}/__init__.py" in names
     assert "station/__main__.py" in names
+    # Every file of the packages ships (a style sheet, template or YAML added beside the code must be
+    # declared as package data in pyproject.toml, or the installed station would not find it).
+    sources = [p.relative_to(REPO).as_posix() for name in PACKAGES for p in (REPO / name).rglob("*")
+               if p.is_file() and "__pycache__" not in p.parts]
+    assert sorted(set(sources) - set(names)) == []
     assert not [n for n in names if n.startswith(("tests/", "examples/", "benchmarks/", "docs/"))]
     entry_points = [n for n in names if n.endswith("entry_points.txt")]
     text = zipfile.ZipFile(installed["wheel"]).read(entry_points[0]).decode()
