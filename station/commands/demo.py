@@ -34,6 +34,7 @@ from station.acquisition.operator import ScriptedOperator
 from station.acquisition.recorder import CaptureResult
 from station.cli_options import SEED, add_output_option, check_range, describe_range
 from station.errors import ExitCode, StationError
+from station.text import printable
 
 if TYPE_CHECKING:
     from rich.progress import Progress, TaskID
@@ -124,7 +125,8 @@ def start_simulated_unit(ctx: DemoContext) -> None:
                                                    record=True, speed=ctx.speed))
     ctx.port = ctx.server.port_path
     info = ctx.server.device.info()
-    ctx.say(f"    simulated unit {info['serial']} ({info['model']}) on {ctx.port}, {ctx.rate_hz} Hz, "
+    ctx.say(f"    simulated unit {printable(info['serial'])} ({printable(info['model'])}) on {ctx.port}, "
+            f"{ctx.rate_hz} Hz, "
             f"scenario '{ctx.scenario}', device clock x{ctx.speed:g}")
 
 
@@ -305,7 +307,7 @@ def calibrate_unit(ctx: DemoContext) -> None:
     ctx.params_path = ctx.out_dir / "params.yaml"
     params.save(ctx.params_path)
     ctx.wrote(ctx.params_path, "the parameter file (device, accel, gyro)")
-    ctx.say(f"    parameter file for {params.device.get('serial')}: {ctx.params_path}")
+    ctx.say(f"    parameter file for {printable(params.device.get('serial'))}: {ctx.params_path}")
 
 
 # The check the demo compiles with the export: load the blob, correct one raw sample with it and

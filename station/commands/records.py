@@ -9,12 +9,14 @@ from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from station.cli_options import add_db_arguments, db_url
 from station.errors import ExitCode, StationError
 from station.factory.records import OUTCOMES, RecordStore, RunRecord, utc_now
 from station.factory.trend_plot import write_trend_plot
 from station.files import atomic_write_text
+from station.text import printable
 
 NAME = "records"
 HELP = "list factory run records by serial and date, export a unit's history as JSON, verify files"
@@ -63,7 +65,8 @@ def _table(records: list[RunRecord]) -> Table:
         table.add_column(column)
     for r in records:
         failed = [m.name for m in r.measurements().values() if m.outcome == "FAIL"]
-        table.add_row(r.start[:19].replace("T", " "), r.serial, r.station, r.plan.get("name", ""), r.outcome,
+        table.add_row(r.start[:19].replace("T", " "), Text(printable(r.serial)), r.station,
+                      r.plan.get("name", ""), r.outcome,
                       ", ".join(failed[:3]) + (" ..." if len(failed) > 3 else "") or r.reason[:40],
                       r.run_id[:8])
     return table

@@ -17,6 +17,7 @@ from station.factory.plan import load_plan
 from station.factory.records import RecordStore, RunRecord
 from station.factory.run import RunRequest, configure_logging, run_unit
 from station.factory.simrig import SimulatedUnit
+from station.text import printable
 
 NAME = "run"
 HELP = "run a factory plan on one unit unattended (turntable or --simulate), record it, exit with its outcome"
@@ -89,12 +90,12 @@ def _check(args: argparse.Namespace) -> None:
 
 
 def summary(record: RunRecord) -> str:
-    lines = [f"{record.outcome} {record.serial} (exit {record.exit_code})"
+    lines = [f"{record.outcome} {printable(record.serial)} (exit {record.exit_code})"
              + (f": {record.reason}" if record.reason else "")]
     for m in record.measurements().values():
         if m.outcome == "UNSET":
             continue
-        value = f"{m.value:.6g}" if isinstance(m.value, float) else str(m.value)
+        value = f"{m.value:.6g}" if isinstance(m.value, float) else printable(m.value)
         bounds = "" if m.low is None and m.high is None else \
             f"  [{'' if m.low is None else f'{m.low:g}'} .. {'' if m.high is None else f'{m.high:g}'}]"
         lines.append(f"  {m.outcome:4} {m.name:28} {value:>14} {m.unit:6}{bounds}")
@@ -129,4 +130,3 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(summary(record))
     return record.exit_code
-

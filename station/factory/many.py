@@ -20,8 +20,10 @@ from typing import IO, Any
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
+from rich.text import Text
 
 from station.errors import ExitCode
+from station.text import printable
 
 # Worst last: a configuration error says more about the line than a unit's failure does.
 SEVERITY = (ExitCode.OK, ExitCode.OUT_OF_LIMITS, ExitCode.ABORTED, ExitCode.TIMEOUT, ExitCode.DEVICE,
@@ -89,7 +91,7 @@ def summary_table(units: list[UnitProgress], title: str) -> Table:
         table.add_column(column, justify="right" if column == "time" else "left")
     for u in units:
         outcome = u.outcome
-        table.add_row(u.spec.label, u.serial or u.spec.serial, u.phase, u.steps or u.step,
+        table.add_row(u.spec.label, Text(printable(u.serial or u.spec.serial)), u.phase, u.steps or u.step,
                       f"{u.elapsed_s:.0f} s", f"[{STYLES.get(outcome, '')}]{outcome}[/]" if outcome in STYLES
                       else outcome, u.reason[:60])
     return table

@@ -54,6 +54,7 @@ from station.factory.records import (
 )
 from station.factory.simrig import SimulatedUnit, simulated_rig
 from station.files import atomic_write_text
+from station.text import printable
 
 log = logging.getLogger("imu_station.factory")
 
@@ -329,7 +330,7 @@ class UnitRun:
             if not reported:
                 raise StationError(f"{port}: the unit did not report a serial number; give --serial SN")
             self.record.serial = reported
-            _log_serial(reported)
+            _log_serial(printable(reported))
         self.record.device = {"port": port, **{k: info.get(k) for k in ("serial", "model", "firmware")},
                               "rate_hz": plan.rate_hz}
         expected = self.record.serial
@@ -342,15 +343,16 @@ class UnitRun:
                       f"{day}-{self.record.run_id[:8]}").resolve()
         self.files.mkdir(parents=True, exist_ok=True)
         self.record.files_dir = str(self.files)
-        log.info("unit %s (%s, firmware %s) on %s at %d Hz", reported, info.get("model"),
-                 info.get("firmware"), port, plan.rate_hz)
+        log.info("unit %s (%s, firmware %s) on %s at %d Hz", printable(reported),
+                 printable(info.get("model")), printable(info.get("firmware")), port, plan.rate_hz)
         if self.req.operator is None:
             assert table_port is not None  # execute() refused a request with neither
             self.table = Turntable(table_port)
             table_info = self.table.identify()
             self.table.home()
             phase.measurements.append(Measurement("table.serial", table_info.get("serial", "")))
-            log.info("turntable %s %s on %s", table_info.get("model"), table_info.get("serial"), table_port)
+            log.info("turntable %s %s on %s", printable(table_info.get("model")),
+                     printable(table_info.get("serial")), table_port)
 
     def _sequence(self, phase: Phase) -> RunResult:
         plan = self.req.plan

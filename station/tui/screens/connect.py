@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rich.table import Table
+from rich.text import Text
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -12,6 +13,7 @@ from textual.widgets.option_list import Option
 
 from drivers.errors import DriverError
 from protocols.registry import DECODERS
+from station.text import printable
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.screens.station_screen import StationScreen
 from station.tui.session import SIMULATED, Session, available_ports, open_session
@@ -93,7 +95,7 @@ class ConnectScreen(StationScreen):
         table.add_row("port", session.name)
         table.add_row("protocol", session.device.protocol)
         for key in ("serial", "model", "firmware", "rate_hz"):
-            table.add_row(key, str(session.info.get(key, "?")))
+            table.add_row(key, Text(printable(session.info.get(key, "?"))))
         health = "[green]good[/green]" if stats.errors == 0 and stats.lost == 0 else "[yellow]errors[/yellow]"
         table.add_row("link", f"{health}  {stats.rate_hz:.0f} Hz, {stats.samples} samples, "
                       f"{stats.errors} errors, {stats.lost} lost, {stats.overflow_drops} dropped")
