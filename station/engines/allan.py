@@ -51,6 +51,19 @@ def cluster_sizes(n_samples: int, per_decade: int = 10, max_fraction: float = 0.
 
     Every integer 1..10 is kept (rounding a log grid would merge the first decade's points); above that
     the grid is ``round(10^(k / per_decade))`` with duplicates merged (none for 10 per decade).
+
+    Parameters
+    ----------
+    n_samples : int
+        Samples N of the record.
+    per_decade : int
+        Least number of sizes per decade.
+    max_fraction : float
+        Largest m as a fraction of N.
+
+    Returns
+    -------
+    ndarray of int
     """
     m_max = int(math.floor(n_samples * max_fraction))
     if m_max < 1:
@@ -74,7 +87,20 @@ def _workspace(rows: int, cols: int) -> np.ndarray:
 
 
 def integrate_rates(rates: np.ndarray, rate_hz: float) -> np.ndarray:
-    """Demeaned cumulative sums of eq. (1), one contiguous row per axis: shape (axes, N + 1), float64."""
+    """Demeaned cumulative sums of eq. (1), one contiguous row per axis: shape (axes, N + 1), float64.
+
+    Parameters
+    ----------
+    rates : ndarray, (N,) or (N, axes)
+        Evenly sampled rates.
+    rate_hz : float
+        Sample rate.
+
+    Returns
+    -------
+    ndarray, (axes, N + 1)
+        x of eq. (1), in the rate unit times seconds.
+    """
     y = np.asarray(rates, dtype=np.float64)
     if y.ndim == 1:
         y = y[:, None]
@@ -118,7 +144,21 @@ def _release(x: np.ndarray, start: int, stop: int) -> None:
 
 def strided_phase(x: np.ndarray, step: int, piece: int = 1 << 20) -> np.ndarray:
     """``x[::step]`` of a phase row, read a piece at a time: the pages of a read-only file map are released
-    once read, so a day-long record on disk never becomes resident as a whole."""
+    once read, so a day-long record on disk never becomes resident as a whole.
+
+    Parameters
+    ----------
+    x : ndarray, (P,)
+        A phase row (an ``np.memmap`` row, or in memory).
+    step : int
+        Stride.
+    piece : int
+        Elements read at a time.
+
+    Returns
+    -------
+    ndarray
+    """
     out = np.empty((len(x) - 1) // step + 1)
     for i in range(0, len(out), piece):
         j = min(i + piece, len(out))
@@ -273,6 +313,20 @@ def nonoverlapping_adev(rates: np.ndarray, rate_hz: float, cluster_sizes: Sequen
 
     ``sigma^2(m tau0) = 1 / (2 tau^2 (K - 2)) sum_{k} (x_{(k+2)m} - 2 x_{(k+1)m} + x_{km})^2`` over the
     ``K = floor((P - 1) / m) + 1`` phase points ``x_0, x_m, x_2m, ...`` of eq. (1).
+
+    Parameters
+    ----------
+    rates : ndarray, (N,)
+        Evenly sampled rates.
+    rate_hz : float
+        Sample rate.
+    cluster_sizes : sequence of int
+        Averaging factors m.
+
+    Returns
+    -------
+    ndarray, (len(cluster_sizes),)
+        Allan deviation, in the unit of ``rates``.
     """
     x = integrate_rates(np.asarray(rates, dtype=np.float64).reshape(-1), rate_hz)[0]
     out = np.empty(len(cluster_sizes))
@@ -394,6 +448,20 @@ def confidence_interval(adev: np.ndarray, edf: np.ndarray, level: float = ONE_SI
 
     ``sigma_lo = sigma sqrt(edf / chi2_{(1+level)/2}(edf))``,
     ``sigma_hi = sigma sqrt(edf / chi2_{(1-level)/2}(edf))``.
+
+    Parameters
+    ----------
+    adev : ndarray
+        Allan deviations.
+    edf : ndarray
+        Their equivalent degrees of freedom (same shape).
+    level : float
+        Confidence level (default one sigma, 0.683).
+
+    Returns
+    -------
+    tuple of ndarray
+        (sigma_lo, sigma_hi).
     """
     adev = np.asarray(adev, dtype=np.float64)
     edf = np.asarray(edf, dtype=np.float64)
@@ -409,6 +477,18 @@ def alpha_from_slope(tau: np.ndarray, adev: np.ndarray) -> np.ndarray:
     mu = -2: alpha = 2 (white phase; the Allan variance cannot tell it from flicker phase), mu = -1:
     alpha = 0, mu = 0: alpha = -1, mu >= +1: alpha = -2 (rate ramp has no finite-difference EDF at d = 2
     and takes the random-walk one). Columns of ``adev`` are axes.
+
+    Parameters
+    ----------
+    tau : ndarray, (M,)
+        Averaging times, s.
+    adev : ndarray, (M, axes)
+        Allan deviations.
+
+    Returns
+    -------
+    ndarray of int, (M, axes)
+        alpha per point and axis.
     """
     logt = np.log(np.asarray(tau, dtype=np.float64))
     logv = 2.0 * np.log(np.asarray(adev, dtype=np.float64))
@@ -444,7 +524,17 @@ class AllanCurve:
         return self.n_samples / self.rate_hz
 
     def with_alpha(self, alpha: np.ndarray) -> AllanCurve:
-        """The same curve with EDF and intervals recomputed for other noise types (e.g. from a fit)."""
+        """The same curve with EDF and intervals recomputed for other noise types (e.g. from a fit).
+
+        Parameters
+        ----------
+        alpha : ndarray of int, (M, axes)
+            Noise type per point and axis.
+
+        Returns
+        -------
+        AllanCurve
+        """
         edf = edf_table(alpha, self.m, self.n_samples + 1)
         lo, hi = confidence_interval(self.adev, edf)
         return AllanCurve(self.axes, self.rate_hz, self.n_samples, self.m, self.tau, self.n, self.adev, edf,
@@ -452,7 +542,21 @@ class AllanCurve:
 
 
 def edf_table(alpha: np.ndarray, m: np.ndarray, n_phase: int) -> np.ndarray:
-    """Greenhall EDF for every (cluster size, axis); equal (alpha, m) pairs are computed once."""
+    """Greenhall EDF for every (cluster size, axis); equal (alpha, m) pairs are computed once.
+
+    Parameters
+    ----------
+    alpha : ndarray of int, (M, axes)
+        Noise type per point and axis.
+    m : ndarray of int, (M,)
+        Cluster sizes.
+    n_phase : int
+        Phase points of the record (N + 1).
+
+    Returns
+    -------
+    ndarray, (M, axes)
+    """
     alpha = np.asarray(alpha, dtype=np.int64)
     out = np.empty(alpha.shape, dtype=np.float64)
     cache: dict[tuple[int, int], float] = {}

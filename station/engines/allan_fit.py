@@ -73,13 +73,35 @@ ML_METHOD = "exact Gaussian maximum likelihood"
 
 
 def basis(tau: np.ndarray) -> np.ndarray:
-    """Columns of eq. (C.1) for c = (Q^2, N^2, B^2, K^2, R^2): shape (len(tau), 5)."""
+    """Columns of eq. (C.1) for c = (Q^2, N^2, B^2, K^2, R^2): shape (len(tau), 5).
+
+    Parameters
+    ----------
+    tau : ndarray, (M,)
+        Averaging times, s.
+
+    Returns
+    -------
+    ndarray, (M, 5)
+    """
     tau = np.asarray(tau, dtype=np.float64)
     return np.column_stack([3.0 / tau**2, 1.0 / tau, np.full_like(tau, B_FACTOR**2), tau / 3.0, tau**2 / 2.0])
 
 
 def model_avar(tau: np.ndarray, coeffs: dict[str, float | None]) -> np.ndarray:
-    """Allan variance of eq. (C.1) for the terms given (None or missing terms count as zero)."""
+    """Allan variance of eq. (C.1) for the terms given (None or missing terms count as zero).
+
+    Parameters
+    ----------
+    tau : ndarray, (M,)
+        Averaging times, s.
+    coeffs : dict of str to float or None
+        Q, N, B, K, R in their units.
+
+    Returns
+    -------
+    ndarray, (M,)
+    """
     c = np.array([(coeffs.get(t) or 0.0) ** 2 for t in TERMS])
     return basis(tau) @ c
 
@@ -119,11 +141,31 @@ class AxisNoise:
     fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
 
     def value(self, term: str) -> float | None:
-        """The estimate of noise term ``term`` (N, B, K, ...) in its own unit, or None if not resolved."""
+        """The estimate of noise term ``term`` (N, B, K, ...) in its own unit, or None if not resolved.
+
+        Parameters
+        ----------
+        term : str
+            A key of ``TERMS``.
+
+        Returns
+        -------
+        float or None
+        """
         return self.terms[term].value
 
     def model(self, tau: np.ndarray) -> np.ndarray:
-        """Allan deviation of the fitted model (every fitted term, and the Gauss-Markov bias if any)."""
+        """Allan deviation of the fitted model (every fitted term, and the Gauss-Markov bias if any).
+
+        Parameters
+        ----------
+        tau : ndarray, (M,)
+            Averaging times, s.
+
+        Returns
+        -------
+        ndarray, (M,)
+        """
         avar = model_avar(tau, self.coeffs)
         if self.gauss_markov is not None:
             sigma, tau_c = self.gauss_markov
@@ -137,6 +179,17 @@ def gauss_markov_avar(tau: np.ndarray, tau_c: float) -> np.ndarray:
     sigma^2(tau) = 2 (T_c / tau) [1 - (T_c / 2 tau) (3 - 4 e^(-x) + e^(-2x))], x = tau / T_c (e.g. El-Sheimy
     et al. 2008, eq. 21 with q_c = 2 / T_c); the bracket is 2u + u^2 over 2x with u = 1 - e^(-x), and its
     series x^2/3 - x^3/4 below x = 1e-3 where the difference would cancel.
+
+    Parameters
+    ----------
+    tau : ndarray, (M,)
+        Averaging times, s.
+    tau_c : float
+        Correlation time T_c, s.
+
+    Returns
+    -------
+    ndarray, (M,)
     """
     x = np.asarray(tau, dtype=np.float64) / tau_c
     u = -np.expm1(-x)
@@ -446,7 +499,20 @@ def _fit_with_gauss_markov(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, r
 
 
 def dominant_alpha(tau: np.ndarray, noise: AxisNoise) -> np.ndarray:
-    """Power-law noise type of the model term that dominates at each tau (for Greenhall's EDF)."""
+    """Power-law noise type of the model term that dominates at each tau (for Greenhall's EDF).
+
+    Parameters
+    ----------
+    tau : ndarray, (M,)
+        Averaging times, s.
+    noise : AxisNoise
+        The axis's fit.
+
+    Returns
+    -------
+    ndarray of int, (M,)
+        alpha per point (0, white rate, without a fit).
+    """
     if not noise.coeffs:
         return np.zeros(len(tau), dtype=np.int64)
     names = list(noise.coeffs)
@@ -474,6 +540,15 @@ def use_white_walk_ml(noise: AxisNoise, phase: np.ndarray, rate_hz: float) -> No
     records); a Gauss-Markov bias that the curve does not resolve (its hump hidden under the random
     walk's rise) raises both, the likelihood's more (1.0x to 1.9x the fit's on the mocks' 100 s bias): a
     larger gap keeps the fit's value, so such a record's K moves by 15 % at most.
+
+    Parameters
+    ----------
+    noise : AxisNoise
+        The axis's fit, updated in place.
+    phase : ndarray, (P,)
+        The axis's integrated record (eq. 1 of ``allan``).
+    rate_hz : float
+        Sample rate.
     """
     n_est, k_est = noise.terms["N"], noise.terms["K"]
     if (noise.fitted != ("N", "K") or noise.gauss_markov is not None or n_est.value is None
@@ -509,6 +584,18 @@ def identify_noise(curve: AllanCurve, phase: np.ndarray | Sequence[np.ndarray] |
     term that dominates the first fit there, which is steadier at long tau where the slope is noisy.
     Given the integrated records the curve came from (``phase``, one row per axis), K of the axes
     that show only those two terms is then taken from their exact likelihood (:func:`use_white_walk_ml`).
+
+    Parameters
+    ----------
+    curve : AllanCurve
+        The curves of every axis.
+    phase : ndarray or sequence of ndarray, optional
+        The integrated records the curve came from, one row per axis.
+
+    Returns
+    -------
+    tuple
+        The curve with EDF and intervals from the fitted noise types, and one :class:`AxisNoise` per axis.
     """
     first = [fit_axis(curve.tau, curve.adev[:, j], curve.edf[:, j], curve.duration_s, name)
              for j, name in enumerate(curve.axes)]

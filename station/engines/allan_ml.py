@@ -77,13 +77,40 @@ class WhiteWalkML:
 
 def block_length(n_samples: int, rate_hz: float, crossing_tau_s: float | None = None) -> int:
     """Samples per block mean: BLOCK_S seconds, or a BLOCKS_PER_CROSSING-th of the crossing tau where one
-    is known (from the Allan curve's fit) and longer, and at most MAX_BLOCKS blocks."""
+    is known (from the Allan curve's fit) and longer, and at most MAX_BLOCKS blocks.
+
+    Parameters
+    ----------
+    n_samples : int
+        Samples of the record.
+    rate_hz : float
+        Sample rate.
+    crossing_tau_s : float, optional
+        Where the fitted N and K terms cross, s.
+
+    Returns
+    -------
+    int
+        L, samples per block.
+    """
     seconds = BLOCK_S if crossing_tau_s is None else max(BLOCK_S, crossing_tau_s / BLOCKS_PER_CROSSING)
     return max(1, round(seconds * rate_hz), -(-n_samples // MAX_BLOCKS))
 
 
 def autocovariance(a: float, b: float, block: int) -> tuple[float, float]:
-    """(gamma_0, gamma_1) of the block-mean increments, eq. (1)."""
+    """(gamma_0, gamma_1) of the block-mean increments, eq. (1).
+
+    Parameters
+    ----------
+    a, b : float
+        N^2 f_s and K^2 / f_s.
+    block : int
+        L, samples per block.
+
+    Returns
+    -------
+    tuple of float
+    """
     return (2.0 * a / block + b * (2.0 * block * block + 1.0) / (3.0 * block),
             -a / block + b * (block * block - 1.0) / (6.0 * block))
 
@@ -105,7 +132,21 @@ def _profile(log_rho: float, z: np.ndarray, block: int) -> float:
 
 
 def negative_log_likelihood(log_a: float, log_b: float, z: np.ndarray, block: int) -> float:
-    """Half of eq. (2) without its constant, in the log parameters."""
+    """Half of eq. (2) without its constant, in the log parameters.
+
+    Parameters
+    ----------
+    log_a, log_b : float
+        log a and log b of eq. (1).
+    z : ndarray, (n,)
+        Differenced block means.
+    block : int
+        L, samples per block.
+
+    Returns
+    -------
+    float
+    """
     logdet, form = _logdet_and_form(z, *autocovariance(math.exp(log_a), math.exp(log_b), block))
     return 0.5 * (logdet + form)
 

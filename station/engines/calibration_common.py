@@ -22,9 +22,17 @@ _ROTATION = re.compile(r"^rot([+-])([xyz])(?::([+-]?\d+(?:\.\d*)?))?$")
 
 
 def pose_vector(label: str) -> np.ndarray | None:
-    """The unit vector (sensor frame) that points up in a static pose label, or None.
+    """The unit vector (sensor frame) that points up in a static pose label (``shared/specs/capture-csv.md``).
 
-    ``+z`` -> (0, 0, 1); ``+x+y`` -> (1, 1, 0)/sqrt(2) (``shared/specs/capture-csv.md``).
+    Parameters
+    ----------
+    label : str
+        ``+z``, ``-x``, ``+x+y``, ...
+
+    Returns
+    -------
+    ndarray (3,) or None
+        ``+z`` -> (0, 0, 1); ``+x+y`` -> (1, 1, 0)/sqrt(2); None for a label that is not a pose.
     """
     label = label.strip()
     if not _POSE.match(label):
@@ -39,7 +47,19 @@ def pose_vector(label: str) -> np.ndarray | None:
 
 
 def rotation_of(label: str) -> tuple[np.ndarray, float] | None:
-    """(axis unit vector, angle in rad) of a rotation label, or None: ``rot-z`` is -360 deg about +z."""
+    """Axis and signed angle of a rotation label.
+
+    Parameters
+    ----------
+    label : str
+        ``rot+z``, ``rot-x:90``, ...
+
+    Returns
+    -------
+    tuple or None
+        (axis unit vector (3,), angle in rad): ``rot-z`` is -360 deg about +z; None for a label that
+        is not a rotation.
+    """
     m = _ROTATION.match(label.strip())
     if not m:
         return None
@@ -51,7 +71,17 @@ def rotation_of(label: str) -> tuple[np.ndarray, float] | None:
 
 
 def segments(step: np.ndarray) -> list[tuple[str, slice]]:
-    """Contiguous runs of one non-empty label: [(label, slice), ...] (the same rule as Capture)."""
+    """Contiguous runs of one non-empty label (the same rule as Capture).
+
+    Parameters
+    ----------
+    step : ndarray of str, (N,)
+        Step labels, "" between steps.
+
+    Returns
+    -------
+    list of (str, slice)
+    """
     labels = np.asarray(step).astype(str)
     if len(labels) == 0:
         return []
@@ -99,14 +129,25 @@ def covariance(jac: np.ndarray, residual: np.ndarray,
 
 
 def pooled_scatter(residual: np.ndarray, unknowns: int) -> float | None:
-    """Variance of one row of ``residual`` (P, 3) about a fit with ``unknowns`` parameters per axis,
-    pooled over the three axes, or None when there are no spare rows.
+    """Variance of one row of ``residual`` about a fit, pooled over the three axes.
 
     s^2 = sum r^2 / d with d = 3 (P - unknowns) degrees of freedom, times Student's t variance
     factor d / (d - 2): a scale estimated from d residuals makes err / s a t variable, whose
     variance is d / (d - 2), so the product gives z-scores of unit variance (for d > 2).
     Pooling the axes assumes their drift and noise are alike (one die, one process), which
     triples the degrees of freedom of a six-pose or six-rotation fit (2 per axis).
+
+    Parameters
+    ----------
+    residual : ndarray, (P, 3)
+        Residuals of the fit.
+    unknowns : int
+        Parameters per axis of the fit.
+
+    Returns
+    -------
+    float or None
+        s^2, or None when there are no spare rows (d <= 2).
     """
     r = np.asarray(residual, float)
     dof = r.size - 3 * unknowns
@@ -154,7 +195,21 @@ def drift_budget(residual: np.ndarray, unknowns: int, white: np.ndarray) -> np.n
 
 
 def propagate(fun: Callable[[np.ndarray], np.ndarray], p: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """Covariance of fun(p) by first-order propagation J cov J^T (J by central differences)."""
+    """Covariance of fun(p) by first-order propagation J cov J^T (J by central differences).
+
+    Parameters
+    ----------
+    fun : callable
+        ndarray (n,) -> ndarray.
+    p : ndarray, (n,)
+    cov : ndarray, (n, n)
+        Covariance of ``p``.
+
+    Returns
+    -------
+    ndarray
+        Covariance of the flattened ``fun(p)``.
+    """
     p = np.asarray(p, float)
     f0 = np.asarray(fun(p), float).ravel()
     jac = np.empty((len(f0), len(p)))
@@ -205,7 +260,20 @@ def stddev_from(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], p: n
 
 
 def describe_null(vector: np.ndarray, names: list[str]) -> str:
-    """Name the parameter combination a rank-deficient design leaves free (largest entries)."""
+    """Name the parameter combination a rank-deficient design leaves free (largest entries).
+
+    Parameters
+    ----------
+    vector : ndarray
+        A null vector of the design.
+    names : list of str
+        The parameters' names.
+
+    Returns
+    -------
+    str
+        e.g. ``+1*b_x -0.5*k_x``.
+    """
     v = np.asarray(vector, float)
     v = v / np.max(np.abs(v))
     terms = [f"{v[i]:+.2g}*{names[i]}" for i in np.argsort(-np.abs(v)) if abs(v[i]) > 0.05]
@@ -292,16 +360,39 @@ def convert_convention(accel_correction: np.ndarray, gyro_correction: np.ndarray
 
 
 def quantum(values: np.ndarray) -> float:
-    """The smallest step between distinct values (the output's resolution, if quantized), or 0."""
+    """The smallest step between distinct values (the output's resolution, if quantized).
+
+    Parameters
+    ----------
+    values : ndarray
+
+    Returns
+    -------
+    float
+        0 when all values are equal.
+    """
     levels = np.unique(np.asarray(values, float))
     return float(np.diff(levels).min()) if len(levels) > 1 else 0.0
 
 
 def dithers(spread: np.ndarray, static: np.ndarray) -> np.ndarray:
-    """Per axis: does the noise ``spread`` (3,) of still samples ``static`` (n, 3) exceed their
-    resolution (and floating-point rounding)? Only then does a run of identical samples at an axis's
-    extreme mean clipping: under a resolution much coarser than the noise, a steady rate reads one
-    value for many samples without being clipped."""
+    """Per axis: does the noise of still samples exceed their resolution (and floating-point rounding)?
+
+    Only then does a run of identical samples at an axis's extreme mean clipping: under a
+    resolution much coarser than the noise, a steady rate reads one value for many samples
+    without being clipped.
+
+    Parameters
+    ----------
+    spread : ndarray, (3,)
+        Noise (standard deviation) of the still samples.
+    static : ndarray, (n, 3)
+        The still samples.
+
+    Returns
+    -------
+    ndarray of bool, (3,)
+    """
     static = np.asarray(static, float)
     floor = np.array([max(quantum(static[:, i]), 1e-9 * max(1.0, np.abs(static[:, i]).max()))
                       for i in range(3)])
@@ -313,8 +404,20 @@ GAP_FACTOR = 2.5
 
 
 def lost_samples(t: np.ndarray, step: float) -> tuple[int, float] | None:
-    """The largest time step of ``t`` where it exceeds ``GAP_FACTOR`` x the nominal ``step``:
-    (index of the sample before it, its size in s), or None where no samples were lost."""
+    """The largest time step of ``t`` where it exceeds ``GAP_FACTOR`` times the nominal step.
+
+    Parameters
+    ----------
+    t : ndarray, (N,)
+        Sample times, s.
+    step : float
+        Nominal time step, s.
+
+    Returns
+    -------
+    tuple or None
+        (index of the sample before the gap, its size in s), or None where no samples were lost.
+    """
     gaps = np.diff(np.asarray(t, float))
     if len(gaps) == 0:
         return None
@@ -323,7 +426,18 @@ def lost_samples(t: np.ndarray, step: float) -> tuple[int, float] | None:
 
 
 def pinned_run(values: np.ndarray, extreme: float) -> tuple[int, int]:
-    """The longest run of consecutive samples equal to ``extreme``: (start index, length)."""
+    """The longest run of consecutive samples equal to ``extreme``.
+
+    Parameters
+    ----------
+    values : ndarray, (N,)
+    extreme : float
+
+    Returns
+    -------
+    tuple of int
+        (start index, length); (0, 0) without such a sample.
+    """
     pinned = np.concatenate([[0], (np.asarray(values) == extreme).astype(np.int8), [0]])
     edges = np.flatnonzero(np.diff(pinned))
     if len(edges) == 0:

@@ -218,8 +218,23 @@ def _still_samples(t: np.ndarray, initial_still_s: float, inclusive: bool) -> in
 
 
 def detect_initial_still(t: np.ndarray, acc: np.ndarray, window: int) -> float:
-    """Length (s) of the still period at the start: until the moving variance first exceeds ten
-    times its level over the first second."""
+    """Length of the still period at the start: until the moving variance (``static_detect``,
+    eq. 1) first exceeds ten times its level over the first second.
+
+    Parameters
+    ----------
+    t : ndarray, (N,)
+        Sample times, s.
+    acc : ndarray, (N, 3)
+        Accelerometer samples.
+    window : int
+        Moving-variance window, samples.
+
+    Returns
+    -------
+    float
+        Seconds.
+    """
     vnorm = moving_variance_norm(acc, window)
     rate = 1.0 / np.median(np.diff(t))
     head = vnorm[: max(1, int(rate))]

@@ -46,14 +46,40 @@ def _acc_matrix(p: np.ndarray, convention: str) -> np.ndarray:
 
 
 def acc_residual(p: np.ndarray, x: np.ndarray, g: float, convention: str) -> np.ndarray:
-    """Eq. (10): r = g - |T K (x - b)| for samples ``x`` (n, 3) and parameters ``p`` (9)."""
+    """Eq. (10): r = g - |T K (x - b)|.
+
+    Parameters
+    ----------
+    p : ndarray, (9,)
+        Misalignments (``ACC_PARAM_NAMES``), K, b.
+    x : ndarray, (n, 3)
+        Static samples.
+    g : float
+        Local gravity, m/s^2.
+    convention : str
+        "lower" or "upper".
+
+    Returns
+    -------
+    ndarray, (n,)
+    """
     t = _acc_matrix(p, convention)
     a = ((x - p[6:9]) * p[3:6]) @ t.T
     return g - np.linalg.norm(a, axis=1)
 
 
 def acc_jacobian(p: np.ndarray, x: np.ndarray, g: float, convention: str) -> np.ndarray:
-    """Eq. (11): the analytic Jacobian (n, 9) of :func:`acc_residual`."""
+    """Eq. (11): the analytic Jacobian of :func:`acc_residual`.
+
+    Parameters
+    ----------
+    p, x, g, convention
+        As :func:`acc_residual`.
+
+    Returns
+    -------
+    ndarray, (n, 9)
+    """
     t = _acc_matrix(p, convention)
     u = x - p[6:9]
     v = u * p[3:6]
@@ -73,6 +99,18 @@ def acc_initial_guess(x: np.ndarray, g: float) -> np.ndarray:
 
     Solves sum_i a_i x_i^2 + c_i x_i = 1 by linear least squares; the centre is the bias and
     g / semi-axis the scale. Falls back to the mean and the spread where that is degenerate.
+
+    Parameters
+    ----------
+    x : ndarray, (n, 3)
+        Static samples.
+    g : float
+        Local gravity, m/s^2.
+
+    Returns
+    -------
+    ndarray, (9,)
+        Parameters of eq. (8), misalignments zero.
     """
     x = np.asarray(x, float)
     centre = x.mean(axis=0)
@@ -137,5 +175,17 @@ def fit_accelerometer(x: np.ndarray, g: float, convention: str, cost: str = "mea
 
 
 def acc_correction(p: np.ndarray, convention: str) -> np.ndarray:
-    """C = T K of eq. (8)."""
+    """C = T K of eq. (8).
+
+    Parameters
+    ----------
+    p : ndarray, (9,)
+        Parameters of eq. (8).
+    convention : str
+        "lower" or "upper".
+
+    Returns
+    -------
+    ndarray, (3, 3)
+    """
     return _acc_matrix(p, convention) * p[3:6]

@@ -150,13 +150,31 @@ class GyroModel:
         self._key = key
 
     def residual(self, cflat: np.ndarray) -> np.ndarray:
-        """Eq. (15) for every block, stacked (3B,), at C = ``cflat`` (row-major 3x3)."""
+        """Eq. (15) for every block, stacked (3B,), at C = ``cflat`` (row-major 3x3).
+
+        Parameters
+        ----------
+        cflat : ndarray, (9,)
+
+        Returns
+        -------
+        ndarray, (3B,)
+        """
         self._forward(cflat)
         return (self.r - self.blocks.u1).ravel()
 
     def jacobian(self, cflat: np.ndarray) -> np.ndarray:
         """d(eq. 15)/dC (3B, 9) by the adjoint pass of the class docstring; also keeps the per-block
-        rate gradient ``rate_gradient`` (B, 3, 3) that :func:`bias_sensitivity` reads."""
+        rate gradient ``rate_gradient`` (B, 3, 3) that :func:`bias_sensitivity` reads.
+
+        Parameters
+        ----------
+        cflat : ndarray, (9,)
+
+        Returns
+        -------
+        ndarray, (3B, 9)
+        """
         self._forward(cflat)
         nb, length = self.mask.shape
         # s_n = P_{n-1} with P_n = a_0 (x) .. (x) a_n (a log-depth scan), and as A_{L-1} .. A_{n+1} =
@@ -177,18 +195,49 @@ class GyroModel:
 
 
 def gyro_residual(cflat: np.ndarray, blocks: GyroBlocks) -> np.ndarray:
-    """Eq. (15) for every block, stacked (3B,)."""
+    """Eq. (15) for every block.
+
+    Parameters
+    ----------
+    cflat : ndarray, (9,)
+        C, row-major.
+    blocks : GyroBlocks
+
+    Returns
+    -------
+    ndarray, (3B,)
+    """
     return GyroModel(blocks).residual(cflat)
 
 
 def gyro_jacobian(cflat: np.ndarray, blocks: GyroBlocks) -> np.ndarray:
-    """The analytic Jacobian (3B, 9) of :func:`gyro_residual` with respect to C (row-major)."""
+    """The analytic Jacobian of :func:`gyro_residual` with respect to C (row-major).
+
+    Parameters
+    ----------
+    cflat : ndarray, (9,)
+    blocks : GyroBlocks
+
+    Returns
+    -------
+    ndarray, (3B, 9)
+    """
     return GyroModel(blocks).jacobian(cflat)
 
 
 def gyro_initial_guess(blocks: GyroBlocks) -> np.ndarray:
     """Data-driven start C = diag(+-s): s from the angles between consecutive gravity directions
-    over the integrated raw rate magnitude, signs and s refined on coarse grids of the residual."""
+    over the integrated raw rate magnitude, signs and s refined on coarse grids of the residual.
+
+    Parameters
+    ----------
+    blocks : GyroBlocks
+
+    Returns
+    -------
+    ndarray, (9,)
+        C, row-major.
+    """
     angle = np.arccos(np.clip(np.sum(blocks.u0 * blocks.u1, axis=1), -1, 1)).sum()
     rate = np.sum(0.5 * (np.linalg.norm(blocks.x0, axis=2) + np.linalg.norm(blocks.x1, axis=2)) * blocks.dt)
     s0 = angle / rate if rate > 0 and angle > 0 else 1.0
@@ -216,6 +265,26 @@ def direction_covariance(model: GyroModel, cflat: np.ndarray, jac: np.ndarray, a
         dC/dp_a = -(J^T J)^-1 J^T dr/dp_a,  dr/dp_a = R_k^T du_k/dp_a - du_{k+1}/dp_a,
 
     with du/dp_a by central differences of u = normalise(T K (mean - b)); cov = D cov_a D^T.
+
+    Parameters
+    ----------
+    model : GyroModel
+    cflat : ndarray, (9,)
+        The fitted C, row-major.
+    jac : ndarray, (3B, 9)
+        Jacobian of eq. (15) at ``cflat``.
+    acc : ndarray, (N, 3)
+        Raw accelerometer samples.
+    intervals : ndarray, (K, 2)
+        Static intervals.
+    acc_params, acc_cov : ndarray
+        The accelerometer's parameters (9,) and covariance (9, 9).
+    convention : str
+        Their convention.
+
+    Returns
+    -------
+    ndarray, (9, 9)
     """
     means = np.array([acc[a:b + 1].mean(axis=0) for a, b in intervals])
 
@@ -237,16 +306,39 @@ def direction_covariance(model: GyroModel, cflat: np.ndarray, jac: np.ndarray, a
 
 
 def bias_sensitivity(model: GyroModel, cflat: np.ndarray) -> np.ndarray:
-    """dr/db (3B, 3) of eq. (15) for the bias subtracted before integration: a bias error d shifts
-    every rate by -C d, so dr/db = -(sum over the block's steps of dr/dw) C, from the adjoint pass
-    of ``model.jacobian`` (which must have run at ``cflat``)."""
+    """dr/db of eq. (15) for the bias subtracted before integration: a bias error d shifts every
+    rate by -C d, so dr/db = -(sum over the block's steps of dr/dw) C.
+
+    Parameters
+    ----------
+    model : GyroModel
+        Whose :meth:`GyroModel.jacobian` has run at ``cflat``.
+    cflat : ndarray, (9,)
+
+    Returns
+    -------
+    ndarray, (3B, 3)
+    """
     return -(model.rate_gradient @ np.asarray(cflat, float).reshape(3, 3)).reshape(-1, 3)
 
 
 def bias_covariance(model: GyroModel, cflat: np.ndarray, jac: np.ndarray,
                     bias_sd: np.ndarray) -> np.ndarray:
     """Covariance C inherits from the bias subtracted before integration (implicit-function theorem,
-    as in :func:`direction_covariance`)."""
+    as in :func:`direction_covariance`).
+
+    Parameters
+    ----------
+    model : GyroModel
+    cflat : ndarray, (9,)
+    jac : ndarray, (3B, 9)
+    bias_sd : ndarray, (3,)
+        1-sigma of the bias.
+
+    Returns
+    -------
+    ndarray, (9, 9)
+    """
     dr = bias_sensitivity(model, cflat)
     d = -np.linalg.pinv(jac.T @ jac) @ jac.T @ dr
     return d @ np.diag(np.asarray(bias_sd, float) ** 2) @ d.T

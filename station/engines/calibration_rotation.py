@@ -59,7 +59,19 @@ def integrate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def explain_rotations(axes: np.ndarray, labels: list[str]) -> str:
     """Why the rotations cannot determine M in eq. (1): an axis never turned about, or turned one
-    way only (the bias column then cannot separate from the scale), for the error message."""
+    way only (the bias column then cannot separate from the scale).
+
+    Parameters
+    ----------
+    axes : ndarray, (R, 3)
+        Signed rotation axes.
+    labels : list of str
+
+    Returns
+    -------
+    str
+        The error message.
+    """
     axes = np.asarray(axes, float)
     reasons = []
     for i, name in enumerate("xyz"):

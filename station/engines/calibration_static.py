@@ -56,7 +56,19 @@ def _unit_columns(x: np.ndarray) -> np.ndarray:
 
 
 def explain_rank_deficiency(up: np.ndarray, labels: list[str]) -> str:
-    """Name what a set of poses fails to excite (for the error message)."""
+    """Name what a set of poses fails to excite in eq. (2).
+
+    Parameters
+    ----------
+    up : ndarray, (P, 3)
+        Up vectors of the poses.
+    labels : list of str
+
+    Returns
+    -------
+    str
+        The error message.
+    """
     up = np.asarray(up, float)
     reasons = []
     for i, axis in enumerate("xyz"):

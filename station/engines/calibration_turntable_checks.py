@@ -35,7 +35,18 @@ Steps = list[tuple[str, slice]]
 
 
 def span(t: np.ndarray, sl: slice) -> str:
-    """The time span of a step for messages: ``t = 1.00..9.99 s``."""
+    """The time span of a step for messages.
+
+    Parameters
+    ----------
+    t : ndarray, (N,)
+    sl : slice
+
+    Returns
+    -------
+    str
+        ``t = 1.00..9.99 s``.
+    """
     return f"t = {t[sl.start]:.2f}..{t[sl.stop - 1]:.2f} s"
 
 

@@ -22,12 +22,32 @@ _OMEGA_BASIS[2][[3, 0, 1, 2], [0, 3, 2, 1]] = [1, -1, 1, -1]
 
 
 def omega_matrix(w: np.ndarray) -> np.ndarray:
-    """Omega(w) of eq. (1) for rates ``w`` (..., 3): shape (..., 4, 4)."""
+    """Omega(w) of eq. (1).
+
+    Parameters
+    ----------
+    w : ndarray, (..., 3)
+        Rates, rad/s.
+
+    Returns
+    -------
+    ndarray, (..., 4, 4)
+    """
     return np.einsum("...i,ijk->...jk", np.asarray(w, float), _OMEGA_BASIS)
 
 
 def qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product p (x) q of quaternion arrays (..., 4)."""
+    """Hamilton product p (x) q.
+
+    Parameters
+    ----------
+    p, q : ndarray, (..., 4)
+        Quaternions (w, x, y, z).
+
+    Returns
+    -------
+    ndarray, (..., 4)
+    """
     p = np.asarray(p, float)
     q = np.asarray(q, float)
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
@@ -47,12 +67,30 @@ _LEFT_SIGN = np.array([[1, -1, -1, -1], [1, 1, -1, 1], [1, 1, 1, -1], [1, -1, 1,
 
 
 def right_matrix(p: np.ndarray) -> np.ndarray:
-    """R(p) with R(p) q = q (x) p, shape (..., 4, 4); Omega(w) of eq. (1) is R((0, w))."""
+    """R(p) with R(p) q = q (x) p; Omega(w) of eq. (1) is R((0, w)).
+
+    Parameters
+    ----------
+    p : ndarray, (..., 4)
+
+    Returns
+    -------
+    ndarray, (..., 4, 4)
+    """
     return np.asarray(p, float)[..., _INDEX] * _RIGHT_SIGN
 
 
 def left_matrix(p: np.ndarray) -> np.ndarray:
-    """L(p) with L(p) q = p (x) q, shape (..., 4, 4)."""
+    """L(p) with L(p) q = p (x) q.
+
+    Parameters
+    ----------
+    p : ndarray, (..., 4)
+
+    Returns
+    -------
+    ndarray, (..., 4, 4)
+    """
     return np.asarray(p, float)[..., _INDEX] * _LEFT_SIGN
 
 
@@ -79,7 +117,17 @@ def rk4_step(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray
     This is imu_tk's ``quatIntegrationStepRK4``; normalising after every step (as imu_tk does)
     only rescales q, so normalising once at the end gives the same rotation.
 
-    Returns ``a`` (..., 4) and the stages (h0, hm, h1, b2, b3) for :func:`rk4_step_derivative`.
+    Parameters
+    ----------
+    w0, w1 : ndarray, (..., 3)
+        Rates at the step's start and end, rad/s.
+    dt : ndarray, (...)
+        Step, s.
+
+    Returns
+    -------
+    tuple
+        ``a`` (..., 4) and the stages (h0, hm, h1, b2, b3) for :func:`rk4_step_gradients`.
     """
     w0 = np.asarray(w0, float)
     w1 = np.asarray(w1, float)
@@ -96,7 +144,19 @@ def rk4_step(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray
 
 
 def rk4_step_matrices(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> np.ndarray:
-    """The step matrix A = R(a) of eq. (2) (..., 4, 4)."""
+    """The step matrix A = R(a) of eq. (2).
+
+    Parameters
+    ----------
+    w0, w1 : ndarray, (..., 3)
+        Rates at the step's start and end, rad/s.
+    dt : ndarray, (...)
+        Step, s.
+
+    Returns
+    -------
+    ndarray, (..., 4, 4)
+    """
     return right_matrix(rk4_step(w0, w1, dt)[0])
 
 
@@ -118,6 +178,20 @@ def rk4_step_gradients(u: np.ndarray, dt: np.ndarray, stages: tuple[np.ndarray, 
 
         6/dt u Da = (alpha + gamma) u E + gamma dt u L(b3) E + beta (v3 + v2) E
                     + dt/2 (beta v3 L(b2) E + alpha v2 R(hm) E + beta v2 L(h0) E).
+
+    Parameters
+    ----------
+    u : ndarray, (..., m, 4)
+        Row vectors.
+    dt : ndarray, (...)
+        Step, s.
+    stages : tuple of ndarray
+        From :func:`rk4_step`.
+
+    Returns
+    -------
+    tuple of ndarray
+        u da/dw0 and u da/dw1, each (..., m, 3).
     """
     h0, hm, h1, b2, b3 = stages
     u = np.asarray(u, float)
@@ -133,7 +207,16 @@ def rk4_step_gradients(u: np.ndarray, dt: np.ndarray, stages: tuple[np.ndarray, 
 
 
 def to_rotation(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of quaternions (..., 4), normalised first."""
+    """Rotation matrices of quaternions, normalised first.
+
+    Parameters
+    ----------
+    q : ndarray, (..., 4)
+
+    Returns
+    -------
+    ndarray, (..., 3, 3)
+    """
     q = np.asarray(q, float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
@@ -157,7 +240,17 @@ def rotate_inverse(q: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray
     For a unit quaternion (w, v): R^T u = u - 2 w (v x u) + 2 v x (v x u). The derivative
     chains through the normalisation q / |q|, whose Jacobian is (I - q q^T) / |q|.
 
-    Returns ``(r, dr_dq)`` with shapes (..., 3) and (..., 3, 4).
+    Parameters
+    ----------
+    q : ndarray, (..., 4)
+        Quaternions, any norm.
+    u : ndarray, (..., 3)
+        Vectors.
+
+    Returns
+    -------
+    tuple of ndarray
+        r (..., 3) and dr/dq (..., 3, 4).
     """
     q = np.asarray(q, float)
     u = np.asarray(u, float)

@@ -36,7 +36,22 @@ class SensorCalibration:
     @classmethod
     def from_parts(cls, scale: np.ndarray, misalignment: np.ndarray, bias: np.ndarray,
                    **kw: Any) -> SensorCalibration:
-        """Build from K (diagonal ``scale``), S (``misalignment``, zero diagonal) and b: M = K (I + S)."""
+        """Build from K, S and b: M = K (I + S).
+
+        Parameters
+        ----------
+        scale : ndarray, (3,)
+            Diagonal of K.
+        misalignment : ndarray, (3, 3)
+            S, zero diagonal.
+        bias : ndarray, (3,)
+        **kw
+            The other fields (method, stddev, ...).
+
+        Returns
+        -------
+        SensorCalibration
+        """
         matrix = np.diag(np.asarray(scale, float)) @ (np.eye(3) + np.asarray(misalignment, float))
         return cls(matrix=matrix, bias=bias, **kw)
 

@@ -108,7 +108,22 @@ class Blocks:
 
 
 def block_ids(pose: np.ndarray, ok: np.ndarray, length: int) -> np.ndarray:
-    """Block index per sample (-1: unused): runs of one pose cut into blocks of about ``length``."""
+    """Block index per sample: runs of one pose cut into blocks of about ``length`` samples.
+
+    Parameters
+    ----------
+    pose : ndarray of int, (N,)
+        Pose of each sample (-1: none).
+    ok : ndarray of bool, (N,)
+        Samples that may be used (a known temperature).
+    length : int
+        Target block length, samples; runs shorter than half of it are left out.
+
+    Returns
+    -------
+    ndarray of int, (N,)
+        -1 for unused samples.
+    """
     use = (pose >= 0) & ok
     ids = np.full(len(pose), -1)
     edges = np.flatnonzero(np.diff(np.concatenate([[-2], np.where(use, pose, -1), [-2]])) != 0)
@@ -139,7 +154,24 @@ class BlockMeans:
 
 def make_blocks(ids: np.ndarray, t: np.ndarray, temp: np.ndarray, t_ref: float, acc: np.ndarray,
                  gyro: np.ndarray, pose: np.ndarray) -> tuple[Blocks, BlockMeans]:
-    """Blocks with the temperature terms; the dT terms are filled in by :func:`with_dtemp`."""
+    """Blocks with the temperature terms of eq. (1); the dT terms are filled in by :func:`with_dtemp`.
+
+    Parameters
+    ----------
+    ids : ndarray of int, (N,)
+        Block of each sample (:func:`block_ids`).
+    t, temp : ndarray, (N,)
+        Times (s) and temperatures (degC).
+    t_ref : float
+        T_ref of eq. (1).
+    acc, gyro : ndarray, (N, 3)
+    pose : ndarray of int, (N,)
+
+    Returns
+    -------
+    tuple
+        The :class:`Blocks` and the :class:`BlockMeans` that made them.
+    """
     mean = BlockMeans(ids)
     t_rel = np.where(np.isfinite(temp), temp - t_ref, 0.0)
     terms = np.zeros((len(mean.count), len(TERMS)))
@@ -155,7 +187,22 @@ def make_blocks(ids: np.ndarray, t: np.ndarray, temp: np.ndarray, t_ref: float, 
 
 def with_dtemp(blocks: Blocks, mean: BlockMeans, temp: np.ndarray, t_ref: float,
                 dtemp: np.ndarray) -> Blocks:
-    """A copy of ``blocks`` with the block means of dT, dT^2 and t dT (eq. 1) of this dT."""
+    """A copy of ``blocks`` with the block means of dT, dT^2 and t dT (eq. 1) of this dT.
+
+    Parameters
+    ----------
+    blocks : Blocks
+    mean : BlockMeans
+        The block means that made ``blocks``.
+    temp : ndarray, (N,)
+    t_ref : float
+    dtemp : ndarray, (N,)
+        Filtered dT per sample, degC/s.
+
+    Returns
+    -------
+    Blocks
+    """
     t_rel = np.where(np.isfinite(temp), temp - t_ref, 0.0)
     terms = blocks.terms.copy()
     d = mean(dtemp)
@@ -164,7 +211,18 @@ def with_dtemp(blocks: Blocks, mean: BlockMeans, temp: np.ndarray, t_ref: float,
 
 
 def fold_ids(pose: np.ndarray, folds: int) -> np.ndarray:
-    """Interleaved held-out stretches: each pose's blocks in about 8 x ``folds`` runs, dealt round."""
+    """Interleaved held-out stretches: each pose's blocks in about 8 x ``folds`` runs, dealt round.
+
+    Parameters
+    ----------
+    pose : ndarray of int, (B,)
+        Pose of each block.
+    folds : int
+
+    Returns
+    -------
+    ndarray of int, (B,)
+    """
     out = np.zeros(len(pose), dtype=int)
     for p in np.unique(pose):
         idx = np.flatnonzero(pose == p)
@@ -176,7 +234,16 @@ def fold_ids(pose: np.ndarray, folds: int) -> np.ndarray:
 
 
 def rate_follows_temp(blocks: Blocks) -> float:
-    """R^2 of dT regressed on a cubic in T: near 1 when dT is a function of T (one warm-up curve)."""
+    """R^2 of dT regressed on a cubic in T: near 1 when dT is a function of T (one warm-up curve).
+
+    Parameters
+    ----------
+    blocks : Blocks
+
+    Returns
+    -------
+    float
+    """
     t = blocks.terms[:, :3]
     x = np.column_stack([t, np.ones(len(t))])
     d = blocks.dtemp

@@ -42,7 +42,18 @@ class Design:
 
     def columns(self, mask: tuple[bool, ...], scale_axis: int | None) -> list[int]:
         """Design columns of the terms in ``mask`` in every segment, the segment constants and pose
-        intercepts, and the scale column of eq. (4) for axis ``scale_axis`` (None: without it)."""
+        intercepts, and the scale column of eq. (4) for axis ``scale_axis`` (None: without it).
+
+        Parameters
+        ----------
+        mask : tuple of bool
+            Subset of ``VARIABLE_TERMS``.
+        scale_axis : int or None
+
+        Returns
+        -------
+        list of int
+        """
         cols = [int(c) for s in range(len(self.term_cols)) for k, on in enumerate(mask) if on
                 for c in [self.term_cols[s, k]]]
         cols += self.const_cols + self.pose_cols
@@ -51,7 +62,17 @@ class Design:
         return cols
 
     def null_basis(self, cols: list[int]) -> np.ndarray:
-        """Basis of the coefficient space (scaled) that keeps the model continuous at the joins."""
+        """Basis of the coefficient space (scaled) that keeps the model continuous at the joins.
+
+        Parameters
+        ----------
+        cols : list of int
+            Columns of the model (without the scale column).
+
+        Returns
+        -------
+        ndarray, (len(cols), q)
+        """
         if not self.breaks:
             return np.eye(len(cols))
         where = {c: i for i, c in enumerate(cols)}
@@ -139,6 +160,19 @@ def solve(gram: np.ndarray, rhs: np.ndarray, z: np.ndarray) -> np.ndarray:
 
     The columns are scaled to unit RMS, so a ridge of 1e-10 of the mean diagonal changes no
     determined coefficient and sets undetermined ones (a pose absent from a fold) to zero.
+
+    Parameters
+    ----------
+    gram : ndarray, (..., C, C)
+        X'X.
+    rhs : ndarray, (..., C, k)
+        X'y.
+    z : ndarray, (C, q)
+        Basis of the allowed coefficients (the continuity constraints' null space).
+
+    Returns
+    -------
+    ndarray, (..., C, k)
     """
     a = z.T @ gram @ z
     m = a.shape[-1]
@@ -148,8 +182,25 @@ def solve(gram: np.ndarray, rhs: np.ndarray, z: np.ndarray) -> np.ndarray:
 
 def fit_and_predict(d: Design, cols: list[int], z: np.ndarray, axis: int, fold: np.ndarray,
                      held_out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Scaled coefficients and fitted values on all blocks; fills ``held_out[:, axis]`` with each
-    fold's prediction from the model fitted on the other folds."""
+    """The model on ``cols`` fitted on all blocks, and each fold's prediction from the other folds.
+
+    Parameters
+    ----------
+    d : Design
+    cols : list of int
+        Columns of the model.
+    z : ndarray
+        Basis of the allowed coefficients.
+    axis : int
+    fold : ndarray of int, (B,)
+    held_out : ndarray, (B, 3)
+        Filled in column ``axis`` with the held-out predictions.
+
+    Returns
+    -------
+    tuple of ndarray
+        Scaled coefficients and fitted values on all blocks.
+    """
     gf = d.gram[:, cols][:, :, cols]
     rf = d.xty[:, cols, axis]
     x = d.x[:, cols]
@@ -171,20 +222,49 @@ class Candidate:
     sse: np.ndarray  # (F,) held-out sum of squares per fold
 
     def mse(self, nf: np.ndarray) -> float:
-        """Held-out mean squared error over all folds (``nf`` blocks per fold)."""
+        """Held-out mean squared error over all folds (``nf`` blocks per fold).
+
+        Parameters
+        ----------
+        nf : ndarray, (F,)
+
+        Returns
+        -------
+        float
+        """
         return float(self.sse.sum() / nf.sum())
 
     def se(self, nf: np.ndarray) -> float:
-        """Standard error of the held-out MSE from its spread over the folds."""
+        """Standard error of the held-out MSE from its spread over the folds.
+
+        Parameters
+        ----------
+        nf : ndarray, (F,)
+
+        Returns
+        -------
+        float
+        """
         per_fold = self.sse / np.maximum(nf, 1)
         return float(per_fold.std(ddof=1) / np.sqrt(len(nf))) if len(nf) > 1 else 0.0
 
 
 def cv_sse(d: Design, cols: list[int], z: np.ndarray, axes: list[int]) -> np.ndarray:
-    """Held-out sum of squared residuals, (F, len(axes)), for the model on ``cols`` within ``z``.
+    """Held-out sum of squared residuals for the model on ``cols`` within ``z``.
 
     Fold f is fitted on the Gram matrix of the other folds and scored on its own:
     |y_f - X_f beta|^2 = y_f'y_f - 2 beta'X_f'y_f + beta'X_f'X_f beta.
+
+    Parameters
+    ----------
+    d : Design
+    cols : list of int
+    z : ndarray
+    axes : list of int
+
+    Returns
+    -------
+    ndarray, (F, len(axes))
     """
     gf = d.gram[:, cols][:, :, cols]
     rf = d.xty[:, cols][:, :, axes]
@@ -194,7 +274,21 @@ def cv_sse(d: Design, cols: list[int], z: np.ndarray, axes: list[int]) -> np.nda
 
 
 def candidates(d: Design, scale_axes: list[bool], masks: list[tuple[bool, ...]]) -> list[list[Candidate]]:
-    """Each term subset of ``masks`` (and with the scale column where allowed), per axis."""
+    """Each term subset of ``masks``, and with the scale column of eq. (4) where allowed, per axis.
+
+    Parameters
+    ----------
+    d : Design
+    scale_axes : list of bool
+        Axes that may take the scale column.
+    masks : list of tuple of bool
+        Subsets of ``VARIABLE_TERMS``.
+
+    Returns
+    -------
+    list of list of Candidate
+        One list per axis.
+    """
     per_axis: list[list[Candidate]] = [[], [], []]
     for mask in masks:
         cols = d.columns(mask, None)
@@ -215,13 +309,36 @@ def candidates(d: Design, scale_axes: list[bool], masks: list[tuple[bool, ...]])
 
 def one_se(cands: list[Candidate], nf: np.ndarray) -> Candidate:
     """The one-standard-error rule (Hastie, Tibshirani & Friedman 2009, sec. 7.10): the candidate
-    with fewest parameters whose held-out MSE is within one standard error of the best's."""
+    with fewest parameters whose held-out MSE is within one standard error of the best's.
+
+    Parameters
+    ----------
+    cands : list of Candidate
+    nf : ndarray, (F,)
+        Blocks per fold.
+
+    Returns
+    -------
+    Candidate
+    """
     best = min(cands, key=lambda c: c.mse(nf))
     limit = best.mse(nf) + best.se(nf)
     return min((c for c in cands if c.mse(nf) <= limit), key=lambda c: (c.params, c.mse(nf)))
 
 
 def equal_breaks(lo: float, hi: float, n: int) -> list[float]:
-    """The n - 1 joins of n equal-width segments of [lo, hi]."""
+    """The joins of ``n`` equal-width segments of [lo, hi].
+
+    Parameters
+    ----------
+    lo, hi : float
+        degC.
+    n : int
+
+    Returns
+    -------
+    list of float
+        n - 1 joins.
+    """
     return [float(v) for v in np.linspace(lo, hi, n + 1)[1:-1]]
 

@@ -112,7 +112,16 @@ class ThermalBias:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ThermalBias:
-        """Read an entry written by :meth:`to_dict`; refuses unknown terms or no segments (ValueError)."""
+        """Read an entry written by :meth:`to_dict`; refuses unknown terms or no segments (ValueError).
+
+        Parameters
+        ----------
+        d : dict
+
+        Returns
+        -------
+        ThermalBias
+        """
         if list(d.get("terms", TERMS)) != list(TERMS):
             raise ValueError(f"thermal terms {d.get('terms')} are not the known {list(TERMS)}")
         clamp = d.get("clamp", {})
@@ -142,7 +151,16 @@ class DtempFilter:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DtempFilter:
-        """Read an entry written by :meth:`to_dict`; refuses a filter kind other than ``ema`` (ValueError)."""
+        """Read an entry written by :meth:`to_dict`; refuses a filter kind other than ``ema`` (ValueError).
+
+        Parameters
+        ----------
+        d : dict
+
+        Returns
+        -------
+        DtempFilter
+        """
         if d.get("kind") != "ema":
             raise ValueError(f"dT filter kind {d.get('kind')!r} is unknown; this station knows 'ema'")
         return cls("ema", float(d["tau_s"]))
@@ -240,7 +258,16 @@ class ThermalModel:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ThermalModel:
-        """Read a section written by :meth:`to_dict`; keys it does not know are kept in ``extra``."""
+        """Read a section written by :meth:`to_dict`; keys it does not know are kept in ``extra``.
+
+        Parameters
+        ----------
+        d : dict
+
+        Returns
+        -------
+        ThermalModel
+        """
         known = {"reference_temp", "dtemp_filter", "accel", "gyro"}
         return cls(
             reference_temp=float(d["reference_temp"]),

@@ -64,7 +64,22 @@ class TriadFit:
 
 def expected_raw(raw_mean: np.ndarray, cal: SensorCalibration | None, gravity: float, is_accel: bool
               ) -> tuple[np.ndarray, np.ndarray]:
-    """Expected raw of each pose (P, 3), eq. (2)/(3), and the true-signal part M g u_p of it."""
+    """Expected raw reading of each pose, eq. (2) (accelerometer) or (3) (gyroscope).
+
+    Parameters
+    ----------
+    raw_mean : ndarray, (P, 3)
+        Mean raw reading of each pose.
+    cal : SensorCalibration or None
+        The static calibration (None: identity).
+    gravity : float
+    is_accel : bool
+
+    Returns
+    -------
+    tuple of ndarray
+        The expected reading (P, 3) and its true-signal part M g u_p (P, 3) (zero for the gyro).
+    """
     cal = cal or SensorCalibration.identity()
     if not is_accel:
         return np.tile(cal.bias, (len(raw_mean), 1)), np.zeros_like(raw_mean)
@@ -75,7 +90,20 @@ def expected_raw(raw_mean: np.ndarray, cal: SensorCalibration | None, gravity: f
 
 
 def segment_rms(resid: np.ndarray, seg: np.ndarray, n_seg: int) -> list[float]:
-    """RMS of ``resid`` over the blocks of each of ``n_seg`` segments (NaN for an empty one)."""
+    """RMS of ``resid`` over the blocks of each segment.
+
+    Parameters
+    ----------
+    resid : ndarray, (B,)
+    seg : ndarray of int, (B,)
+        Segment of each block.
+    n_seg : int
+
+    Returns
+    -------
+    list of float
+        NaN for a segment without blocks.
+    """
     return [float(np.sqrt(np.mean(resid[seg == s] ** 2))) if np.any(seg == s) else float("nan")
             for s in range(n_seg)]
 
@@ -89,6 +117,20 @@ def hysteresis(temp: np.ndarray, dtemp: np.ndarray, resid: np.ndarray, variation
     three standard errors of the bin means, 5 % of the bias variation and three times the
     block-to-block noise (from first differences of the residual): bin means of
     neighbouring blocks share slow noise that their standard errors do not show.
+
+    Parameters
+    ----------
+    temp, dtemp : ndarray, (B,)
+        Block temperature (degC) and dT (degC/s).
+    resid : ndarray, (B,)
+        Residual of the fitted model.
+    variation : float
+        1st-99th percentile range of the bias.
+
+    Returns
+    -------
+    tuple
+        (gap, its temperature, whether it matters); (None, None, False) without both heating and cooling.
     """
     thr = 0.25 * np.percentile(np.abs(dtemp), 95)
     if thr <= 0:
