@@ -34,6 +34,11 @@ class LinkStats:
     seq_skipped: int = 0  # seq values the protocol spent on packets without a sample (not lost)
     seq_resets: int = 0  # times seq went backwards (device restart or a replayed frame)
     overflow_drops: int = 0  # samples dropped because the consumer did not keep up
+    # Filled by the capture recorder (station.acquisition.clock_guard), which sees the device clock
+    # as a line: samples whose time departed from it alone (left out), and jumps the samples after
+    # them confirmed (a unit restart, a clock set anew).
+    clock_outliers: int = 0
+    clock_jumps: int = 0
 
     @property
     def errors(self) -> int:
@@ -52,7 +57,15 @@ class LinkStats:
         return (f"{self.samples} samples, {self.rate_hz:.1f} Hz, {self.errors} errors "
                 f"({self.crc_errors} CRC, {self.truncated} truncated, {self.length_errors} length), "
                 f"{self.resyncs} resyncs, {self.garbage_bytes} garbage bytes, {self.lost} lost{skipped}, "
-                f"{self.overflow_drops} dropped (overflow)")
+                f"{self.overflow_drops} dropped (overflow)" + self._clock_summary())
+
+    def _clock_summary(self) -> str:
+        parts = []
+        if self.clock_outliers:
+            parts.append(f"{self.clock_outliers} clock outlier{'s' * (self.clock_outliers != 1)} (left out)")
+        if self.clock_jumps:
+            parts.append(f"{self.clock_jumps} clock jump{'s' * (self.clock_jumps != 1)}")
+        return "".join(", " + p for p in parts)
 
 
 class LinkMonitor:
@@ -93,6 +106,10 @@ class LinkMonitor:
         if self._first_t_us is None:
             self._first_t_us = int(t_us[0])
         t_last = int(t_us[-1])
+        if self._window and t_last < self._window[-1][0]:
+            # The clock went back (a restart, or the return from a wild timestamp): a window that
+            # reached into the other clock would freeze the rate until that time came again.
+            self._window.clear()
         s.device_time_s = max(0.0, (t_last - self._first_t_us) * 1e-6)
         self._window.append((t_last, s.samples))
         while len(self._window) > 2 and (t_last - self._window[1][0]) * 1e-6 >= RATE_WINDOW_S:

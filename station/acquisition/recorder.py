@@ -1,10 +1,12 @@
 """Streaming capture: samples from a device into a capture file, in bounded memory.
 
 :class:`Recorder` writes batches as they arrive (CSV, or the HDF5 capture file by suffix),
-keeps ``t`` strictly increasing as the capture format requires, labels rows with the current
+keeps ``t`` strictly increasing as the capture format requires (a wild timestamp is left out
+and counted, a confirmed jump of the unit's clock bridged), labels rows with the current
 sequence step and flushes at least once a second. :func:`record` is the capture loop of
-``imu-station capture``: it ends on ``duration_s`` of device clock, on Ctrl-C, on a stop event
-or when the link breaks, and in every case leaves every sample received so far in the file.
+``imu-station capture``: it ends on ``duration_s`` of continuous device clock, on Ctrl-C, on a
+stop event or when the link breaks, and in every case leaves every sample received so far in
+the file (but wild ones); a capture without a single row leaves no file and says so.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -25,6 +27,7 @@ from drivers.interface import Device
 from drivers.link_stats import LinkStats
 from station.acquisition.capture_csv import CsvCaptureWriter
 from station.acquisition.capture_h5 import H5CaptureWriter
+from station.acquisition.clock_guard import ClockGuard, ClockJump, Released
 from station.errors import OutputFileError
 
 FLUSH_INTERVAL_S = 1.0
@@ -85,20 +88,31 @@ class _CsvWriterAdapter:
 class Recorder:
     """Writes sample batches to a capture file as they come.
 
-    Samples whose device time does not increase past the last written one (a replayed frame, a
-    device restart) are left out and counted in ``non_increasing``: the capture formats require
-    strictly increasing ``t``. Rows get the label in :attr:`step` at the time they are written.
+    Timestamps pass a :class:`~station.acquisition.clock_guard.ClockGuard` first: a sample whose
+    device time departs alone from the others is left out and counted (``clock_outliers``), a
+    jump the following samples confirm is kept (``clock_jumps``; a clock that went back is
+    re-based to follow on), and samples whose time does not increase (a replayed frame) are left
+    out and counted in ``non_increasing``: the capture formats require strictly increasing
+    ``t``. A few samples may wait in the guard for the ones after them; :meth:`close` writes
+    what can be. Rows get the label in :attr:`step` at the time they are given to :meth:`write`.
+    With ``duration_s``, rows stop once that much continuous device time (jumps left out) is
+    recorded, and :attr:`full` becomes true.
     """
 
     def __init__(self, path: str | Path, device: dict[str, Any] | None = None, with_step: bool = False,
-                 port: str = "", protocol: str = "", flush_interval_s: float = FLUSH_INTERVAL_S):
+                 port: str = "", protocol: str = "", flush_interval_s: float = FLUSH_INTERVAL_S,
+                 duration_s: float | None = None):
         self.writer = open_capture_writer(path, device=device, with_step=with_step, port=port,
                                           protocol=protocol)
         self.path = Path(path)
         self.step = ""
-        self.non_increasing = 0
-        self.first_t_us: int | None = None
-        self.last_t_us: int | None = None
+        self.clock = ClockGuard()
+        self.received = 0  # samples given to write()
+        self.full = False
+        self._limit_us = None if duration_s is None else int(round(duration_s * 1e6))
+        self._first_c: int | None = None  # continuous device time of the first and last rows
+        self._last_c: int | None = None
+        self._stopped = False  # the writer was closed early (the disk filled)
         self._with_step = with_step
         self._flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
@@ -109,33 +123,52 @@ class Recorder:
         return self.writer.rows
 
     @property
+    def non_increasing(self) -> int:
+        return self.clock.non_increasing
+
+    @property
+    def clock_outliers(self) -> int:
+        return self.clock.outliers
+
+    @property
+    def clock_jumps(self) -> list[ClockJump]:
+        return self.clock.jumps
+
+    @property
     def device_time_s(self) -> float:
-        if self.first_t_us is None or self.last_t_us is None:
+        """Device time recorded: from the first row to the last, jumps of the clock left out."""
+        if self._first_c is None or self._last_c is None:
             return 0.0
-        return (self.last_t_us - self.first_t_us) * 1e-6
+        return (self._last_c - self._first_c) * 1e-6
 
     def write(self, samples: np.ndarray, link: dict[str, Any] | None = None) -> int:
-        """Append a batch; returns the number of rows written."""
+        """Append a batch; returns the number of rows written (samples held by the clock guard
+        are written by a later call)."""
+        self.received += len(samples)
+        labels = [self.step] * len(samples) if self._with_step else None
+        return self._write(self.clock.push(samples, labels), link)
+
+    def _write(self, released: Released, link: dict[str, Any] | None) -> int:
+        samples, labels, continuous = released.samples, released.labels, released.continuous_us
+        if self.full or self._stopped:
+            samples = samples[:0]
+        if self._limit_us is not None and len(samples):
+            start = self._first_c if self._first_c is not None else int(continuous[0])
+            inside = continuous - start < self._limit_us
+            if not inside.all():
+                self.full = True
+                samples, continuous = samples[inside], continuous[inside]
+                if labels is not None:
+                    labels = [label for label, ok in zip(labels, inside, strict=True) if ok]
         if len(samples) == 0:
             self.tick(link)
             return 0
-        t_us = samples["t_us"]
-        last = -1 if self.last_t_us is None else self.last_t_us
-        running_max = np.maximum.accumulate(np.concatenate([[last], t_us.astype(np.int64)]))
-        keep = t_us.astype(np.int64) > running_max[:-1]
-        if not keep.all():
-            self.non_increasing += int((~keep).sum())
-            samples = samples[keep]
-            if len(samples) == 0:
-                self.tick(link)
-                return 0
         self._check_space(samples.nbytes, link)
-        step = [self.step] * len(samples) if self._with_step else None
-        self.writer.write(samples, step)
+        self.writer.write(samples, labels)
         self._unflushed_bytes += samples.nbytes
-        if self.first_t_us is None:
-            self.first_t_us = int(samples["t_us"][0])
-        self.last_t_us = int(samples["t_us"][-1])
+        if self._first_c is None:
+            self._first_c = int(continuous[0])
+        self._last_c = int(continuous[-1])
         self.tick(link)
         return len(samples)
 
@@ -143,20 +176,36 @@ class Recorder:
         # What the writer still holds in memory (HDF5 caches chunks until a flush) needs room too.
         free = shutil.disk_usage(self.path.parent).free - self._unflushed_bytes - batch_bytes
         if free < MIN_FREE_BYTES:
+            self._stopped = True
             self.writer.close(link)
+            if self.rows == 0:
+                self.path.unlink(missing_ok=True)
+                raise OutputFileError(self.path, f"the disk is almost full ({free // 1024} KiB left): no "
+                                      f"sample could be written and the file was removed; free space and "
+                                      f"capture again")
             raise OutputFileError(self.path, f"the disk is almost full ({free // 1024} KiB left): the "
                                   f"capture stopped at {self.rows} samples and the file is complete; free "
                                   f"space and capture again")
 
     def tick(self, link: dict[str, Any] | None = None) -> None:
         """Flush if the last flush is a second old (call it when idle, too)."""
+        if self._stopped:
+            return
         now = time.monotonic()
         if now - self._last_flush >= self._flush_interval_s:
             self.writer.flush(link)
             self._last_flush = now
             self._unflushed_bytes = 0
 
+    def drain(self) -> int:
+        """Write the samples the clock guard still holds (those it can place); returns the rows."""
+        if self._stopped:
+            return 0
+        return self._write(self.clock.finish(self._with_step), None)
+
     def close(self, link: dict[str, Any] | None = None) -> None:
+        """Write what the clock guard holds (:meth:`drain`), then close the file."""
+        self.drain()
         self.writer.close(link)
 
 
@@ -169,6 +218,7 @@ class CaptureResult:
     ended_by: str  # "duration", "interrupted", "stopped" or "link error"
     error: DriverError | None = None
     non_increasing: int = 0
+    clock_jumps: list[ClockJump] = field(default_factory=list)
 
 
 StatusCallback = Callable[[LinkStats, int, float], None]
@@ -179,16 +229,20 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
            stop: threading.Event | None = None, handle_sigint: bool = True,
            no_samples_timeout_s: float = NO_SAMPLES_TIMEOUT_S) -> CaptureResult:
     """Capture from ``device`` into ``path`` until ``duration_s`` of device clock, Ctrl-C, ``stop`` or
-    a link error. Every sample received before the end is in the file when this returns.
+    a link error. Every sample received before the end is in the file when this returns, but
+    those the clock guard left out (see :class:`Recorder`); the duration counts continuous device
+    time, so a jump of the unit's clock neither ends the capture nor counts.
 
-    No sample in the first ``no_samples_timeout_s`` ends it with ``NoSamples``.
-    A link error (``PortLost``, ...) does not raise: it ends the capture and is returned in
-    ``error``. A write error (disk full) raises ``OutputFileError`` after keeping what was written.
+    No sample in the first ``no_samples_timeout_s`` ends it with ``NoSamples``. A capture that
+    ends without a single row, however it ends, leaves no file and returns ``NoSamples`` in
+    ``error``, which says so. A link error (``PortLost``, ...) does not raise: it ends the
+    capture and is returned in ``error``. A write error (disk full) raises ``OutputFileError``
+    after keeping what was written.
     """
-    recorder = Recorder(path, device=device.info, port=device.port, protocol=device.protocol)
+    recorder = Recorder(path, device=device.info, port=device.port, protocol=device.protocol,
+                        duration_s=duration_s)
     interrupted = threading.Event()
     restore = _install_sigint(interrupted) if handle_sigint else None
-    limit_us = None if duration_s is None else int(round(duration_s * 1e6))
     # The device clock decides the duration; the wall clock only guards against a unit that stalls.
     wall_deadline = None if duration_s is None else time.monotonic() + duration_s * 1.5 + 5.0
     ended_by = "stopped"
@@ -208,24 +262,18 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
                 error, ended_by = exc, "link error"
                 break
             now = time.monotonic()
-            if recorder.first_t_us is None and not len(batch) and now - started > no_samples_timeout_s:
+            if recorder.received == 0 and not len(batch) and now - started > no_samples_timeout_s:
                 error, ended_by = NoSamples(
                     f"{device.port}: no sample arrived in {no_samples_timeout_s:g} s "
                     f"({device.stats.bytes} bytes read); check that the unit streams, and the --protocol "
                     f"and baud rate", device.port
                 ), "link error"
                 break
-            done = False
-            if limit_us is not None and len(batch):
-                start = recorder.first_t_us if recorder.first_t_us is not None else int(batch["t_us"][0])
-                inside = batch["t_us"].astype(np.int64) - start < limit_us
-                done = not inside.all()
-                batch = batch[inside]
-            recorder.write(batch, _link(device))
+            recorder.write(batch, _link(device, recorder))
             if on_status is not None and now - last_status >= status_interval_s:
                 on_status(device.stats, recorder.rows, recorder.device_time_s)
                 last_status = now
-            if done or (wall_deadline is not None and now > wall_deadline):
+            if recorder.full or (wall_deadline is not None and now > wall_deadline):
                 ended_by = "duration"
                 break
     except KeyboardInterrupt:
@@ -233,18 +281,41 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
     finally:
         if restore is not None:
             restore()
+        recorder.drain()
         recorder.close(_link(device, recorder))
     if on_status is not None:
         on_status(device.stats, recorder.rows, recorder.device_time_s)
+    if recorder.rows == 0:
+        error, ended_by = _no_rows(device, recorder, error, ended_by), "link error"
     return CaptureResult(path=recorder.path, rows=recorder.rows, device_time_s=recorder.device_time_s,
-                         link=device.stats, ended_by=ended_by, error=error,
-                         non_increasing=recorder.non_increasing)
+                         link=_with_clock(device.stats, recorder), ended_by=ended_by, error=error,
+                         non_increasing=recorder.non_increasing, clock_jumps=list(recorder.clock_jumps))
 
 
-def _link(device: Device, recorder: Recorder | None = None) -> dict[str, Any]:
-    link = device.stats.as_dict()
-    if recorder is not None:
-        link["non_increasing_dropped"] = recorder.non_increasing
+def _no_rows(device: Device, recorder: Recorder, error: DriverError | None, ended_by: str) -> DriverError:
+    """The error of a capture that wrote no row: its file (a header only) is removed, and said so."""
+    recorder.path.unlink(missing_ok=True)
+    removed = f"no sample was captured, so no file was written ({recorder.path} removed)"
+    if error is not None:
+        return type(error)(f"{error}; {removed}", error.port)
+    why = {"interrupted": "interrupted before any sample was kept",
+           "duration": "the time ran out before any sample was kept"}.get(ended_by, "the capture ended "
+                                                                             "before any sample was kept")
+    left_out = recorder.received
+    detail = f" ({left_out} received, all left out by the clock guard)" if left_out else ""
+    return NoSamples(f"{device.port}: {why}{detail}; {removed}", device.port)
+
+
+def _with_clock(stats: LinkStats, recorder: Recorder) -> LinkStats:
+    """The link statistics with the clock guard's counts, which only the recorder knows."""
+    stats.clock_outliers = recorder.clock_outliers
+    stats.clock_jumps = len(recorder.clock_jumps)
+    return stats
+
+
+def _link(device: Device, recorder: Recorder) -> dict[str, Any]:
+    link = _with_clock(device.stats, recorder).as_dict()
+    link["non_increasing_dropped"] = recorder.non_increasing
     return link
 
 
