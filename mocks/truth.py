@@ -96,6 +96,7 @@ class NoiseSpec:
 
     @property
     def is_zero(self) -> bool:
+        """True when every noise term (N, B, K, Q) is zero."""
         return not any(np.any(v) for v in (self.N, self.B, self.K, self.Q))
 
     def correlation_times(self, rate_hz: float) -> np.ndarray:
@@ -135,9 +136,11 @@ class NoiseGenerator:
         self.rate_hz = float(rate_hz)
 
     def set_rate(self, rate_hz: float) -> None:
+        """Change the sample rate the next samples are generated at."""
         self.rate_hz = float(rate_hz)
 
     def next(self, n: int) -> np.ndarray:
+        """The next ``n`` samples of noise (n, 3): :meth:`next_with_drift` without the drift part."""
         return self.next_with_drift(n)[0]
 
     def next_with_drift(self, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -188,6 +188,30 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
     Pass 1 appends each axis as float64 behind a leading zero and sums it; pass 2 replaces the values in
     place, chunk by chunk, by ``cumsum(y - mean) / rate`` carrying the running sum across chunks, which is
     exactly the sequential float64 sum of the whole record.
+
+    Parameters
+    ----------
+    chunks : iterable of (t, acc, gyro)
+        Batches in time order.
+    source : str
+        Name of the input, for messages.
+    rate_hz : float, optional
+        Sample rate; default from the first timestamps.
+    workdir : str or Path, optional
+        Folder for the phase files; default a temporary one.
+    device : dict, optional
+        The unit's info.
+    on_rows : callable, optional
+        Called with the rows read so far.
+
+    Returns
+    -------
+    IntegratedRecord
+
+    Raises
+    ------
+    EngineInputError
+        Non-finite samples, or too few to compute an Allan deviation.
     """
     tmp = tempfile.TemporaryDirectory(prefix="imu-allan-", dir=workdir)
     try:
@@ -267,7 +291,24 @@ def _merge_first(chunks: Iterable[Chunk], rows: int = FIRST_ROWS) -> Iterator[Ch
 
 
 def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterator[Chunk], dict[str, Any], int]:
-    """Chunks of a capture CSV, station capture file or ROS bag; the unit's info; the size in bytes."""
+    """Chunks of a capture CSV, station capture file or ROS bag; the unit's info; the size in bytes.
+
+    Parameters
+    ----------
+    path : str or Path
+    topic : str, optional
+        The IMU topic of a bag.
+
+    Returns
+    -------
+    tuple
+        Chunk iterator, the unit's info, the size in bytes.
+
+    Raises
+    ------
+    InputFileError
+        A file that does not exist or cannot be read.
+    """
     from station.acquisition import rosbag_reader
 
     path = Path(path)

@@ -49,7 +49,21 @@ class Capture:
 
 
 def read_capture(path: str | Path) -> Capture:
-    """Read a capture CSV (``.csv``, ``.csv.gz``) or a station capture file (``.h5``, ``.hdf5``)."""
+    """Read a capture CSV (``.csv``, ``.csv.gz``) or a station capture file (``.h5``, ``.hdf5``).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    Capture
+
+    Raises
+    ------
+    InputFileError
+        A file that cannot be read, naming the line and column.
+    """
     from station.acquisition import capture_csv
 
     name = str(path).lower()

@@ -55,6 +55,16 @@ def stillness(acc: np.ndarray, gyro: np.ndarray, limits: Limits = Limits()) -> S
     """Largest per-axis standard deviation of acc and gyro, and the mean turn rate, against the limits.
 
     ``level`` is the largest of std/limit ratios; an empty window is not still (level = inf).
+
+    Parameters
+    ----------
+    acc, gyro : ndarray, (N, 3)
+        The window's samples, m/s^2 and rad/s.
+    limits : Limits
+
+    Returns
+    -------
+    Stillness
     """
     acc = np.asarray(acc, float)
     gyro = np.asarray(gyro, float)
@@ -79,7 +89,16 @@ class PoseCheck:
 
 
 def angle_between_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle between two vectors in degrees, stable near 0 and 180 (atan2 of cross and dot)."""
+    """Angle between two vectors in degrees, stable near 0 and 180 (atan2 of cross and dot).
+
+    Parameters
+    ----------
+    a, b : ndarray, (3,)
+
+    Returns
+    -------
+    float
+    """
     a = np.asarray(a, float)
     b = np.asarray(b, float)
     return math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(np.dot(a, b))))
@@ -96,7 +115,17 @@ _POSES, _POSE_LABELS = _candidate_poses()
 
 
 def nearest_pose(up: np.ndarray) -> str:
-    """The label nearest to ``up`` among the 26 poses of +-x, +-y, +-z and their diagonals."""
+    """The label nearest to ``up`` among the 26 poses of +-x, +-y, +-z and their diagonals.
+
+    Parameters
+    ----------
+    up : ndarray, (3,)
+        A direction in sensor axes.
+
+    Returns
+    -------
+    str
+    """
     up = np.asarray(up, float)
     return _POSE_LABELS[int(np.argmax(_POSES @ up))]
 
@@ -106,6 +135,18 @@ def pose_check(acc: np.ndarray, up: np.ndarray, tolerance_deg: float) -> PoseChe
 
     A unit at rest reads specific force +g along the axis that points up, so the measured up
     direction is the normalised mean of the accelerometer.
+
+    Parameters
+    ----------
+    acc : ndarray, (N, 3)
+        Accelerometer samples, m/s^2.
+    up : ndarray, (3,)
+        The asked up vector.
+    tolerance_deg : float
+
+    Returns
+    -------
+    PoseCheck
     """
     acc = np.asarray(acc, float)
     if len(acc) == 0:
@@ -121,7 +162,20 @@ def pose_check(acc: np.ndarray, up: np.ndarray, tolerance_deg: float) -> PoseChe
 
 
 def vertical_axis_check(acc: np.ndarray, axis: int, tolerance_deg: float) -> PoseCheck:
-    """Is sensor axis ``axis`` vertical (up or down), as a rotation about it asks?"""
+    """Is sensor axis ``axis`` vertical (up or down), as a rotation about it asks?
+
+    Parameters
+    ----------
+    acc : ndarray, (N, 3)
+        Accelerometer samples, m/s^2.
+    axis : int
+        0, 1 or 2.
+    tolerance_deg : float
+
+    Returns
+    -------
+    PoseCheck
+    """
     acc = np.asarray(acc, float)
     up = np.zeros(3)
     up[axis] = 1.0
@@ -150,6 +204,20 @@ def clipped_samples(x: np.ndarray, limit: float | None = None, min_run: int = 5,
     With a known ``limit``: samples whose magnitude reaches it (within float32 rounding). Without:
     clipping shows as runs of at least ``min_run`` identical samples at the axis's largest
     magnitude in the window (noise never repeats a value that long), above ``floor``.
+
+    Parameters
+    ----------
+    x : ndarray, (N, 3)
+    limit : float, optional
+        Full scale, in the unit of ``x``.
+    min_run : int
+        Shortest run of identical extreme samples that counts as clipping.
+    floor : float
+        Magnitudes at or below it are never clipped.
+
+    Returns
+    -------
+    int
     """
     x = np.asarray(x, float)
     if len(x) == 0:
@@ -173,7 +241,19 @@ def clipped_samples(x: np.ndarray, limit: float | None = None, min_run: int = 5,
 
 
 def saturation(acc: np.ndarray, gyro: np.ndarray, limits: Limits = Limits()) -> Saturation:
-    """Saturated samples of both triads; the clipping floors keep rest (1 g) and slow turns out of it."""
+    """Saturated samples of both triads; the clipping floors keep rest (1 g) and slow turns out of it.
+
+    Parameters
+    ----------
+    acc, gyro : ndarray, (N, 3)
+        m/s^2 and rad/s.
+    limits : Limits
+        Full scales, when known.
+
+    Returns
+    -------
+    Saturation
+    """
     return Saturation(
         clipped_samples(acc, limits.acc_saturation, floor=15.0),
         clipped_samples(gyro, limits.gyro_saturation, floor=0.5),
@@ -196,7 +276,17 @@ class Dropouts:
 
 
 def dropouts(seq: np.ndarray) -> Dropouts:
-    """Count the samples missing between consecutive ``seq`` values (u32, wrapping)."""
+    """Count the samples missing between consecutive ``seq`` values (u32, wrapping).
+
+    Parameters
+    ----------
+    seq : ndarray of uint32, (N,)
+        Frame sequence numbers.
+
+    Returns
+    -------
+    Dropouts
+    """
     seq = np.asarray(seq, dtype=np.int64)
     if len(seq) < 2:
         return Dropouts(len(seq), 0, 0)
@@ -211,7 +301,20 @@ def dropouts(seq: np.ndarray) -> Dropouts:
 def integrated_angle_deg(t: np.ndarray, gyro: np.ndarray, axis: int, bias: float = 0.0) -> np.ndarray:
     """Cumulative angle (degrees) turned about sensor ``axis``: trapezoidal integral of (rate - bias).
 
-    Returns one value per sample, starting at 0.
+    Parameters
+    ----------
+    t : ndarray, (N,)
+        Sample times, s.
+    gyro : ndarray, (N, 3)
+        rad/s.
+    axis : int
+    bias : float
+        Rate subtracted first, rad/s.
+
+    Returns
+    -------
+    ndarray, (N,)
+        Degrees, starting at 0.
     """
     t = np.asarray(t, float)
     rate = np.asarray(gyro, float)[:, axis] - bias
@@ -246,10 +349,30 @@ class RotationCheck:
 
 
 def rotation_tolerance_deg(target_deg: float, limits: Limits = Limits()) -> float:
-    """The larger of the fixed and the relative tolerance: raw gyros have scale errors of a few percent."""
+    """The larger of the fixed and the relative tolerance: raw gyros have scale errors of a few percent.
+
+    Parameters
+    ----------
+    target_deg : float
+    limits : Limits
+
+    Returns
+    -------
+    float
+    """
     return max(limits.rotation_tolerance_deg, limits.rotation_tolerance_frac * abs(target_deg))
 
 
 def rotation_check(angle_deg: float, target_deg: float, limits: Limits = Limits()) -> RotationCheck:
-    """Is the integrated ``angle_deg`` the asked ``target_deg``, within :func:`rotation_tolerance_deg`?"""
+    """Is the integrated ``angle_deg`` the asked ``target_deg``, within :func:`rotation_tolerance_deg`?
+
+    Parameters
+    ----------
+    angle_deg, target_deg : float
+    limits : Limits
+
+    Returns
+    -------
+    RotationCheck
+    """
     return RotationCheck(float(angle_deg), float(target_deg), rotation_tolerance_deg(target_deg, limits))

@@ -19,7 +19,16 @@ CHUNK_ROWS = 100_000
 
 
 def is_rosbag(path: str | Path) -> bool:
-    """A ROS 1 ``.bag`` file, a ROS 2 bag folder (metadata.yaml) or one of its ``.db3``/``.mcap`` files."""
+    """A ROS 1 ``.bag`` file, a ROS 2 bag folder (metadata.yaml) or one of its ``.db3``/``.mcap`` files.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    bool
+    """
     path = Path(path)
     if path.is_dir():
         return (path / "metadata.yaml").exists()
@@ -46,7 +55,21 @@ def _open(path: Path):
 
 
 def imu_topics(path: str | Path) -> dict[str, int]:
-    """The ``sensor_msgs/Imu`` topics of a bag and their message counts."""
+    """The ``sensor_msgs/Imu`` topics of a bag and their message counts.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    dict of str to int
+
+    Raises
+    ------
+    InputFileError
+        No ``rosbags`` installed, or a bag that cannot be read.
+    """
     path = Path(path)
     reader = _open(path)
     try:
@@ -78,6 +101,22 @@ def iter_imu_chunks(path: str | Path, topic: str | None = None, chunk_rows: int 
     would keep only 0.2 us), ``acc`` the linear acceleration (m/s^2) and ``gyro`` the angular velocity
     (rad/s), shape (n, 3) each. With ``topic`` None the bag must hold exactly one
     IMU topic.
+
+    Parameters
+    ----------
+    path : str or Path
+    topic : str, optional
+    chunk_rows : int
+
+    Yields
+    ------
+    tuple of ndarray
+        (t, acc, gyro).
+
+    Raises
+    ------
+    InputFileError
+        No IMU topic, several without ``topic``, or no such topic.
     """
     path = Path(path)
     chosen = _choose_topic(path, imu_topics(path), topic)

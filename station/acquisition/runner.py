@@ -157,7 +157,19 @@ class MemorySink:
 
     def capture(self, device: dict[str, Any] | None = None, link: dict[str, Any] | None = None,
                 source: str = "") -> Capture:
-        """Everything written so far as one labelled :class:`Capture`."""
+        """Everything written so far as one labelled :class:`Capture`.
+
+        Parameters
+        ----------
+        device, link : dict, optional
+            The unit's info and the link statistics, kept in the capture.
+        source : str
+            Where the samples came from.
+
+        Returns
+        -------
+        Capture
+        """
         samples = np.concatenate([c for c, _ in self._chunks]) if self._chunks else np.zeros(0, SAMPLE_DTYPE)
         labels = np.empty(len(samples), dtype=object)
         i = 0
@@ -182,7 +194,20 @@ class RecorderSink:
 
 def samples_to_capture(samples: np.ndarray, labels: np.ndarray | None = None, device: dict | None = None,
                        link: dict | None = None, source: str = "") -> Capture:
-    """A :class:`Capture` (SI, t in seconds of device clock) from ``SAMPLE_DTYPE`` records."""
+    """A :class:`Capture` (SI, t in seconds of device clock) from ``SAMPLE_DTYPE`` records.
+
+    Parameters
+    ----------
+    samples : ndarray of SAMPLE_DTYPE
+    labels : ndarray of str, optional
+        Step label of each sample.
+    device, link : dict, optional
+    source : str
+
+    Returns
+    -------
+    Capture
+    """
     temp = samples["temp"].astype(float)
     return Capture(
         t=samples["t_us"].astype(np.float64) * 1e-6,

@@ -50,7 +50,21 @@ class SequenceError(StationError):
 
 
 def pose_vector(label: str) -> np.ndarray:
-    """The unit vector, in sensor axes, that points up in pose ``label`` (``+x+y`` -> (1,1,0)/sqrt 2)."""
+    """The unit vector, in sensor axes, that points up in pose ``label`` (``+x+y`` -> (1,1,0)/sqrt 2).
+
+    Parameters
+    ----------
+    label : str
+
+    Returns
+    -------
+    ndarray, (3,)
+
+    Raises
+    ------
+    SequenceError
+        A label that is not signed axes, or names an axis twice.
+    """
     if not _POSE_RE.match(label):
         raise SequenceError(f"pose {label!r} is not signed axes like '+z', '-x' or '+x+y'")
     v = np.zeros(3)
@@ -63,7 +77,16 @@ def pose_vector(label: str) -> np.ndarray:
 
 
 def pose_label(up: np.ndarray) -> str:
-    """The label of the pose whose up vector is ``up`` (inverse of :func:`pose_vector`)."""
+    """The label of the pose whose up vector is ``up`` (inverse of :func:`pose_vector`).
+
+    Parameters
+    ----------
+    up : ndarray, (3,)
+
+    Returns
+    -------
+    str
+    """
     up = np.asarray(up, float)
     parts = [("+" if up[i] > 0 else "-") + AXES[i] for i in range(3) if abs(up[i]) > 1e-9]
     return "".join(parts)
@@ -143,7 +166,22 @@ Step = PoseStep | RotationStep
 
 
 def parse_rotation(label: str) -> tuple[int, float]:
-    """(axis index, signed angle in degrees) of a rotation label: ``rot-z`` -> (2, -360.0)."""
+    """(axis index, signed angle in degrees) of a rotation label: ``rot-z`` -> (2, -360.0).
+
+    Parameters
+    ----------
+    label : str
+
+    Returns
+    -------
+    tuple
+        (axis index, signed angle in degrees).
+
+    Raises
+    ------
+    SequenceError
+        Not a rotation label, or an angle outside (0, 3600] degrees.
+    """
     m = _ROT_RE.match(label)
     if not m:
         raise SequenceError(f"rotation {label!r} is not like 'rot+z', 'rot-x' or 'rot+x:180'")
@@ -155,7 +193,22 @@ def parse_rotation(label: str) -> tuple[int, float]:
 
 
 def make_step(label: str, hold_s: float = 5.0, rate_dps: float = 90.0, settle_s: float = 1.0) -> Step:
-    """A step from its label alone: ``rot...`` is a rotation, anything else a pose."""
+    """A step from its label alone: ``rot...`` is a rotation, anything else a pose.
+
+    Parameters
+    ----------
+    label : str
+    hold_s : float
+        Seconds held still.
+    rate_dps : float
+        Rotation rate, deg/s.
+    settle_s : float
+        Seconds still after a rotation.
+
+    Returns
+    -------
+    PoseStep or RotationStep
+    """
     if label.startswith("rot"):
         return RotationStep(label, rate_dps=rate_dps, settle_s=settle_s)
     return PoseStep(label, hold_s=hold_s)
@@ -193,7 +246,17 @@ class Sequence:
 
     def with_timing(self, hold_s: float | None = None, rate_dps: float | None = None,
                     settle_s: float | None = None) -> Sequence:
-        """The same steps with every hold, rate or settle replaced (short runs in tests and demos)."""
+        """The same steps with every hold, rate or settle replaced (short runs in tests and demos).
+
+        Parameters
+        ----------
+        hold_s, rate_dps, settle_s : float, optional
+            New values; None keeps each step's own.
+
+        Returns
+        -------
+        Sequence
+        """
         steps: list[Step] = []
         for s in self.steps:
             if isinstance(s, PoseStep):
@@ -209,6 +272,24 @@ def builtin(name: str, rotations: bool = True, hold_s: float = 5.0, rotation_rat
     """A built-in sequence of the capture-csv spec, optionally followed by the six rotations.
 
     ``rotations`` alone (name ``"rotations"``) is the six rotations without static poses.
+
+    Parameters
+    ----------
+    name : str
+        A key of ``BUILTIN``, or ``"rotations"``.
+    rotations : bool
+        Append the six rotations.
+    hold_s, rotation_rate_dps, settle_s : float
+        Timing of every step.
+
+    Returns
+    -------
+    Sequence
+
+    Raises
+    ------
+    SequenceError
+        An unknown name.
     """
     poses: tuple[str, ...]
     if name == "six-position":
@@ -229,7 +310,24 @@ def builtin(name: str, rotations: bool = True, hold_s: float = 5.0, rotation_rat
 
 def resolve(name_or_path: str, rotations: bool = True, hold_s: float = 5.0,
             rotation_rate_dps: float = 90.0) -> Sequence:
-    """A built-in sequence by name, or the sequence of a YAML file (``rotations`` applies to built-ins)."""
+    """A built-in sequence by name, or the sequence of a YAML file (``rotations`` applies to built-ins).
+
+    Parameters
+    ----------
+    name_or_path : str
+    rotations : bool
+    hold_s, rotation_rate_dps : float
+        Timing of the built-in sequences.
+
+    Returns
+    -------
+    Sequence
+
+    Raises
+    ------
+    InputFileError
+        Neither a built-in name nor a readable sequence file.
+    """
     if name_or_path in BUILTIN:
         try:
             return builtin(name_or_path, rotations, hold_s, rotation_rate_dps)
@@ -270,7 +368,21 @@ def _scalar(node: yaml.Node, path: Path, what: str) -> str:
 
 
 def load_yaml(path: str | Path) -> Sequence:
-    """Read a sequence file; refuse unknown keys, bad labels and bad numbers naming the line."""
+    """Read a sequence file; refuse unknown keys, bad labels and bad numbers naming the line.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    Sequence
+
+    Raises
+    ------
+    InputFileError
+        Naming the file, line and key.
+    """
     path = Path(path)
     root = read_yaml(path, "does not exist; give a built-in sequence name or a YAML sequence file").root
     if not isinstance(root, yaml.MappingNode):
