@@ -22,6 +22,7 @@ from station.cli_options import (
     MIN_GRAVITY,
     RATE_HZ,
     add_output_option,
+    check_range,
     number,
     positive,
 )
@@ -107,12 +108,11 @@ def local_gravity(args: argparse.Namespace) -> float:
     if args.gravity is not None and args.latitude is not None:
         raise StationError("give either --gravity or --latitude/--height, not both")
     if args.gravity is not None:
-        if not MIN_GRAVITY <= args.gravity <= MAX_GRAVITY:
-            raise StationError(f"--gravity {args.gravity}: local gravity on Earth is 9.78..9.84 m/s^2")
+        check_range("--gravity", args.gravity, MIN_GRAVITY, MAX_GRAVITY, unit="m/s^2",
+                    what="local gravity on Earth,")
         return float(args.gravity)
     if args.latitude is not None:
-        if not -90 <= args.latitude <= 90:
-            raise StationError(f"--latitude {args.latitude}: must be within -90..90 degrees")
+        check_range("--latitude", args.latitude, -90.0, 90.0, unit="degrees")
         return normal_gravity(args.latitude, args.height)
     return STANDARD_GRAVITY
 
@@ -250,6 +250,7 @@ def _progress(err: IO[str]) -> Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
+    local_gravity(args)  # refuse bad options before reading a long capture
     with _progress(sys.stderr) as progress:
         task = progress.add_task(f"reading {args.input}", total=None)
         capture = read_capture(args.input)

@@ -102,9 +102,11 @@ class DemoContext:
     results: dict[str, Any] = field(default_factory=dict)  # figures each step reports
 
     def say(self, text: str) -> None:
+        """Print one line of the demo's story on :attr:`out`."""
         print(text, file=self.out, flush=True)
 
     def wrote(self, path: Path, what: str) -> None:
+        """Note a file the demo wrote, with what it is, for the list at the end."""
         self.files.append((path, what))
 
 
@@ -529,6 +531,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run every step of the demo (:data:`STEPS`) and say where its files are."""
     from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ
 
     check_range("--rate", args.rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")

@@ -73,6 +73,7 @@ def _table(records: list[RunRecord]) -> Table:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Query, print, export, plot and verify the records; exit 1 when --verify finds a problem."""
     url = db_url(args)
     if "://" not in url and not Path(url).exists():
         raise StationError(f"--db {url}: no such record database; give the file 'imu-station run' wrote "

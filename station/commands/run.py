@@ -90,6 +90,7 @@ def _check(args: argparse.Namespace) -> None:
 
 
 def summary(record: RunRecord) -> str:
+    """The record as the short text the command prints: outcome, measurements with limits, files."""
     lines = [f"{record.outcome} {printable(record.serial)} (exit {record.exit_code})"
              + (f": {record.reason}" if record.reason else "")]
     for m in record.measurements().values():
@@ -104,6 +105,7 @@ def summary(record: RunRecord) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the plan on the unit, store the record, print it; exit with the run's outcome."""
     _check(args)
     plan = load_plan(args.plan)
     station = args.station or os.environ.get("IMU_STATION_ID") or socket.gethostname()

@@ -62,6 +62,7 @@ MAX_TAU_S = 3600.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the thermal command's options to ``parser``."""
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz) or capture file (.h5) with a temp column")
     add_output_option(parser, required=True, metavar="PARAMS",
@@ -122,6 +123,7 @@ def _terms(text: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Fit the sweep, write the thermal section, print the report (or JSON)."""
     err = Console(stderr=True)
     params = ParamsFile.load_or_new(args.output)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,

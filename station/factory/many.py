@@ -29,8 +29,9 @@ from station.text import printable
 SEVERITY = (ExitCode.OK, ExitCode.OUT_OF_LIMITS, ExitCode.ABORTED, ExitCode.TIMEOUT, ExitCode.DEVICE,
             ExitCode.USAGE)
 STOP_WAIT_S = 30.0  # after Ctrl-C, how long the children get to save their records
-OUTCOME_NAMES = {ExitCode.OK: "PASS", ExitCode.OUT_OF_LIMITS: "FAIL", ExitCode.ABORTED: "ABORTED",
-                 ExitCode.DEVICE: "ERROR", ExitCode.USAGE: "USAGE", ExitCode.TIMEOUT: "TIMEOUT"}
+OUTCOME_NAMES: dict[int, str] = {
+    ExitCode.OK: "PASS", ExitCode.OUT_OF_LIMITS: "FAIL", ExitCode.ABORTED: "ABORTED",
+    ExitCode.DEVICE: "ERROR", ExitCode.USAGE: "USAGE", ExitCode.TIMEOUT: "TIMEOUT"}
 STYLES = {"PASS": "bold green", "FAIL": "bold red", "ABORTED": "yellow", "ERROR": "bold magenta",
           "TIMEOUT": "magenta", "USAGE": "bold magenta"}
 
@@ -47,6 +48,7 @@ class UnitSpec:
     speed: float = 1.0
 
     def arguments(self) -> list[str]:
+        """The unit's options of ``imu-station run``."""
         if self.seed is not None:
             return ["--simulate", "--seed", str(self.seed), "--speed", f"{self.speed:g}",
                     "--serial", self.serial]
@@ -56,6 +58,8 @@ class UnitSpec:
 
 @dataclass
 class UnitProgress:
+    """What is known of one unit's run: its phase and step as the events tell, then its outcome."""
+
     spec: UnitSpec
     log_path: Path
     serial: str = ""
@@ -70,22 +74,25 @@ class UnitProgress:
 
     @property
     def outcome(self) -> str:
+        """PASS, FAIL, ... from the exit code; ``running`` until the process ends."""
         if self.exit_code is None:
             return "running"
         return OUTCOME_NAMES.get(self.exit_code, f"exit {self.exit_code}")
 
     @property
     def elapsed_s(self) -> float:
+        """Seconds since the unit's process started, up to its end."""
         return (self.ended or time.monotonic()) - self.started
 
 
 def worst_exit_code(codes: list[int]) -> int:
     """The most severe exit code of the units (:data:`SEVERITY`; unknown codes rank worst)."""
-    rank = {code: i for i, code in enumerate(SEVERITY)}
+    rank: dict[int, int] = {code: i for i, code in enumerate(SEVERITY)}
     return max(codes, key=lambda c: rank.get(c, len(SEVERITY))) if codes else 0
 
 
 def summary_table(units: list[UnitProgress], title: str) -> Table:
+    """The live table: unit, serial, phase, step, time, outcome and detail of every unit."""
     table = Table(title=title)
     for column in ("unit", "serial", "phase", "step", "time", "outcome", "detail"):
         table.add_column(column, justify="right" if column == "time" else "left")
@@ -116,6 +123,7 @@ class RunMany:
                 *self.common, *spec.arguments()]
 
     def run(self) -> list[UnitProgress]:
+        """Run every unit to its end (Ctrl-C stops them, their records saved) and return them."""
         procs = []
         for unit in self.units:
             log = unit.log_path.open("w", encoding="utf-8")

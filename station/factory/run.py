@@ -90,14 +90,17 @@ class TableOperator(BaseOperator):
             self.error = exc
 
     def place(self, step: Step, index: int, total: int) -> None:
+        """Turn the table to the step's pose (a rotation's start pose)."""
         pose = step.label if isinstance(step, PoseStep) else step.start_pose
         self._do(lambda: self.table.pose(pose, self.timeout_s))
 
     def rotate(self, step: RotationStep) -> None:
+        """Turn the table about the step's axis by its angle at its rate."""
         self._do(lambda: self.table.rotate("+" + "xyz"[step.axis], step.angle_deg, step.rate_dps,
                                            self.timeout_s))
 
     def poll(self) -> Action | None:
+        """Abort the run once the table has failed."""
         return Action.ABORT if self.error is not None else None
 
 
@@ -119,27 +122,33 @@ class FactoryOperator(BaseOperator):
             self.on_event(kw)
 
     def begin(self, sequence: Sequence) -> None:
+        """Pass the start on, and report the sequence as an event."""
         self.inner.begin(sequence)
         self._event(event="sequence", name=sequence.name, steps=len(sequence))
 
     def place(self, step: Step, index: int, total: int) -> None:
+        """Log and report the step, then let the inner operator place the unit."""
         log.info("step %d/%d: %s", index + 1, total, step.label)
         self._event(event="step", label=step.label, index=index, total=total)
         self.inner.place(step, index, total)
 
     def rotate(self, step: RotationStep) -> None:
+        """Let the inner operator turn the unit."""
         self.inner.rotate(step)
 
     def status(self, status: Any) -> None:
+        """Pass the live status on."""
         self.inner.status(status)
 
     def poll(self) -> Action | None:
+        """Abort when the run's deadline has passed, else whatever the inner operator asks."""
         if time.monotonic() > self.deadline:
             self.timed_out = True
             return Action.ABORT
         return self.inner.poll()
 
     def confirm(self, prompt: Prompt) -> Action:
+        """Start at once, redo a failed step while the runner offers it, abort on anything else."""
         if prompt.kind == "start":
             return Action.ACCEPT
         if prompt.kind == "review" and Action.REDO in prompt.choices:
@@ -150,10 +159,12 @@ class FactoryOperator(BaseOperator):
         return Action.ABORT
 
     def step_finished(self, record: Any) -> None:
+        """Pass the step's record on, and report it as an event."""
         self.inner.step_finished(record)
         self._event(event="step_done", label=record.label, status=record.status, attempts=record.attempts)
 
     def end(self, result: RunResult) -> None:
+        """Pass the end of the run on."""
         self.inner.end(result)
 
 
@@ -225,6 +236,19 @@ class UnitRun:
                         f"({self.req.plan.timeout_s:g} s)")
 
     def execute(self) -> RunRecord:
+        """Run every phase; whatever happens, finish the record and write record.json beside it.
+
+        Returns
+        -------
+        RunRecord
+            The run's record, with its outcome and exit code.
+
+        Raises
+        ------
+        StationError
+            A request with neither ports nor a simulation, or a unit that reports no serial
+            number when ``serial`` is ``auto``.
+        """
         outcome, reason = "ERROR", ""
         if self.req.simulate is None and (self.req.port is None
                                           or (self.req.operator is None and self.req.table_port is None)):

@@ -40,6 +40,7 @@ def residual_unit(cal: SensorCalibration, unit: str) -> str:
 
 
 def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
+    """One triad's bias, scale and misalignment with their 1-sigma, and its residual RMS."""
     table = Table(title=title, title_justify="left", title_style="bold", expand=False, padding=(0, 1))
     table.add_column("parameter")
     for axis in "xyz":
@@ -65,6 +66,7 @@ def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
 
 
 def verdict_table(verdicts: list[Verdict]) -> Table:
+    """Each limit check: sensor, check, value, limit, PASS or FAIL."""
     table = Table(title="limits", title_justify="left", title_style="bold", padding=(0, 1))
     for col in ("sensor", "check", "value", "limit", ""):
         table.add_column(col)
@@ -75,6 +77,15 @@ def verdict_table(verdicts: list[Verdict]) -> Table:
 
 
 class ResultsScreen(StationScreen):
+    """The calibration of a sequence run, computed in a worker, judged against the limits; Enter
+    saves it to --out and writes the --export formats.
+
+    Parameters
+    ----------
+    run : RunResult
+        The sequence run whose capture is calibrated.
+    """
+
     BINDINGS = [
         Binding("enter", "save", "save and quit", show=True),
         Binding("e", "export", "exports"),
@@ -92,6 +103,7 @@ class ResultsScreen(StationScreen):
         self.saved = False
 
     def compose(self) -> ComposeResult:
+        """The tables (filled once computed), the status line and the keys."""
         yield Header()
         with VerticalScroll(id="body"):
             yield Static(f"computing the calibration from {len(self.run.capture)} samples ...", id="tables")
@@ -99,6 +111,7 @@ class ResultsScreen(StationScreen):
         yield Footer()
 
     def on_mount(self) -> None:
+        """Start computing the calibration."""
         self.title = "imu-station · results"
         self._compute()
 
@@ -112,11 +125,13 @@ class ResultsScreen(StationScreen):
         self.post_message(Snapshot({"report": report}))
 
     def on_link_failed(self, message: LinkFailed) -> None:
+        """The calibration failed: say why and what the operator can do."""
         self.query_one("#tables", Static).update(Text(f"The calibration failed: {message.error}",
                                                       style="red"))
         self.query_one("#status", Static).update("w: run the sequence again · q: quit")
 
     def on_snapshot(self, message: Snapshot) -> None:
+        """Show the computed calibration, its verdicts, residuals and warnings."""
         report: CalibrationReport = message.data["report"]
         self.report = report
         parts: list[RenderableType] = [
@@ -161,6 +176,7 @@ class ResultsScreen(StationScreen):
         return table
 
     def show_status(self, note: str = "") -> None:
+        """PASS or FAIL, ``note``, and what Enter does next."""
         out = self.station.config.out
         passed = all(v.passed for v in self.verdicts)
         text = Text("PASS" if passed else "FAIL", style="bold green" if passed else "bold red")
@@ -175,6 +191,7 @@ class ResultsScreen(StationScreen):
         self.query_one("#status", Static).update(text)
 
     def action_save(self) -> None:
+        """Save the sections to --out and write the exports (or quit once saved, or without --out)."""
         if self.report is None:
             return
         config = self.station.config
@@ -199,6 +216,7 @@ class ResultsScreen(StationScreen):
         self.show_status("saved " + ", ".join(written))
 
     def action_export(self) -> None:
+        """Write the --export formats again from the saved parameter file."""
         config = self.station.config
         if config.out is None or not Path(config.out).exists():
             self.show_status("save first (Enter): exports are written from the parameter file")

@@ -51,6 +51,7 @@ def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = DTEMP_WI
 
 
 def sweep_plots(blocks: dict[str, np.ndarray], width: int = 50, height: int = 8) -> Group:
+    """Temperature against time, and the gyro bias change against temperature, as braille plots."""
     t, temp = blocks["t"], blocks["temp"]
     gyro = blocks["gyro"] - blocks["gyro"].mean(axis=0)
     return Group(
@@ -62,6 +63,8 @@ def sweep_plots(blocks: dict[str, np.ndarray], width: int = 50, height: int = 8)
 
 
 class ThermalScreen(LongRecordingScreen):
+    """The temperature-sweep recording: live temperature, rate and bias plots; Enter fits the model."""
+
     HEADING = "temperature sweep"
     KIND = "thermal"
     INTRO = "Keep the unit still in the chamber. The sweep is recorded until Enter."
@@ -89,6 +92,7 @@ class ThermalScreen(LongRecordingScreen):
         pump(device, self.recording.add, on_tick, lambda exc: self.post_message(LinkFailed(exc)))
 
     def show_progress(self, d: dict) -> None:
+        """Update the side panel and the plots from a snapshot of the block means."""
         blocks, stats = d["blocks"], d["stats"]
         temp = blocks["temp"]
         rate = temperature_rate(blocks["t"], temp)
@@ -130,6 +134,7 @@ class ThermalScreen(LongRecordingScreen):
         self.post_message(Snapshot({"fit": format_report(fit, calibrated), "saved": saved}))
 
     def show_fit(self, report: str, saved: str | None) -> None:
+        """Show the fit's report and where the thermal section was saved."""
         text = Text(report + "\n\n")
         text.append(f"thermal section saved to {saved}" if saved else "no --out: nothing saved", style="bold")
         text.append("\nEscape: back · q: quit")
