@@ -16,7 +16,21 @@ _POSE_RE = re.compile(r"^(?:[+-][xyz])+$")
 
 
 def parse_signed_axes(text: str) -> np.ndarray:
-    """``"+x+y"`` -> the unit vector (1, 1, 0)/sqrt(2) (capture-csv spec pose names)."""
+    """``"+x+y"`` -> the unit vector (1, 1, 0)/sqrt(2) (capture-csv spec pose names).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    ndarray, (3,)
+
+    Raises
+    ------
+    ValueError
+        Not signed axes, or an axis named twice.
+    """
     if not _POSE_RE.match(text):
         raise ValueError(f"pose {text!r} is not a list of signed axes such as '+z', '-x' or '+x+y'")
     v = np.zeros(3)
@@ -28,13 +42,34 @@ def parse_signed_axes(text: str) -> np.ndarray:
 
 
 def skew(v: np.ndarray) -> np.ndarray:
-    """The cross-product matrix [v]x of v (3,): [v]x w = v x w."""
+    """The cross-product matrix [v]x of v (3,): [v]x w = v x w.
+
+    Parameters
+    ----------
+    v : ndarray, (3,)
+
+    Returns
+    -------
+    ndarray, (3, 3)
+    """
     x, y, z = v
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rodrigues: exp(angle [axis]x) for a unit ``axis`` (3,) and angles (N,) -> (N, 3, 3)."""
+    """Rodrigues: exp(angle [axis]x) for a unit ``axis`` (3,) and angles (N,) -> (N, 3, 3).
+
+    Parameters
+    ----------
+    axis : ndarray, (3,)
+        Unit axis.
+    angle : ndarray, (N,)
+        rad.
+
+    Returns
+    -------
+    ndarray, (N, 3, 3)
+    """
     angle = np.asarray(angle, float)
     k = skew(np.asarray(axis, float))
     k2 = k @ k
@@ -44,7 +79,20 @@ def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
 
 
 def rotate_vectors(axis: np.ndarray, angle: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """exp(angle [axis]x) v for angles (N,) and one vector or vectors (N, 3) -> (N, 3)."""
+    """exp(angle [axis]x) v for angles (N,) and one vector or vectors (N, 3) -> (N, 3).
+
+    Parameters
+    ----------
+    axis : ndarray, (3,)
+        Unit axis.
+    angle : ndarray, (N,)
+        rad.
+    v : ndarray, (3,) or (N, 3)
+
+    Returns
+    -------
+    ndarray, (N, 3)
+    """
     angle = np.asarray(angle, float)[:, None]
     axis = np.asarray(axis, float)
     v = np.broadcast_to(np.asarray(v, float), (angle.shape[0], 3))
@@ -54,7 +102,17 @@ def rotate_vectors(axis: np.ndarray, angle: np.ndarray, v: np.ndarray) -> np.nda
 
 
 def matrix_axis_angle(r: np.ndarray) -> tuple[np.ndarray, float]:
-    """Unit axis and angle in [0, pi] of a rotation matrix (axis +x for the identity)."""
+    """Unit axis and angle in [0, pi] of a rotation matrix (axis +x for the identity).
+
+    Parameters
+    ----------
+    r : ndarray, (3, 3)
+
+    Returns
+    -------
+    tuple
+        Unit axis (3,) and angle, rad.
+    """
     v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
     sin2 = float(np.linalg.norm(v))  # 2 sin(angle)
     cos = (np.trace(r) - 1.0) / 2.0
@@ -73,7 +131,17 @@ def matrix_axis_angle(r: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rotation of least angle taking unit vector ``a`` to unit vector ``b`` (3, 3)."""
+    """The rotation of least angle taking unit vector ``a`` to unit vector ``b`` (3, 3).
+
+    Parameters
+    ----------
+    a, b : ndarray, (3,)
+        Unit vectors.
+
+    Returns
+    -------
+    ndarray, (3, 3)
+    """
     a = np.asarray(a, float) / np.linalg.norm(a)
     b = np.asarray(b, float) / np.linalg.norm(b)
     cross = np.cross(a, b)
@@ -95,6 +163,17 @@ def pose_attitude(pose: str, current: np.ndarray | None = None) -> np.ndarray:
     The rig turns the unit the least angle that brings the pose's body direction up, as a
     hand would: R' = Q R with Q the minimal world rotation from (R u) to z. From the
     identity this gives each named pose a fixed attitude.
+
+    Parameters
+    ----------
+    pose : str
+        Signed axes, e.g. ``+x-y``.
+    current : ndarray, (3, 3), optional
+        Attitude to turn from (body to world); default the identity.
+
+    Returns
+    -------
+    ndarray, (3, 3)
     """
     current = np.eye(3) if current is None else current
     up_body = parse_signed_axes(pose)
@@ -102,7 +181,16 @@ def pose_attitude(pose: str, current: np.ndarray | None = None) -> np.ndarray:
 
 
 def random_attitude(rng: np.random.Generator) -> np.ndarray:
-    """A rotation matrix uniformly distributed on SO(3) (normalised Gaussian quaternion)."""
+    """A rotation matrix uniformly distributed on SO(3) (normalised Gaussian quaternion).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, (3, 3)
+    """
     w, x, y, z = rng.standard_normal(4)
     n = np.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n

@@ -71,6 +71,19 @@ class FaultSpec:
         """``"garbage=0.01,bitflip=0.001,stall=0.01,stall_s=0.5,disconnect_after_s=3,seed=2"``.
 
         Short names ``disconnect_bytes`` and ``disconnect_s`` are accepted too; "" is no fault.
+
+        Parameters
+        ----------
+        text : str
+
+        Returns
+        -------
+        FaultSpec
+
+        Raises
+        ------
+        ValueError
+            An unknown name or a value that is not a number.
         """
         aliases = {"disconnect_bytes": "disconnect_after_bytes", "disconnect_s": "disconnect_after_s"}
         kinds = {f.name: f for f in fields(cls)}
@@ -151,7 +164,17 @@ class FaultInjector:
 
     def apply(self, frames: Sequence[bytes], protected: Sequence[bool] | None = None) -> FaultOutput:
         """Faults for the next ``frames``; ``protected`` frames (e.g. command answers) get no
-        per-frame fault but still count, and can still be cut by a disconnect."""
+        per-frame fault but still count, and can still be cut by a disconnect.
+
+        Parameters
+        ----------
+        frames : sequence of bytes
+        protected : sequence of bool, optional
+
+        Returns
+        -------
+        FaultOutput
+        """
         n = len(frames)
         first = self.counts.frames
         self.counts.frames += n

@@ -203,6 +203,20 @@ def build_pieces(segments: Sequence[Segment], r_start: np.ndarray, t_start: floa
     """Pieces of ``segments`` from attitude ``r_start`` at ``t_start``; returns (pieces, r_end, t_end).
 
     ``after_last`` is the segment that follows the list (a trailing Move turns toward it).
+
+    Parameters
+    ----------
+    segments : sequence of Segment
+    r_start : ndarray, (3, 3)
+        Attitude at ``t_start``.
+    t_start : float
+        s.
+    after_last : Segment, optional
+
+    Returns
+    -------
+    tuple
+        The pieces, the end attitude (3, 3) and the end time (s).
     """
     pieces: list[Piece] = []
     r, t = np.asarray(r_start, float), float(t_start)
@@ -339,7 +353,29 @@ class Timeline:
 
 def sequence_segments(name: str = "six-position", rotations: bool = True, hold_s: float = 5.0,
                       rotation_rate_dps: float = 90.0, move_s: float = DEFAULT_MOVE_S) -> list[Segment]:
-    """The built-in sequences of the capture-csv spec, a move before every step."""
+    """The built-in sequences of the capture-csv spec, a move before every step.
+
+    Parameters
+    ----------
+    name : str
+        ``six-position`` or ``twelve-position``.
+    rotations : bool
+        Add the six rotations.
+    hold_s : float
+        Seconds per pose.
+    rotation_rate_dps : float
+    move_s : float
+        Seconds per move between steps.
+
+    Returns
+    -------
+    list of Segment
+
+    Raises
+    ------
+    ValueError
+        An unknown name.
+    """
     poses = {"six-position": SIX_POSITION, "twelve-position": TWELVE_POSITION}.get(name)
     if poses is None:
         raise ValueError(f"unknown sequence {name!r}; known: six-position, twelve-position")
@@ -355,7 +391,21 @@ def sequence_segments(name: str = "six-position", rotations: bool = True, hold_s
 def handheld_session(n_poses: int = 12, seed: int = 0, hold_s: float = 2.0, initial_still_s: float = 10.0,
                      move_s: float = DEFAULT_MOVE_S) -> list[Segment]:
     """imu_tk-style session: lying flat still, then random attitudes (uniform on SO(3)) held
-    ``hold_s`` each, joined by smooth moves. Unlabelled: such sessions carry no step labels."""
+    ``hold_s`` each, joined by smooth moves. Unlabelled: such sessions carry no step labels.
+
+    Parameters
+    ----------
+    n_poses : int
+    seed : int
+    hold_s : float
+        Seconds per attitude.
+    initial_still_s : float
+    move_s : float
+
+    Returns
+    -------
+    list of Segment
+    """
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x4A4D]))
     segments: list[Segment] = [Static("+z", initial_still_s, label="")]
     for _ in range(n_poses):
@@ -399,18 +449,48 @@ class TemperatureProfile:
 
 
 def constant(temp_degc: float = 25.0) -> TemperatureProfile:
-    """A profile that holds ``temp_degc`` throughout."""
+    """A profile that holds ``temp_degc`` throughout.
+
+    Parameters
+    ----------
+    temp_degc : float
+
+    Returns
+    -------
+    TemperatureProfile
+    """
     return TemperatureProfile([0.0], [temp_degc])
 
 
 def ramp(points: Sequence[tuple[float, float]]) -> TemperatureProfile:
-    """Piecewise-linear through ``points`` [(t_s, degC), ...]."""
+    """Piecewise-linear through ``points`` [(t_s, degC), ...].
+
+    Parameters
+    ----------
+    points : sequence of (float, float)
+
+    Returns
+    -------
+    TemperatureProfile
+    """
     times, temps = zip(*points, strict=True)
     return TemperatureProfile(times, temps)
 
 
 def temperature_rate(profile: Callable[[np.ndarray], np.ndarray], t: np.ndarray) -> np.ndarray:
-    """dT/dt of any profile: its own ``rate`` if it has one, else a central difference (h = 1 ms)."""
+    """dT/dt of any profile: its own ``rate`` if it has one, else a central difference (h = 1 ms).
+
+    Parameters
+    ----------
+    profile : callable
+        Temperature (degC) of times (s).
+    t : ndarray, (N,)
+
+    Returns
+    -------
+    ndarray, (N,)
+        degC/s.
+    """
     if hasattr(profile, "rate"):
         return np.asarray(profile.rate(t), float)
     h = 1e-3
@@ -563,6 +643,22 @@ def simulate(truth: UnitTruth, segments: Sequence[Segment], rate_hz: float = 200
 
     The recording covers the segments (plus implicit moves), ``round(duration * rate_hz)``
     samples, starting lying flat (+z up, attitude I). Same arguments, same arrays.
+
+    Parameters
+    ----------
+    truth : UnitTruth
+    segments : sequence of Segment
+    rate_hz : float
+    seed : int
+        Seed of the noise.
+    temperature : callable, optional
+        Temperature profile; default a constant 25 degC.
+    temp_noise_degc : float
+        Noise of the temperature reading.
+
+    Returns
+    -------
+    Recording
     """
     timeline = Timeline(segments, loop=False)
     n = int(round(timeline.duration_s * rate_hz))

@@ -46,7 +46,19 @@ def _arr3(value: object) -> np.ndarray:
 
 
 def thermal_terms(t_rel: np.ndarray, dtemp: np.ndarray) -> np.ndarray:
-    """The seven columns of eq. (3), ``THERMAL_TERMS`` order, shape (N, 7)."""
+    """The seven columns of eq. (3), ``THERMAL_TERMS`` order, shape (N, 7).
+
+    Parameters
+    ----------
+    t_rel : ndarray, (N,)
+        T - T_ref, degC.
+    dtemp : ndarray, (N,)
+        degC/s.
+
+    Returns
+    -------
+    ndarray, (N, 7)
+    """
     t = np.asarray(t_rel, float)
     d = np.asarray(dtemp, float)
     return np.stack([t**3, t**2, t, d**2, d, t * d, np.ones_like(t)], axis=-1)
@@ -149,6 +161,15 @@ class NoiseGenerator:
 
         The noise is summed in the same order as always, so it does not depend on whether the drift
         is asked for.
+
+        Parameters
+        ----------
+        n : int
+
+        Returns
+        -------
+        tuple of ndarray
+            The noise (n, 3) and its drift part (n, 3).
         """
         spec = self.spec
         dt = 1.0 / self.rate_hz
@@ -218,13 +239,37 @@ class SensorTruth:
                       drift: np.ndarray | None = None) -> np.ndarray:
         """The bias the triad carries at each sample (N, 3): b + b_T(T, dT) of eq. (1) plus the noise's
         slowly varying part ``drift`` (bias instability and random walk,
-        ``NoiseGenerator.next_with_drift``)."""
+        ``NoiseGenerator.next_with_drift``).
+
+        Parameters
+        ----------
+        temp, dtemp : ndarray, (N,)
+            True temperature (degC) and its rate (degC/s).
+        drift : ndarray, (N, 3), optional
+
+        Returns
+        -------
+        ndarray, (N, 3)
+        """
         out = self.bias + self.thermal.bias(temp, dtemp)
         return out + drift if drift is not None else out
 
     def measure(self, true: np.ndarray, temp: np.ndarray, dtemp: np.ndarray,
                 noise: np.ndarray | None = None) -> np.ndarray:
-        """raw of eq. (1)-(2) for rows of ``true`` (N, 3) at true ``temp`` and ``dtemp`` (N,)."""
+        """raw of eq. (1)-(2) for rows of ``true`` (N, 3) at true ``temp`` and ``dtemp`` (N,).
+
+        Parameters
+        ----------
+        true : ndarray, (N, 3)
+            True specific force (m/s^2) or rate (rad/s).
+        temp, dtemp : ndarray, (N,)
+        noise : ndarray, (N, 3), optional
+
+        Returns
+        -------
+        ndarray, (N, 3)
+            Raw readings, clipped to the range and quantized as the triad does.
+        """
         raw = np.einsum("nk,jk->nj", np.asarray(true, float), self.matrix) + self.bias
         raw += self.thermal.bias(temp, dtemp)
         if noise is not None:
@@ -240,6 +285,15 @@ def earth_rate_world(latitude_deg: float, heading_deg: float) -> np.ndarray:
 
     In East-North-Up the Earth rate is Omega (0, cos(lat), sin(lat)); world x is the
     horizontal unit vector of azimuth h, (sin h, cos h, 0), and y = z cross x = (-cos h, sin h, 0).
+
+    Parameters
+    ----------
+    latitude_deg, heading_deg : float
+
+    Returns
+    -------
+    ndarray, (3,)
+        rad/s.
     """
     lat, h = np.radians(latitude_deg), np.radians(heading_deg)
     return EARTH_RATE_RAD_S * np.array([np.cos(lat) * np.cos(h), np.cos(lat) * np.sin(h), np.sin(lat)])
@@ -274,6 +328,21 @@ class UnitTruth:
         0.01 deg/s/sqrt(Hz), bias instability 5 deg/h, rate random walk 10 deg/h/sqrt(h),
         range +-2000 deg/s with 16-bit resolution, thermal bias of about 0.01 deg/s/degC.
         ``grade="tactical"`` divides every error by 20 and removes quantization.
+
+        Parameters
+        ----------
+        seed : int
+        grade : str
+            ``"mems"`` or ``"tactical"``.
+
+        Returns
+        -------
+        UnitTruth
+
+        Raises
+        ------
+        ValueError
+            An unknown grade.
         """
         if grade not in ("mems", "tactical"):
             raise ValueError(f"grade {grade!r}: use 'mems' or 'tactical'")
