@@ -40,13 +40,16 @@ class StationApp(App[int]):
         self.results_failed = False
 
     def on_mount(self) -> None:
+        """Start on the connect screen."""
         self.push_screen(ConnectScreen())
 
     def action_help(self) -> None:
+        """Show the help screen (once)."""
         if not isinstance(self.screen, HelpScreen):
             self.push_screen(HelpScreen())
 
     def action_show(self, name: str) -> None:
+        """Key binding: switch to the screen ``name`` (:meth:`show`)."""
         self.show(name)
 
     def show(self, name: str) -> None:
@@ -73,11 +76,13 @@ class StationApp(App[int]):
         self.switch_screen(screen)
 
     def show_results(self, result: RunResult) -> None:
+        """Replace the current screen by the results of ``result``."""
         from station.tui.screens.results import ResultsScreen
 
         self.switch_screen(ResultsScreen(result))
 
     def action_quit_app(self) -> None:
+        """Quit with the exit code of the last run (:meth:`exit_code_for_run`)."""
         self.exit(self.exit_code_for_run())
 
     def exit_code_for_run(self) -> int:
@@ -92,12 +97,15 @@ class StationApp(App[int]):
         return ExitCode.OUT_OF_LIMITS if failed else ExitCode.OK
 
     def close_session(self) -> None:
+        """Close the unit's session, if one is open."""
         if self.session is not None:
             self.session.close()
             self.session = None
 
     async def action_quit(self) -> None:
+        """Textual's quit binding: the same as :meth:`action_quit_app`."""
         self.action_quit_app()
 
     def on_unmount(self) -> None:
+        """Close the session when the app ends."""
         self.close_session()

@@ -65,6 +65,7 @@ def rotation_art(step: RotationStep) -> str:
 
 
 def step_art(step: Step) -> str:
+    """The drawing for a step: the unit in its pose, or the turn to make."""
     return pose_art(step.label) if isinstance(step, PoseStep) else rotation_art(step)
 
 

@@ -44,6 +44,7 @@ class TuiOperator(BaseOperator):
 
     @property
     def prompt(self) -> Prompt | None:
+        """The prompt waiting for the operator, or None."""
         with self._lock:
             return self._prompt
 
@@ -72,24 +73,31 @@ class TuiOperator(BaseOperator):
         self.target.post_message(RunnerEvent(kind, payload, index, total))
 
     def begin(self, sequence: Sequence) -> None:
+        """Tell the screen the run of ``sequence`` starts."""
         self._post("begin", sequence)
 
     def place(self, step: Step, index: int, total: int) -> None:
+        """Tell the screen to ask for the step's pose."""
         self._post("place", step, index, total)
 
     def rotate(self, step: RotationStep) -> None:
+        """Tell the screen to ask for the step's rotation."""
         self._post("rotate", step)
 
     def status(self, status: LiveStatus) -> None:
+        """Pass the live status to the screen."""
         self._post("status", status)
 
     def poll(self) -> Action | None:
+        """The operator's queued request (key press), if any."""
         try:
             return self._requests.get_nowait()
         except queue.Empty:
             return None
 
     def confirm(self, prompt: Prompt) -> Action:
+        """Post the prompt to the screen and block the runner's thread until it is answered (abort
+        once the screen is closed)."""
         if self.closed.is_set():
             return Action.ABORT if Action.ABORT in prompt.choices else prompt.choices[-1]
         with self._lock:
@@ -102,7 +110,9 @@ class TuiOperator(BaseOperator):
         return action
 
     def step_finished(self, record: StepRecord) -> None:
+        """Pass the step's record to the screen."""
         self._post("finished", record)
 
     def end(self, result: RunResult) -> None:
+        """Pass the run's result to the screen."""
         self._post("end", result)

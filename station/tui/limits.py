@@ -15,6 +15,8 @@ from station.engines.sensor_model import SensorCalibration
 
 @dataclass(frozen=True)
 class SensorLimits:
+    """Pass limits of one triad's calibration, in the sensor's unit (bias, residual) or as ratios."""
+
     bias_max: float  # |b| per axis, sensor unit
     scale_error_max: float  # |K - 1| per axis
     misalignment_max: float  # |S_ij|, rad
@@ -38,6 +40,7 @@ class Verdict:
 
     @property
     def passed(self) -> bool:
+        """True when the value is finite and within its limit."""
         return bool(np.isfinite(self.value)) and self.value <= self.limit
 
 

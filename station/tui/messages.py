@@ -16,6 +16,8 @@ class Snapshot(Message):
 
 
 class LinkFailed(Message):
+    """Posted from a worker thread when the link or a fit fails: ``error`` says why."""
+
     def __init__(self, error: Exception) -> None:
         super().__init__()
         self.error = error

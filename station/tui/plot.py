@@ -20,6 +20,8 @@ _DOT_BITS = ((0x01, 0x08), (0x02, 0x10), (0x04, 0x20), (0x40, 0x80))
 
 @dataclass(frozen=True)
 class Series:
+    """One curve of a braille plot: its name, x and y values and colour style."""
+
     name: str
     x: np.ndarray
     y: np.ndarray

@@ -48,6 +48,7 @@ class Tail:
         self.count = 0
 
     def add(self, rows: np.ndarray) -> None:
+        """Append ``rows`` (n, columns), dropping the oldest beyond ``size``."""
         rows = np.asarray(rows, float)[-len(self.data):]
         n = len(rows)
         self.data = np.roll(self.data, -n, axis=0)
@@ -55,5 +56,6 @@ class Tail:
         self.count += n
 
     def column(self, j: int) -> list[float]:
+        """The finite values of column ``j``, oldest first."""
         col = self.data[:, j]
         return col[np.isfinite(col)].tolist()

@@ -29,6 +29,7 @@ class Recording:
         self.recorder = Recorder(path, device=device, port=port, protocol=protocol) if path else None
 
     def add(self, batch: np.ndarray) -> None:
+        """Keep a batch of samples (and write it to the recorder, if any)."""
         with self._lock:
             self._batches.append(batch)
             self.count += len(batch)

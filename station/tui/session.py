@@ -17,6 +17,8 @@ SIMULATED = "simulated unit"
 
 @dataclass
 class PortEntry:
+    """A serial port as pyserial lists it: device path, description, hardware id."""
+
     device: str
     description: str
     hwid: str = ""
@@ -38,6 +40,7 @@ class Session:
     info: dict[str, Any] = field(default_factory=dict)
 
     def close(self) -> None:
+        """Close the device and everything opened with it (the simulated unit's pty)."""
         self.device.close()
         for closer in self.closers:
             closer()
