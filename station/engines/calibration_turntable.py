@@ -51,8 +51,6 @@ from station.engines.samples import as_samples, check_rate
 from station.engines.sensor_model import SensorCalibration
 from station.errors import EngineInputError
 
-__all__ = ["TurntableCapture", "TurntableSettings", "calibrate_turntable", "check_rate"]
-
 
 @dataclass(frozen=True)
 class TurntableSettings:

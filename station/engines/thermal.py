@@ -59,8 +59,10 @@ from station.engines.thermal_model import TERMS, DtempFilter, ThermalModel, esti
 from station.engines.thermal_triad import AxisFit, SweepPlan, TriadFit, expected_raw, fit_triad
 from station.errors import EngineInputError
 
-__all__ = ["AxisFit", "ThermalFit", "ThermalSettings", "ThermalSweep", "TriadFit",
-           "fit_thermal", "still_poses"]
+# AxisFit, TriadFit and still_poses live in the stage modules; they are part of this module's interface.
+__all__ = ["AxisFit", "PreparedSweep", "RateTerms", "ThermalFit", "ThermalSettings", "ThermalSweep",
+           "TriadFit", "check_rate_terms", "choose_tau", "dtemp_clamp", "fit_thermal", "hold_last_reading",
+           "prepare_blocks", "segment_options", "still_poses"]
 
 TAU_CANDIDATES_S = (2.0, 5.0, 15.0, 40.0)
 TAU_WITHOUT_RATE_S = 15.0  # stored when the dT terms are left out; firmware still runs the filter
