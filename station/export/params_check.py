@@ -66,10 +66,15 @@ class _Checker:
         return value
 
     def number(self, value: Any, keys: Keys, lo: float, hi: float, unit: str) -> float:
+        in_unit = f" ({unit})" if unit else ""
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(keys, f"must be a number{f' ({unit})' if unit else ''}, not {_shown(value)}")
+            raise self.fail(keys, f"must be a number{in_unit}, not {_shown(value)}")
+        if not (isinstance(value, int) or math.isfinite(value)):
+            raise self.fail(keys, f"{_shown(value)} is not a finite number{in_unit}")
         # Compared before float(): an integer of 400 digits has no float.
-        if not (isinstance(value, int) or math.isfinite(value)) or not lo <= value <= hi:
+        if not lo <= value <= hi:
+            if hi >= FLOAT32_MAX:
+                raise self.fail(keys, f"{_shown(value)} is beyond the float32 range the firmware holds")
             raise self.fail(keys, f"{_shown(value)} {unit} is outside the plausible range "
                             f"{lo:g}..{hi:g} {unit}")
         return float(value)
@@ -82,9 +87,8 @@ class _Checker:
                 self.number(value, keys, -limit, limit, unit)
             return
         if not isinstance(value, list) or len(value) != shape[0]:
-            kind = "numbers" if len(shape) == 1 else "lists"
-            raise self.fail(keys, f"must be a list of {shape[0]} {kind} ({'x'.join(map(str, shape))}), "
-                            f"not {_shown(value)}")
+            kind = "numbers" if len(shape) == 1 else f"lists ({'x'.join(map(str, shape))})"
+            raise self.fail(keys, f"must be a list of {shape[0]} {kind}, not {_shown(value)}")
         for i, item in enumerate(value):
             self.array(item, (*keys, i), shape[1:], limit, unit, nullable)
 
