@@ -49,8 +49,8 @@ def as_samples(t: object, acc: object, gyro: object) -> tuple[np.ndarray, np.nda
     for name, x in arrays.items():
         bad = np.flatnonzero(~np.isfinite(x).reshape(len(t), -1).all(axis=1))
         if len(bad):
-            raise EngineInputError(f"{name} holds non-finite values in {len(bad)} samples (first at sample "
-                                   f"{bad[0]}): repair or drop those samples before calibrating")
+            raise EngineInputError(f"{name} is NaN or infinite in {len(bad)} of {len(t)} samples (the first "
+                                   f"is sample {bad[0]}): repair or drop those samples before calibrating")
     return arrays["t"], arrays["acc"], arrays["gyro"]
 
 
