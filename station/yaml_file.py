@@ -25,8 +25,8 @@ import yaml
 
 from station.errors import InputFileError
 
-MAX_BYTES = 1 << 20
-MAX_NODES = 100_000
+MAX_BYTES = 256 * 1024  # a parameter file with 64 thermal segments per triad is 80 kB
+MAX_NODES = 20_000  # that file has 4,200 nodes
 MAX_DEPTH = 40
 
 
