@@ -139,7 +139,20 @@ def check_range(option: str, value: float, low: float | None = None, high: float
 
 
 def positive(unit: str = "", high: float | None = None) -> Callable[[str], float]:
-    """A float above 0 (and at most ``high``), e.g. a duration, a rate or a time constant."""
+    """A float above 0 (and at most ``high``), e.g. a duration, a rate or a time constant.
+
+    Parameters
+    ----------
+    unit : str
+        Unit named in the message.
+    high : float, optional
+        Upper bound, inclusive.
+
+    Returns
+    -------
+    callable
+        An argparse ``type`` (see :func:`number`).
+    """
     return number(float, 0.0, high, low_open=True, unit=unit)
 
 
@@ -243,7 +256,13 @@ def add_port_options(parser: argparse.ArgumentParser, *, required: bool = True,
 
 
 def add_protocol_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--protocol NAME[:OPTION]``, validated by :func:`protocol` (default: native)."""
+    """Add ``--protocol NAME[:OPTION]``, validated by :func:`protocol` (default: native).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    """
     parser.add_argument("--protocol", default="native", type=protocol, metavar="NAME[:OPTION]",
                         help=f"wire protocol of the unit: {', '.join(sorted(DECODERS))} (default: native); "
                              f"auto: recognise it from the first bytes. {', '.join(DECODER_OPTIONS)} take an "
@@ -274,14 +293,31 @@ def add_output_option(parser: argparse.ArgumentParser, *, required: bool = False
 
 
 def add_db_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--db``, the factory's record database (see :func:`db_url`)."""
+    """Add ``--db``, the factory's record database (see :func:`db_url`).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    """
     parser.add_argument("--db", default=None, metavar="URL",
                         help="record database: a SQLite file path (default $IMU_STATION_DB or "
                              f"{DEFAULT_DB}) or postgresql://user@host/dbname")
 
 
 def db_url(args: argparse.Namespace) -> str:
-    """The record database: ``--db``, else ``$IMU_STATION_DB``, else :data:`DEFAULT_DB`."""
+    """The record database: ``--db``, else ``$IMU_STATION_DB``, else :data:`DEFAULT_DB`.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options (``db``).
+
+    Returns
+    -------
+    str
+        A SQLite file path or a ``postgresql://`` URL.
+    """
     return args.db or os.environ.get("IMU_STATION_DB") or DEFAULT_DB
 
 

@@ -12,7 +12,19 @@ from drivers import LinkStats
 
 
 def status_text(stats: LinkStats, rows: int) -> str:
-    """Rate, samples, damaged frames and lost samples, as the status line shows them."""
+    """Rate, samples, damaged frames and lost samples, as the status line shows them.
+
+    Parameters
+    ----------
+    stats : LinkStats
+        The link statistics so far.
+    rows : int
+        Samples written.
+
+    Returns
+    -------
+    str
+    """
     return (f"{stats.rate_hz:7.1f} Hz  {rows} samples  {stats.errors} errors  {stats.lost} lost"
             + (f"  {stats.overflow_drops} dropped" if stats.overflow_drops else ""))
 
@@ -45,5 +57,15 @@ class CaptureStatusLine:
         self._progress.stop()
 
     def update(self, stats: LinkStats, rows: int, device_time_s: float) -> None:
-        """Show the capture's state: ``device_time_s`` recorded, ``rows`` written."""
+        """Show the capture's state: ``device_time_s`` recorded, ``rows`` written.
+
+        Parameters
+        ----------
+        stats : LinkStats
+            The link statistics so far.
+        rows : int
+            Samples written.
+        device_time_s : float
+            Device seconds recorded.
+        """
         self._progress.update(self._task, completed=device_time_s, status=status_text(stats, rows))

@@ -86,7 +86,25 @@ def _progress(err: IO[str]) -> Progress:
 
 
 def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
-    """Read, integrate, compute and fit; write every requested file; return the JSON-able result."""
+    """Read, integrate, compute and fit; write every requested file; return the JSON-able result.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options.
+    err : text stream
+        Where the progress bars are drawn (when it is a terminal).
+
+    Returns
+    -------
+    dict
+        ``noise``: the parameter file's noise section; ``outputs``: each file written and what.
+
+    Raises
+    ------
+    EngineInputError
+        Too few points per decade, or a record missing more than --max-missing of its samples.
+    """
     if args.per_decade < 10:
         raise EngineInputError(f"--per-decade {args.per_decade}: use at least 10 points per decade")
     chunks, device, size = capture_chunks(args.input, args.topic)

@@ -46,7 +46,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[str, str]]:
-    """The corrected capture and how each section was applied."""
+    """The corrected capture and how each section was applied.
+
+    Parameters
+    ----------
+    params : ParamsFile
+        The parameter file; absent sections leave their triad as it is.
+    capture : Capture
+        The raw capture.
+
+    Returns
+    -------
+    Capture
+        The corrected capture, with the input's columns.
+    dict of str to str
+        Per section (accel, gyro, thermal), how it was applied.
+    """
     dtemp = capture.dtemp
     how = {
         "accel": "matrix and bias" if params.accel else "absent (identity)",

@@ -104,7 +104,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def local_gravity(args: argparse.Namespace) -> float:
-    """g from --gravity, or WGS-84 normal gravity from --latitude and --height, else standard gravity."""
+    """g from --gravity, or WGS-84 normal gravity from --latitude and --height, else standard gravity.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options (``gravity``, ``latitude``, ``height``).
+
+    Returns
+    -------
+    float
+        Local gravity, m/s^2.
+
+    Raises
+    ------
+    StationError
+        Both --gravity and --latitude, or either outside its range.
+    """
     if args.gravity is not None and args.latitude is not None:
         raise StationError("give either --gravity or --latitude/--height, not both")
     if args.gravity is not None:
@@ -118,7 +134,20 @@ def local_gravity(args: argparse.Namespace) -> float:
 
 
 def calibrate_capture(capture: Capture, args: argparse.Namespace) -> CalibrationReport:
-    """Run the chosen method on a capture (the CLI's composition of engine and options)."""
+    """Run the chosen method on a capture (the CLI's composition of engine and options).
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture read from INPUT.
+    args : argparse.Namespace
+        The parsed options.
+
+    Returns
+    -------
+    CalibrationReport
+        Both triads with their 1-sigma, per-pose residuals and warnings.
+    """
     gravity = local_gravity(args)
     has_labels = capture.step is not None and any(str(s).strip() for s in capture.step)
     method = args.method if args.method != "auto" else ("turntable" if has_labels else "free")

@@ -60,7 +60,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def report(result: CaptureResult, out: IO[str]) -> None:
-    """The summary printed after a capture: where the samples went and how the link fared."""
+    """The summary printed after a capture: where the samples went and how the link fared.
+
+    Parameters
+    ----------
+    result : CaptureResult
+        What the capture wrote and how the link fared.
+    out : text stream
+        Where the summary is printed.
+    """
     link = result.link
     print(f"wrote {result.rows} samples ({result.device_time_s:.3f} s of device clock) to {result.path}",
           file=out)
@@ -70,7 +78,22 @@ def report(result: CaptureResult, out: IO[str]) -> None:
 
 
 def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 3.0) -> Detection:
-    """Read the first bytes at ``port`` until a protocol is recognised, or for ``timeout_s``."""
+    """Read the first bytes at ``port`` until a protocol is recognised, or for ``timeout_s``.
+
+    Parameters
+    ----------
+    port : str
+        Device path or pyserial URL.
+    baudrate : int
+        Line speed of a real serial port.
+    timeout_s : float
+        How long to read before giving up.
+
+    Returns
+    -------
+    Detection
+        The protocol found (None when none was), with the explanation shown to the user.
+    """
     data = bytearray()
     found = detect(b"")
     deadline = time.monotonic() + timeout_s
@@ -97,7 +120,35 @@ def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float
 def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | None, err: IO[str],
                      rate_hz: int | None = None) -> str:
     """The decoder name for ``--protocol`` and ``--columns``; ``auto`` sniffs the port and says what
-    it found."""
+    it found.
+
+    Parameters
+    ----------
+    port : str
+        The unit's port, read when ``protocol`` is ``auto``.
+    protocol : str
+        ``--protocol`` as given (validated by the option).
+    baudrate : int
+        Line speed of a real serial port.
+    columns : str, optional
+        ``--columns``, for ``ascii`` only.
+    err : text stream
+        Where what ``auto`` found is said.
+    rate_hz : int, optional
+        ``--rate``: with ``ascii``, the rate of lines that carry no clock.
+
+    Returns
+    -------
+    str
+        The decoder name with its option (``ascii:COLUMNS@HZ``).
+
+    Raises
+    ------
+    StationError
+        ``--columns`` without ``ascii`` or unreadable, or MAVLink without pymavlink.
+    NoSamples
+        ``auto`` recognised no protocol.
+    """
     if columns is not None:
         if protocol != "ascii":
             raise StationError(f"--columns applies to --protocol ascii, not {protocol}")

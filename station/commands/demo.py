@@ -499,6 +499,18 @@ def run_demo(ctx: DemoContext, steps: list[tuple[str, Step]] | None = None) -> D
     """Run ``steps`` (default :data:`STEPS`) in order; resources are released at the end.
 
     ``ctx.results["step_s"]`` gets the wall-clock seconds of each step, by title.
+
+    Parameters
+    ----------
+    ctx : DemoContext
+        Settings and, as the steps run, their results.
+    steps : list of (title, step), optional
+        The steps to run; default all of :data:`STEPS`.
+
+    Returns
+    -------
+    DemoContext
+        ``ctx``, with every step's results.
     """
     steps = STEPS if steps is None else steps
     timings = ctx.results.setdefault("step_s", {})

@@ -73,7 +73,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def units_of(args: argparse.Namespace) -> list[UnitSpec]:
     """The units to run, from ``--port``/``--table-port`` pairs or ``--simulate N``; refuses a
-    mismatched or repeated port, or serials that do not match the units."""
+    mismatched or repeated port, or serials that do not match the units.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options.
+
+    Returns
+    -------
+    list of UnitSpec
+        One per unit, in the order given.
+
+    Raises
+    ------
+    StationError
+        What is wrong with the combination of options.
+    """
     if args.simulate is not None:
         if args.port or args.table_port:
             raise StationError("give either --simulate N or --port/--table-port pairs, not both")

@@ -86,7 +86,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace) -> TuiConfig:
     """The TUI's configuration from the parsed options; a bad sequence is refused here, before the
-    screen opens, with its file and line."""
+    screen opens, with its file and line.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options.
+
+    Returns
+    -------
+    TuiConfig
+        What the app needs to start.
+
+    Raises
+    ------
+    StationError
+        --export without --out, or a sequence file with an error.
+    """
     from station.acquisition.sequences import resolve
 
     if args.export and args.out is None:

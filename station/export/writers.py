@@ -109,7 +109,18 @@ class ExportResult:
 
 
 def report_lines(report: dict[str, Any]) -> list[str]:
-    """The report of :meth:`ExportResult.report` as the lines the command prints."""
+    """The report of :meth:`ExportResult.report` as the lines the command prints.
+
+    Parameters
+    ----------
+    report : dict
+        The report (:meth:`ExportResult.report`), possibly with notes added by the caller.
+
+    Returns
+    -------
+    list of str
+        The files written, the autopilot's parameters and limitations, the pose errors, the notes.
+    """
     lines = [f"wrote {path}" for path in report["files"]]
     if "parameters" in report:
         lines.append(f"{len(report['parameters'])} {report['target']} parameters")

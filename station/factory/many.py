@@ -86,13 +86,36 @@ class UnitProgress:
 
 
 def worst_exit_code(codes: list[int]) -> int:
-    """The most severe exit code of the units (:data:`SEVERITY`; unknown codes rank worst)."""
+    """The most severe exit code of the units (:data:`SEVERITY`; unknown codes rank worst).
+
+    Parameters
+    ----------
+    codes : list of int
+        The units' exit codes.
+
+    Returns
+    -------
+    int
+        The most severe, 0 when there is none.
+    """
     rank: dict[int, int] = {code: i for i, code in enumerate(SEVERITY)}
     return max(codes, key=lambda c: rank.get(c, len(SEVERITY))) if codes else 0
 
 
 def summary_table(units: list[UnitProgress], title: str) -> Table:
-    """The live table: unit, serial, phase, step, time, outcome and detail of every unit."""
+    """The live table: unit, serial, phase, step, time, outcome and detail of every unit.
+
+    Parameters
+    ----------
+    units : list of UnitProgress
+        Every unit's progress.
+    title : str
+        The table's title.
+
+    Returns
+    -------
+    rich.table.Table
+    """
     table = Table(title=title)
     for column in ("unit", "serial", "phase", "step", "time", "outcome", "detail"):
         table.add_column(column, justify="right" if column == "time" else "left")

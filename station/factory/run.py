@@ -468,7 +468,20 @@ class UnitRun:
 
 
 def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord:
-    """Run one unit and save its record in ``store`` (when given)."""
+    """Run one unit and save its record in ``store`` (when given).
+
+    Parameters
+    ----------
+    request : RunRequest
+        The unit, the plan and how to reach them.
+    store : RecordStore, optional
+        Where the record is saved.
+
+    Returns
+    -------
+    RunRecord
+        The run's record (outcome, exit code, phases, measurements, attachments).
+    """
     record = UnitRun(request).execute()
     if store is not None:
         store.save(record)
@@ -488,7 +501,20 @@ class _UnitField(logging.Filter):
 
 
 def configure_logging(serial: str, stream: Any = None) -> logging.Handler:
-    """Log lines on stderr, each naming the unit (several units' logs interleave on a line)."""
+    """Log lines on stderr, each naming the unit (several units' logs interleave on a line).
+
+    Parameters
+    ----------
+    serial : str
+        The unit's serial as known so far (``auto`` until the unit answers).
+    stream : text stream, optional
+        Where the lines go (default: stderr).
+
+    Returns
+    -------
+    logging.Handler
+        The handler installed on the factory's logger (remove it when the run ends).
+    """
     import sys
 
     handler = logging.StreamHandler(stream or sys.stderr)

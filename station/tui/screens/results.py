@@ -35,12 +35,39 @@ def _pm(values: np.ndarray, sigma: object, fmt: str) -> list[str]:
 
 
 def residual_unit(cal: SensorCalibration, unit: str) -> str:
-    """The rotation method's residual is an angle; the engine says so in ``extra['residual']``."""
+    """The rotation method's residual is an angle; the engine says so in ``extra['residual']``.
+
+    Parameters
+    ----------
+    cal : SensorCalibration
+        The triad's calibration.
+    unit : str
+        The unit of a residual that is not an angle.
+
+    Returns
+    -------
+    str
+        ``rad`` or ``unit``.
+    """
     return "rad" if "angle" in str(cal.extra.get("residual", "")) else unit
 
 
 def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
-    """One triad's bias, scale and misalignment with their 1-sigma, and its residual RMS."""
+    """One triad's bias, scale and misalignment with their 1-sigma, and its residual RMS.
+
+    Parameters
+    ----------
+    title : str
+        The table's title.
+    cal : SensorCalibration
+        The triad's calibration.
+    unit : str
+        The bias unit (m/s^2 or rad/s).
+
+    Returns
+    -------
+    rich.table.Table
+    """
     table = Table(title=title, title_justify="left", title_style="bold", expand=False, padding=(0, 1))
     table.add_column("parameter")
     for axis in "xyz":
@@ -66,7 +93,17 @@ def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
 
 
 def verdict_table(verdicts: list[Verdict]) -> Table:
-    """Each limit check: sensor, check, value, limit, PASS or FAIL."""
+    """Each limit check: sensor, check, value, limit, PASS or FAIL.
+
+    Parameters
+    ----------
+    verdicts : list of Verdict
+        The checks against the limits.
+
+    Returns
+    -------
+    rich.table.Table
+    """
     table = Table(title="limits", title_justify="left", title_style="bold", padding=(0, 1))
     for col in ("sensor", "check", "value", "limit", ""):
         table.add_column(col)
@@ -157,7 +194,18 @@ class ResultsScreen(StationScreen):
 
     @staticmethod
     def residual_table(report: CalibrationReport) -> Table | None:
-        """Per-pose residuals as the engine reports them (keys holding 'resid' or 'error')."""
+        """Per-pose residuals as the engine reports them (keys holding 'resid' or 'error').
+
+        Parameters
+        ----------
+        report : CalibrationReport
+            The calibration.
+
+        Returns
+        -------
+        rich.table.Table or None
+            None when the engine reports no residual.
+        """
         rows = [p for p in report.poses if isinstance(p, dict)]
         keys = sorted({k for p in rows for k in p if "resid" in k or "error" in k})
         if not rows or not keys:

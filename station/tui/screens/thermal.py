@@ -26,7 +26,20 @@ DTEMP_WINDOW_S = 30.0
 
 
 def block_means(samples: np.ndarray, block_s: float = BLOCK_S) -> dict[str, np.ndarray]:
-    """Means over blocks of ``block_s`` of device time: t (s), temp, gyro (B, 3), acc (B, 3)."""
+    """Means over blocks of ``block_s`` of device time: t (s), temp, gyro (B, 3), acc (B, 3).
+
+    Parameters
+    ----------
+    samples : numpy structured array
+        Samples as decoded (``t_us``, ``acc``, ``gyro``, ``temp``).
+    block_s : float
+        Length of a block, s of device time.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        ``t``, ``temp``, ``gyro``, ``acc``: one row per block holding samples.
+    """
     t = (samples["t_us"] - samples["t_us"][0]).astype(np.float64) * 1e-6
     ids = (t // block_s).astype(np.int64)
     counts = np.bincount(ids)
@@ -43,7 +56,20 @@ def block_means(samples: np.ndarray, block_s: float = BLOCK_S) -> dict[str, np.n
 
 
 def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = DTEMP_WINDOW_S) -> float:
-    """dT/dt (degC/s): slope of a line through the last ``window_s`` of block temperatures."""
+    """dT/dt (degC/s): slope of a line through the last ``window_s`` of block temperatures.
+
+    Parameters
+    ----------
+    t, temp : numpy.ndarray
+        Block times (s) and temperatures (degC).
+    window_s : float
+        How far back the line is fitted.
+
+    Returns
+    -------
+    float
+        The rate, NaN with fewer than three blocks in the window.
+    """
     recent = t >= t[-1] - window_s
     if np.count_nonzero(recent) < 3:
         return float("nan")
@@ -51,7 +77,19 @@ def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = DTEMP_WI
 
 
 def sweep_plots(blocks: dict[str, np.ndarray], width: int = 50, height: int = 8) -> Group:
-    """Temperature against time, and the gyro bias change against temperature, as braille plots."""
+    """Temperature against time, and the gyro bias change against temperature, as braille plots.
+
+    Parameters
+    ----------
+    blocks : dict of str to numpy.ndarray
+        The block means (:func:`block_means`).
+    width, height : int
+        Size of each plot in characters.
+
+    Returns
+    -------
+    rich.console.Group
+    """
     t, temp = blocks["t"], blocks["temp"]
     gyro = blocks["gyro"] - blocks["gyro"].mean(axis=0)
     return Group(
