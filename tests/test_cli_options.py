@@ -150,3 +150,18 @@ def test_output_has_its_out_alias() -> None:
         parser = cli.build_parser(command[0])
         for flag in ("-o", "--output", "--out"):
             assert str(getattr(parser.parse_args([*command, flag, "f"]), dest)) == "f"
+
+
+@pytest.mark.parametrize("epoch", ["99999999999999999", "-5", "1e9"])
+def test_source_date_epoch_out_of_range(epoch: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """The export date from the environment is range-checked as an option is (it was an OSError)."""
+    from station.export.params_file import ParamsFile
+
+    params = tmp_path / "p.yaml"
+    ParamsFile().save(params)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", epoch)
+    code, err = _run(["export", str(params), "-f", "json", "-o", str(tmp_path / "x.json")], capsys)
+    lines = err.strip().splitlines()
+    assert code == 4 and len(lines) == 1 and "SOURCE_DATE_EPOCH" in lines[0] and RANGE.search(lines[0]), err
+    assert not (tmp_path / "x.json").exists()

@@ -29,6 +29,8 @@ DEFAULT_NAMES = {"bin": "imu_calib.bin", "json": "imu_calib.json", "yaml": "imu_
                  "px4": "imu_calib.params", "ardupilot": "imu_calib.param"}
 """The file a format writes when ``out`` is a directory (``c`` always writes three into one)."""
 AUTOPILOTS = ("px4", "ardupilot")
+MAX_EPOCH_S = 253_402_300_799
+"""9999-12-31T23:59:59Z, the last second an export date can name."""
 MAX_INSTANCE = {"px4": px4.MAX_INSTANCE, "ardupilot": ardupilot.MAX_INSTANCE}
 """The highest sensor instance (0-based) each autopilot has parameters for."""
 
@@ -150,15 +152,18 @@ def export_time() -> int:
     Raises
     ------
     StationError
-        SOURCE_DATE_EPOCH is set but is not a whole number of seconds.
+        SOURCE_DATE_EPOCH is set but is not a whole number of seconds from 1970 to 9999.
     """
     epoch = os.environ.get("SOURCE_DATE_EPOCH")
     if epoch:
         try:
-            return int(epoch)
+            seconds = int(epoch)
         except ValueError:
-            raise StationError(f"SOURCE_DATE_EPOCH={epoch!r} is not a number of seconds; "
-                               "unset it or fix it") from None
+            seconds = -1
+        if not 0 <= seconds <= MAX_EPOCH_S:
+            raise StationError(f"SOURCE_DATE_EPOCH={epoch!r} is not a number of seconds in 0..{MAX_EPOCH_S} "
+                               "(1970 to 9999); unset it or fix it")
+        return seconds
     return int(_dt.datetime.now(_dt.UTC).timestamp())
 
 
