@@ -28,6 +28,8 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 _INTEGER_FIELDS = ("garbage_max", "disconnect_after_bytes", "seed")
+MAX_GARBAGE_BYTES = 65_536
+MAX_STALL_S = 60.0
 
 
 @dataclass
@@ -52,8 +54,16 @@ class FaultSpec:
                 raise ValueError(f"fault {name}={p}: a probability per frame must be in [0, 1]")
         if self.drop + self.truncate + self.bitflip > 1.0:
             raise ValueError("drop + truncate + bitflip must not exceed 1 (they exclude each other)")
-        if self.garbage_max < 1:
-            raise ValueError("garbage_max must be at least 1 byte")
+        if not 1 <= self.garbage_max <= MAX_GARBAGE_BYTES:
+            raise ValueError(f"garbage_max must be 1..{MAX_GARBAGE_BYTES} bytes")
+        if not 0.0 <= self.stall_s <= MAX_STALL_S:
+            raise ValueError(f"stall_s must be 0..{MAX_STALL_S:g} s")
+        if self.disconnect_after_bytes is not None and self.disconnect_after_bytes < 0:
+            raise ValueError("disconnect_after_bytes must be at least 0")
+        if self.disconnect_after_s is not None and not 0.0 <= self.disconnect_after_s < float("inf"):
+            raise ValueError("disconnect_after_s must be finite and at least 0 s")
+        if not 0 <= self.seed <= 2**32 - 1:
+            raise ValueError("seed must be 0..4294967295")
 
     @property
     def per_frame(self) -> bool:

@@ -40,7 +40,7 @@ import numpy as np
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, to_bytes
 
 from mocks.chamber import SCENARIO_DEFAULTS, ChamberSweep, sweep_from_options
-from mocks.device import SCENARIOS, SimDevice
+from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ, SCENARIOS, SimDevice
 from mocks.faults import FaultInjector, FaultSpec
 from mocks.truth import UnitTruth
 
@@ -65,6 +65,9 @@ class SimOptions:
     chamber: ChamberSweep | None = None
 
 
+MAX_SEED = 2**32 - 1  # numpy's generators take seeds of 0..2^32-1
+
+
 def parse_sim_url(url: str) -> SimOptions:
     """Options of a ``sim://`` URL; raises ValueError naming the bad option."""
     parts = urllib.parse.urlsplit(url)
@@ -78,8 +81,12 @@ def parse_sim_url(url: str) -> SimOptions:
         try:
             if key == "seed":
                 options.seed = int(value)
+                if not 0 <= options.seed <= MAX_SEED:
+                    raise ValueError(f"give a seed in 0..{MAX_SEED}")
             elif key == "rate":
                 options.rate = float(value)
+                if not MIN_RATE_HZ <= options.rate <= MAX_RATE_HZ:
+                    raise ValueError(f"give a rate in {MIN_RATE_HZ}..{MAX_RATE_HZ} Hz")
             elif key == "scenario":
                 if value not in SCENARIOS:
                     raise ValueError(f"unknown scenario {value!r}; known: {', '.join(SCENARIOS)}")
@@ -90,8 +97,8 @@ def parse_sim_url(url: str) -> SimOptions:
                 options.grade = value
             elif key == "speed":
                 speed = float(value)
-                if speed <= 0:
-                    raise ValueError("speed must be positive")
+                if not 0 < speed < float("inf"):
+                    raise ValueError("give a finite speed above 0")
                 options.speed = speed
             elif key == "faults":
                 fault_parts.append(value)

@@ -35,6 +35,7 @@ from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, Stream
 from protocols.crc import crc16_ccitt_false
 from protocols.units import STANDARD_GRAVITY
 
+MAX_LINE_RATE_HZ = 65535.0  # as SET_RATE's 16 bits; no text link carries more lines a second
 MOTIONCAL_ACC_PER_G = 8192.0
 MOTIONCAL_GYRO_PER_DPS = 16.0
 MOTIONCAL_MAG_PER_UT = 10.0
@@ -193,8 +194,9 @@ class AsciiDecoder(StreamDecoderBase):
                 rate_hz = float(rate)
             except ValueError:
                 raise ValueError(f"rate {rate!r} after '@' in {option!r} is not a number of Hz") from None
-            if not rate_hz > 0:
-                raise ValueError(f"rate {rate!r} after '@' in {option!r} must be positive")
+            if not 0 < rate_hz <= MAX_LINE_RATE_HZ:
+                raise ValueError(f"rate {rate!r} after '@' in {option!r} must be positive, at most "
+                                 f"{MAX_LINE_RATE_HZ:g} Hz")
             kwargs["rate_hz"] = rate_hz
         return cls(**kwargs)
 

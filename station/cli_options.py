@@ -213,13 +213,18 @@ def port(text: str) -> str:
     Raises
     ------
     argparse.ArgumentTypeError
-        An empty port name.
+        An empty port name, or a ``sim://`` URL with an unknown or out-of-range option.
     """
     if not text.strip():
         raise argparse.ArgumentTypeError("give a device path (/dev/ttyUSB0) or a pyserial URL (sim://)")
     if text.startswith("sim://"):
         from mocks import register_sim_url  # the simulated unit, loaded only when asked for
+        from mocks.protocol_sim import parse_sim_url
 
+        try:
+            parse_sim_url(text)  # its options are checked here, as every option is
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
         register_sim_url()
     return text
 

@@ -13,8 +13,8 @@ import pytest
 
 from station import cli
 
-# A range as the messages say it: 1..65535, above 0 up to 20, at least 10, a fraction in [0, 1).
-RANGE = re.compile(r"-?[0-9.e+]+\.\.-?[0-9]|above -?[0-9]|at least [0-9]|at most [0-9]|\[0, 1\)")
+# A range as the messages say it: 1..65535, above 0 up to 20, at least 10, in [0, 1], a fraction in [0, 1).
+RANGE = re.compile(r"-?[0-9.e+]+\.\.-?[0-9]|above -?[0-9]|at least [0-9]|at most [0-9]|\[0, 1[])]")
 
 # (command and required arguments, option, bad value); {tmp} is a temporary folder.
 CASES = [
@@ -165,3 +165,25 @@ def test_source_date_epoch_out_of_range(epoch: str, tmp_path: Path, monkeypatch:
     lines = err.strip().splitlines()
     assert code == 4 and len(lines) == 1 and "SOURCE_DATE_EPOCH" in lines[0] and RANGE.search(lines[0]), err
     assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["capture", "--port", "sim://?rate=0", "-o", "{tmp}/x.csv"], "rate"),
+    (["capture", "--port", "sim://?seed=-1", "-o", "{tmp}/x.csv"], "seed"),
+    (["capture", "--port", "sim://?speed=nan", "-o", "{tmp}/x.csv"], "speed"),
+    (["capture", "--port", "sim://?garbage=2", "-o", "{tmp}/x.csv"], "garbage"),
+    (["capture", "--port", "/dev/null-imu", "--protocol", "ascii:@1e400", "-o", "{tmp}/x.csv"], "@1e400"),
+    (["simulate", "--faults", "stall=0.1,stall_s=-1"], "stall_s"),
+    (["simulate", "--faults", "garbage_max=99999999999999999999"], "garbage_max"),
+    (["simulate", "--faults", "disconnect_bytes=-5"], "disconnect_after_bytes"),
+    (["simulate", "--faults", "disconnect_s=nan"], "disconnect_after_s"),
+    (["simulate", "--faults", "seed=-1"], "seed"),
+])
+def test_numbers_inside_option_values_are_range_checked(argv: list[str], words: str, tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """The siblings: numbers inside a sim:// URL, a fault spec or a protocol option (they were
+    accepted, or refused with exit 3 once the port failed to open)."""
+    code, err = _run([a.format(tmp=tmp_path) for a in argv], capsys)
+    lines = err.strip().splitlines()
+    assert code == 4 and len(lines) == 1 and words in lines[0] and RANGE.search(lines[0]), err
+    assert not list(tmp_path.iterdir())
