@@ -15,6 +15,7 @@ Lines end in ``\\n``, ``\\r`` or both. Each line is recognised by its start:
 
 These formats carry no sample counter and, except CSV with a time column, no device clock:
 ``seq`` counts the samples and ``t_us`` is ``seq / rate_hz`` at the nominal rate given.
+A VectorNav sentence with bytes glued before it (a cut line, noise) is read from its ``$``.
 A line longer than ``max_line`` bytes is dropped (``length_errors``); a line whose numbers are
 malformed or implausible (beyond ``max_acc``, ``max_gyro``, ``temp_range``, or not finite) is a
 ``bad_payloads`` error; a sentence with a wrong checksum is a ``crc_errors`` error. Lines of
@@ -318,6 +319,13 @@ class AsciiDecoder(StreamDecoderBase):
     def _line(self, line: bytes, rows: list[tuple], messages: list[Message]) -> None:
         first, self._first_line = self._first_line, False
         stats = self.stats
+        sentence = line.rfind(b"$VN")
+        if sentence > 0:
+            # Bytes glued before a VectorNav sentence (a line cut short, noise on the wire): the
+            # sentence carries its own checksum, so it is read from its '$' on.
+            stats.garbage_bytes += sentence
+            stats.resyncs += 1
+            line = line[sentence:]
         try:
             text = line.decode("ascii").strip()
         except UnicodeDecodeError:

@@ -12,8 +12,9 @@ Each case says what its framing can promise when good frames are interleaved wit
   may be lost only when it lies in such a span and holds a chance frame of its own
   (``xsens_allowed_losses`` names those);
 - text lines: garbage that ends with a line end; garbage with no line end glues itself to the
-  next line, which then cannot be read (the framing has nothing to resynchronise on but the
-  line end).
+  next line, which then cannot be read (CSV and MotionCal lines have nothing to resynchronise
+  on but the line end); VectorNav sentences, which start with ``$VN`` and carry a checksum,
+  are found after glued garbage: any garbage shorter than a line's limit.
 """
 
 from __future__ import annotations
@@ -92,6 +93,7 @@ _BINARY = "any garbage between good frames: every good frame comes out"
 _XSENS = ("any garbage: every good MTData2 frame comes out, unless it lies inside a false start whose "
           "8-bit checksum passes and a frame start inside it passes its checksum too")
 _LINES = "garbage that ends with a line end: every good line comes out"
+_SENTENCES = "any garbage (under 512 bytes without a line end): every checksummed sentence comes out"
 
 
 def _xsens_losses(pieces: list[tuple[bytes, bool]]) -> set[int]:
@@ -117,8 +119,8 @@ CASES: list[Case] = [
          lines=True),
     Case("ascii-motioncal", AsciiDecoder, partial(_line_frames, kind="motioncal"), _line_garbage, b"Raw:",
          _LINES, lines=True),
-    Case("ascii-vectornav", AsciiDecoder, partial(_line_frames, kind="vnymr"), _line_garbage, b"$VNYMR,",
-         _LINES, lines=True),
+    Case("ascii-vectornav", AsciiDecoder, partial(_line_frames, kind="vnymr"), _any_garbage, b"$VNYMR,",
+         _SENTENCES, lines=True),
     Case("auto-native", AutoDecoder, _native_frames, _any_garbage, native.SYNC, _BINARY),
     Case("auto-xsens", AutoDecoder, _xsens_frames, _any_garbage, xsens.SYNC, _XSENS,
          allowed_losses=_xsens_losses),

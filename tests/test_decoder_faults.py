@@ -20,7 +20,7 @@ from mocks.device import SimDevice
 from mocks.encoders_extra import EXTRA_ENCODERS  # noqa: F401  (registers the encoders)
 from mocks.faults import FaultInjector, FaultSpec
 from mocks.pty_server import PtyServer
-from protocols import mavlink, native, xsens
+from protocols import ascii_lines, mavlink, native, xsens
 from protocols.ascii_lines import AsciiDecoder
 from protocols.base import SAMPLE_DTYPE
 from protocols.detect import AutoDecoder
@@ -155,6 +155,14 @@ def test_a_counter_past_64_bits_is_a_bad_payload() -> None:
     dec = AsciiDecoder(columns="seq,ax,ay,az,gx,gy,gz")
     out = dec.feed(b"x\n1,0,0,9.8,0,0,0\n" + b"9" * 25 + b",0,0,9.8,0,0,0\n2,0,0,9.8,0,0,0\n")
     assert out.samples["seq"].tolist() == [1, 2] and dec.stats.bad_payloads == 1
+
+
+def test_a_vectornav_sentence_after_a_cut_line_or_noise_is_read() -> None:
+    sentences = [ascii_lines.encode_vectornav(make_samples(3, seed=k)[k : k + 1]) for k in range(3)]
+    stream = b"$VNYMR,+000.0" + sentences[0] + b"\x93\x00noise" + sentences[1] + sentences[2][:-2]
+    dec = AsciiDecoder()
+    out = feed_chunks(dec, stream, [5, 40])
+    assert len(out) == 3 and dec.stats.resyncs == 2 and dec.stats.errors == 0
 
 
 # ------------------------------------------------------------------ MAVLink: a replayed frame
