@@ -13,6 +13,7 @@ import subprocess
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -161,3 +162,16 @@ def test_rules_the_two_sides_disagreed_on(loader: tuple[Path, Path], tmp_path: P
     with pytest.raises(blobfmt.BlobError) as info:
         blobfmt.parse_blob(data, max_segments=DEFAULT_MAX_SEGMENTS)
     assert info.value.code == code, str(info.value)
+
+
+@pytest.mark.parametrize(("name", "spoil"), [
+    ("negative dT time constant", lambda p: setattr(p.thermal.dtemp_filter, "tau_s", -1.0)),
+    ("reference temperature beyond float32", lambda p: setattr(p.thermal, "reference_temp", 1e39)),
+    ("overlapping segments", lambda p: setattr(p.thermal.gyro.segments[1], "t_min", 13.0)),
+])
+def test_the_builder_never_writes_a_blob_its_loader_refuses(name: str, spoil: Callable[[Any], None]) -> None:
+    params = make_params(seed=4)
+    spoil(params)
+    with pytest.raises(blobfmt.BlobError) as info:
+        blobfmt.build_blob(params, "st", 0)
+    assert info.value.code is None, name

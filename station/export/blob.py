@@ -143,7 +143,9 @@ def fixed_utf8(text: str, size: int, what: str) -> bytes:
 
 
 def _f32(values: object) -> list[float]:
-    return [float(v) for v in np.asarray(values, dtype=np.float32).ravel()]
+    # A value beyond float32 becomes inf here, which the read-back of the built blob refuses.
+    with np.errstate(over="ignore"):
+        return [float(v) for v in np.asarray(values, dtype=np.float32).ravel()]
 
 
 def _segment_problem(i: int, t_min: float, t_max: float, previous_t_max: float | None) -> str | None:
