@@ -13,6 +13,9 @@ SEQ_MODULUS = 1 << 32
 # A seq step larger than half the counter range is the counter going back (device reset or a
 # replayed frame), not four billion lost samples.
 _SEQ_BACKWARDS = 1 << 31
+# Seq steps up to this many missing values count at once; larger ones (and steps back) wait for
+# the next sample to tell a real gap or reset from a lone outlier.
+MAX_PLAIN_GAP = 1000
 RATE_WINDOW_S = 2.0
 
 
@@ -32,7 +35,8 @@ class LinkStats:
     bad_payloads: int = 0
     lost: int = 0  # samples missing from seq gaps (u32 wrap understood), less seq_skipped
     seq_skipped: int = 0  # seq values the protocol spent on packets without a sample (not lost)
-    seq_resets: int = 0  # times seq went backwards (device restart or a replayed frame)
+    seq_resets: int = 0  # times seq went backwards and went on from there (device restart)
+    seq_outliers: int = 0  # samples whose seq jumped away alone (a replayed frame, a wild counter)
     overflow_drops: int = 0  # samples dropped because the consumer did not keep up
     # Filled by the capture recorder (station.acquisition.clock_guard), which sees the device clock
     # as a line: samples whose time departed from it alone (left out), and jumps the samples after
@@ -61,6 +65,8 @@ class LinkStats:
 
     def _clock_summary(self) -> str:
         parts = []
+        if self.seq_outliers:
+            parts.append(f"{self.seq_outliers} seq outlier{'s' * (self.seq_outliers != 1)}")
         if self.clock_outliers:
             parts.append(f"{self.clock_outliers} clock outlier{'s' * (self.clock_outliers != 1)} (left out)")
         if self.clock_jumps:
@@ -77,6 +83,7 @@ class LinkMonitor:
     def __init__(self) -> None:
         self.stats = LinkStats()
         self._last_seq: int | None = None
+        self._pending_seq: int | None = None  # after a large seq step, until the next sample says
         self._gaps = 0  # seq values missing between consecutive samples
         self._first_t_us: int | None = None
         self._window: deque[tuple[int, int]] = deque()  # (t_us of a batch's last sample, samples so far)
@@ -96,11 +103,13 @@ class LinkMonitor:
         prev[0] = seq[0] - 1 if self._last_seq is None else self._last_seq
         prev[1:] = seq[:-1]
         gap = (seq - prev - 1) % SEQ_MODULUS
-        backwards = gap >= _SEQ_BACKWARDS
-        self._gaps += int(gap[~backwards].sum())
+        if self._pending_seq is None and (gap <= MAX_PLAIN_GAP).all():
+            self._gaps += int(gap.sum())
+            self._last_seq = int(seq[-1])
+        else:
+            for value in seq.tolist():
+                self._one_seq(value)
         s.lost = max(0, self._gaps - s.seq_skipped)
-        s.seq_resets += int(backwards.sum())
-        self._last_seq = int(seq[-1])
         s.samples += n
         t_us = samples["t_us"]
         if self._first_t_us is None:
@@ -108,7 +117,7 @@ class LinkMonitor:
         t_last = int(t_us[-1])
         if self._window and t_last < self._window[-1][0]:
             # The clock went back (a restart, or the return from a wild timestamp): a window that
-            # reached into the other clock would freeze the rate until that time came again.
+            # starts in the other clock would stop sliding, and the rate become a long average.
             self._window.clear()
         s.device_time_s = max(0.0, (t_last - self._first_t_us) * 1e-6)
         self._window.append((t_last, s.samples))
@@ -117,6 +126,39 @@ class LinkMonitor:
         t0, n0 = self._window[0]
         if t_last > t0:
             s.rate_hz = (s.samples - n0) / ((t_last - t0) * 1e-6)
+
+    def _one_seq(self, value: int) -> None:
+        """The seq rule one sample at a time, when some step is large: a large step (forward
+        beyond ``MAX_PLAIN_GAP``, or back) waits for the next sample. If that one continues from
+        the sample before, the large step was an outlier (a wild counter, a replayed frame):
+        counted in ``seq_outliers``, not as samples lost or a reset. Else it was real: a long
+        gap of lost samples, or a reset when it went back."""
+        s = self.stats
+        last = self._last_seq
+        if last is None:
+            self._last_seq = value
+            return
+        pending = self._pending_seq
+        if pending is not None:
+            self._pending_seq = None
+            step = (value - last) % SEQ_MODULUS
+            if 1 <= step <= MAX_PLAIN_GAP + 1 or step == 0:
+                s.seq_outliers += 1
+                self._gaps += max(0, step - 2)  # the outlier took the place of one missing value
+                self._last_seq = value
+                return
+            jump = (pending - last - 1) % SEQ_MODULUS
+            if jump >= _SEQ_BACKWARDS:
+                s.seq_resets += 1
+            else:
+                self._gaps += jump
+            last = self._last_seq = pending
+        gap = (value - last - 1) % SEQ_MODULUS
+        if gap <= MAX_PLAIN_GAP:
+            self._gaps += gap
+            self._last_seq = value
+        else:
+            self._pending_seq = value
 
     def add_overflow(self, n: int) -> None:
         """Count ``n`` samples dropped because the consumer did not keep up."""

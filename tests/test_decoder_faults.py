@@ -259,3 +259,28 @@ def test_the_link_rate_follows_the_unit_after_a_sample_an_hour_ahead() -> None:
         for i in range(0, len(batch), 50):
             mon.add_samples(batch[i : i + 50])
     assert mon.stats.rate_hz == pytest.approx(400.0, rel=0.01)
+
+
+def _seq_batch(seq: list[int]) -> np.ndarray:
+    s = np.zeros(len(seq), dtype=SAMPLE_DTYPE)
+    s["seq"] = seq
+    s["t_us"] = np.arange(len(seq)) * 5000
+    return s
+
+
+@pytest.mark.parametrize("odd", [4_000_000_000, 1_000_000, 97])
+def test_a_lone_wild_or_replayed_seq_is_an_outlier_not_lost_samples(odd: int) -> None:
+    """Before: a wild seq counted a million lost samples (or, replayed, 3 phantom ones and a reset)."""
+    mon = LinkMonitor()
+    for part in ([98, 99, 100], [odd], [101, 102], [103, 105, odd, 106]):
+        mon.add_samples(_seq_batch(part))
+    assert mon.stats.lost == 1 and mon.stats.seq_resets == 0 and mon.stats.seq_outliers == 2
+    assert "2 seq outliers" in mon.stats.summary()
+
+
+def test_a_restart_and_a_long_gap_the_next_sample_confirms_still_count() -> None:
+    mon = LinkMonitor()
+    mon.add_samples(_seq_batch([10, 11, 5011, 5012]))  # 4,999 lost
+    mon.add_samples(_seq_batch([0]))
+    mon.add_samples(_seq_batch([1, 2]))  # the unit restarted its counter
+    assert mon.stats.lost == 4999 and mon.stats.seq_resets == 1 and mon.stats.seq_outliers == 0
