@@ -15,7 +15,8 @@ Lines end in ``\\n``, ``\\r`` or both. Each line is recognised by its start:
 
 These formats carry no sample counter and, except CSV with a time column, no device clock:
 ``seq`` counts the samples and ``t_us`` is ``seq / rate_hz`` at the nominal rate given.
-A VectorNav sentence with bytes glued before it (a cut line, noise) is read from its ``$``.
+A VectorNav sentence with bytes glued before it (a cut line, noise) is read from its ``$``, a
+MotionCal line from its tag when a whole sample follows it.
 A line longer than ``max_line`` bytes is dropped (``length_errors``); a line whose numbers are
 malformed or implausible (beyond ``max_acc``, ``max_gyro``, ``temp_range``, or not finite) is a
 ``bad_payloads`` error; a sentence with a wrong checksum is a ``crc_errors`` error. Lines of
@@ -319,13 +320,11 @@ class AsciiDecoder(StreamDecoderBase):
     def _line(self, line: bytes, rows: list[tuple], messages: list[Message]) -> None:
         first, self._first_line = self._first_line, False
         stats = self.stats
-        sentence = line.rfind(b"$VN")
-        if sentence > 0:
-            # Bytes glued before a VectorNav sentence (a line cut short, noise on the wire): the
-            # sentence carries its own checksum, so it is read from its '$' on.
-            stats.garbage_bytes += sentence
+        start = self._glued_start(line)
+        if start:
+            stats.garbage_bytes += start
             stats.resyncs += 1
-            line = line[sentence:]
+            line = line[start:]
         try:
             text = line.decode("ascii").strip()
         except UnicodeDecodeError:
@@ -364,6 +363,23 @@ class AsciiDecoder(StreamDecoderBase):
         self._seen(kind)
         stats.frames += 1
         rows.append(row)
+
+    def _glued_start(self, line: bytes) -> int:
+        """Where a sample line starts after bytes glued before it (a line cut short, noise on the
+        wire), or 0. A VectorNav sentence carries its own checksum, so it is read from its '$'; a
+        MotionCal line from its tag, when what follows it is a whole sample (so a banner that
+        mentions ``Raw:`` stays text)."""
+        sentence = line.rfind(b"$VN")
+        if sentence > 0:
+            return sentence
+        tag = max(line.rfind(b"Raw:"), line.rfind(b"Uni:"))
+        if tag <= 0:
+            return 0
+        try:
+            self._motioncal(line[tag:].decode("ascii").strip())
+        except (_Reject, UnicodeDecodeError):
+            return 0
+        return tag
 
     def _seen(self, kind: str) -> None:
         self.kinds_seen[kind] = self.kinds_seen.get(kind, 0) + 1

@@ -11,10 +11,11 @@ Each case says what its framing can promise when good frames are interleaved wit
   when MTData2 items and what follows speak for it (``protocols/xsens.py``), so a good frame
   may be lost only when it lies in such a span and holds a chance frame of its own
   (``xsens_allowed_losses`` names those);
-- text lines: garbage that ends with a line end; garbage with no line end glues itself to the
-  next line, which then cannot be read (CSV and MotionCal lines have nothing to resynchronise
-  on but the line end); VectorNav sentences, which start with ``$VN`` and carry a checksum,
-  are found after glued garbage: any garbage shorter than a line's limit.
+- text lines: CSV lines, garbage that ends with a line end; garbage with no line end glues
+  itself to the next line, which then cannot be read (it has nothing to resynchronise on but
+  the line end). VectorNav sentences (``$VN`` and a checksum) and MotionCal lines (``Raw:``,
+  ``Uni:`` and nine numbers) are found after glued garbage: any garbage shorter than a line's
+  limit.
 """
 
 from __future__ import annotations
@@ -94,6 +95,7 @@ _XSENS = ("any garbage: every good MTData2 frame comes out, unless it lies insid
           "8-bit checksum passes and a frame start inside it passes its checksum too")
 _LINES = "garbage that ends with a line end: every good line comes out"
 _SENTENCES = "any garbage (under 512 bytes without a line end): every checksummed sentence comes out"
+_TAGGED = "any garbage (under 512 bytes without a line end): every tagged sample line comes out"
 
 
 def _xsens_losses(pieces: list[tuple[bytes, bool]]) -> set[int]:
@@ -117,8 +119,8 @@ CASES: list[Case] = [
          _any_garbage, b"\xfd", _BINARY, needs_pymavlink=True),
     Case("ascii-csv", AsciiDecoder, partial(_line_frames, kind="csv"), _line_garbage, b"\n", _LINES,
          lines=True),
-    Case("ascii-motioncal", AsciiDecoder, partial(_line_frames, kind="motioncal"), _line_garbage, b"Raw:",
-         _LINES, lines=True),
+    Case("ascii-motioncal", AsciiDecoder, partial(_line_frames, kind="motioncal"), _any_garbage, b"Raw:",
+         _TAGGED, lines=True),
     Case("ascii-vectornav", AsciiDecoder, partial(_line_frames, kind="vnymr"), _any_garbage, b"$VNYMR,",
          _SENTENCES, lines=True),
     Case("auto-native", AutoDecoder, _native_frames, _any_garbage, native.SYNC, _BINARY),

@@ -165,6 +165,15 @@ def test_a_vectornav_sentence_after_a_cut_line_or_noise_is_read() -> None:
     assert len(out) == 3 and dec.stats.resyncs == 2 and dec.stats.errors == 0
 
 
+def test_a_motioncal_line_after_a_cut_line_is_read_and_a_banner_stays_text() -> None:
+    lines = ascii_lines.encode_motioncal(make_samples(3)).split(b"\r\n")
+    stream = lines[0][:9] + lines[1] + b"\r\n" + b"Output Raw: on\r\n" + lines[2] + b"\r\n"
+    dec = AsciiDecoder()
+    out = feed_chunks(dec, b"\r\n" + stream, [6, 30])
+    assert len(out) == 2 and dec.kinds_seen == {"motioncal": 2, "text": 1}
+    assert dec.stats.resyncs == 1 and dec.stats.errors == 0
+
+
 # ------------------------------------------------------------------ MAVLink: a replayed frame
 
 
