@@ -60,11 +60,20 @@ def _candidates() -> list[tuple[str, StreamDecoderBase]]:
 
 
 def _rate(samples: np.ndarray) -> float:
+    """Sample rate from the time steps between samples ``seq`` says are neighbours: the smallest
+    seq step that is common (a quarter as frequent as the most frequent, at least), as steps
+    across lost samples would make a damaged link look slower, and Xsens packets of the other
+    rate take seq values between samples."""
     if len(samples) < 2:
         return float("nan")
     dt = np.diff(samples["t_us"].astype(np.int64))
-    dt = dt[dt > 0]
-    return 1e6 / float(np.median(dt)) if len(dt) else float("nan")
+    dseq = np.diff(samples["seq"].astype(np.int64)) % (1 << 32)
+    ok = (dt > 0) & (dseq > 0)
+    if not ok.any():
+        return float("nan")
+    steps, counts = np.unique(dseq[ok], return_counts=True)
+    usual = dt[ok & (dseq == steps[counts * 4 >= counts.max()].min())]
+    return 1e6 / float(np.median(usual))
 
 
 def _damage(stats: DecoderStats) -> str:
