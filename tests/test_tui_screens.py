@@ -111,7 +111,7 @@ def test_wizard_snapshot_help_skip_and_abort(tmp_path):
             await pilot.press("q")
 
     asyncio.run(run())
-    assert app.return_value == 1  # an aborted run
+    assert app.return_value == 2  # an aborted run: ExitCode.ABORTED, as `tui --help` says
     assert not (tmp_path / "p.yaml").exists()
 
 

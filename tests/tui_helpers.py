@@ -63,3 +63,34 @@ def assert_snapshot(svg: str, name: str) -> None:
     diff = [f"row {i}: expected {w!r}\n        got      {g!r}"
             for i, (g, w) in enumerate(zip(got, want, strict=False)) if g != w]
     assert len(got) == len(want) and not diff, f"{name} differs from {path}:\n" + "\n".join(diff[:10])
+
+
+def ideal_run(hold_s: float = 1.0):
+    """A completed six-position run with rotations of an ideal simulated unit (100 Hz, serial SIM-IDEAL)."""
+    from mocks.rig import sequence_segments, simulate
+    from mocks.truth import UnitTruth
+    from station.acquisition.runner import RunResult
+    from station.acquisition.sequences import builtin
+
+    segments = sequence_segments("six-position", hold_s=hold_s, rotation_rate_dps=180.0)
+    capture = simulate(UnitTruth.ideal(), segments, rate_hz=100.0).to_capture()
+    capture.device = {"serial": "SIM-IDEAL", "model": "imu-sim", "firmware": "1.0.0", "rate_hz": 100}
+    return RunResult("completed", capture, [], builtin("six-position"))
+
+
+async def results_ready(pilot, app, run):
+    """Show ``run``'s results on ``app`` (from its connect screen) and wait for the calibration."""
+    from station.tui.screens.results import ResultsScreen
+
+    await wait_for(pilot, lambda: type(app.screen).__name__ == "ConnectScreen", 5, "the connect screen")
+    await pilot.pause(0.2)
+    app.show_results(run)
+    screen = await wait_for(pilot, lambda: isinstance(app.screen, ResultsScreen) and app.screen, 5, "results")
+    await wait_for(pilot, lambda: screen.report is not None, 30, "the calibration")
+    await pilot.pause(0.2)
+    return screen
+
+
+def screen_text(app) -> str:
+    """What the app's screen shows, as text rows."""
+    return "\n".join(svg_rows(app.export_screenshot()))

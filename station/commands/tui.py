@@ -33,7 +33,12 @@ Allan and temperature recordings go to PARAMS-allan.h5 and PARAMS-thermal.h5.
 A port that cannot be opened, or a link lost during the run, is shown on the screen (what was
 captured is kept) and another port can be chosen.
 
-exit codes: 0 done, 1 the run was aborted or a result is outside its limits, 4 usage."""
+Quitting (q, Ctrl-C) with a calibration that is not saved asks to save it, discard it or go back;
+if the terminal closes first, it is saved to PARAMS-unsaved-TIME.yaml beside --out (or
+imu-station-unsaved-TIME.yaml here).
+
+exit codes: 0 done, every result within its limits; 1 a result is outside its limits; 2 the run
+was aborted or cut short, or its data gave no calibration; 4 usage."""
 EPILOG = """\
 examples:
   imu-station tui --port /dev/ttyUSB0 --out unit42.yaml --export c
@@ -116,7 +121,8 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the TUI; print what it saved; exit 0, or 1 when aborted or a result is out of its limits."""
+    """Run the TUI; print what it saved; exit 0, 1 when a result is out of its limits, 2 when the run
+    was aborted (:meth:`StationApp.exit_code_for_run`)."""
     from station.tui.app import StationApp
 
     app = StationApp(config_from_args(args))

@@ -2,29 +2,43 @@
 
 from __future__ import annotations
 
+import asyncio
+import signal
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 from textual.app import App
 from textual.binding import Binding
 from textual.screen import Screen
 
 from station.acquisition.runner import RunResult
-from station.errors import ExitCode
+from station.errors import ExitCode, StationError
 from station.tui.config import TuiConfig
 from station.tui.screens.connect import ConnectScreen
 from station.tui.screens.help import HelpScreen
+from station.tui.saving import recovery_path
+from station.tui.screens.ask import AskScreen
 from station.tui.session import Session
+
+if TYPE_CHECKING:
+    from station.tui.screens.results import ResultsScreen
 
 
 class StationApp(App[int]):
     """``config`` says what to open; ``session`` is the open device (None until connected).
 
-    The app's return value is the exit code of ``imu-station tui``: 0 unless a run was aborted
-    or failed (1).
+    The app's return value is the exit code of ``imu-station tui`` (:meth:`exit_code_for_run`).
+    A computed calibration that is not saved is never dropped silently: quitting, Ctrl-C or leaving
+    the results screen asks to save, discard or go back; a hang-up (the terminal closed) saves it
+    to a file of its own (:func:`~station.tui.saving.recovery_path`).
     """
 
     TITLE = "imu-station"
     BINDINGS = [
         Binding("question_mark", "help", "help", key_display="?"),
         Binding("q", "quit_app", "quit"),
+        Binding("ctrl+c", "quit_app", "quit", show=False, priority=True),
         Binding("l", "show('live')", "live", show=False),
         Binding("w", "show('wizard')", "wizard", show=False),
         Binding("a", "show('allan')", "Allan", show=False),
@@ -38,10 +52,29 @@ class StationApp(App[int]):
         self.last_run: RunResult | None = None
         self.saved: list[str] = []
         self.results_failed = False
+        self.calibration_failed = False
+        self.pending: ResultsScreen | None = None  # results computed and not yet saved
+        self.recovered: Path | None = None
 
     def on_mount(self) -> None:
-        """Start on the connect screen."""
+        """Start on the connect screen; a hang-up saves what would be lost."""
         self.push_screen(ConnectScreen())
+        try:
+            asyncio.get_running_loop().add_signal_handler(signal.SIGHUP, self.on_hangup)
+        except (NotImplementedError, RuntimeError, ValueError):
+            pass  # no SIGHUP on this platform, or not the main thread: nothing to hang up on
+
+    def on_hangup(self) -> None:
+        """The terminal is gone, so nobody can be asked: save unsaved results beside --out, then exit."""
+        results = self.pending
+        if results is not None:
+            path = recovery_path(self.config.out)
+            try:
+                results.save_to(path)
+                self.recovered = path
+            except (StationError, OSError):
+                pass  # nowhere left to say it; the exit code still tells the script
+        self.exit(self.exit_code_for_run())
 
     def action_help(self) -> None:
         """Show the help screen (once)."""
@@ -53,10 +86,14 @@ class StationApp(App[int]):
         self.show(name)
 
     def show(self, name: str) -> None:
-        """Switch to a screen by name; everything but connect needs an open session."""
+        """Switch to a screen by name; everything but connect needs an open session. Leaving
+        unsaved results asks first (:meth:`leave`)."""
         if self.session is None:
             self.notify("connect to a unit first (Enter on a port)", severity="warning")
             return
+        self.leave(lambda: self._switch(name))
+
+    def _switch(self, name: str) -> None:
         from station.tui.screens.allan import AllanScreen
         from station.tui.screens.live import LiveScreen
         from station.tui.screens.thermal import ThermalScreen
@@ -82,19 +119,70 @@ class StationApp(App[int]):
         self.switch_screen(ResultsScreen(result))
 
     def action_quit_app(self) -> None:
-        """Quit with the exit code of the last run (:meth:`exit_code_for_run`)."""
-        self.exit(self.exit_code_for_run())
+        """Quit with the exit code of the last run (:meth:`exit_code_for_run`), once unsaved results
+        are saved or discarded."""
+        self.leave(lambda: self.exit(self.exit_code_for_run()))
+
+    def leave(self, then: Callable[[], object]) -> None:
+        """Run ``then`` now, or, with unsaved results, once the operator saved or discarded them.
+
+        Parameters
+        ----------
+        then : callable
+            What leaving does (quit, or show another screen); not run when the operator goes back.
+        """
+        results = self.pending
+        if results is None or isinstance(self.screen, AskScreen):
+            if results is None:
+                then()
+            return
+        out = self.config.out
+        where = f"save to {out}" if out is not None else "no --out was given"
+        self.ask_to_save(results, then, f"The calibration is not saved ({where}).", str(out or "params.yaml"))
+
+    def ask_to_save(self, results: ResultsScreen, then: Callable[[], object], question: str, path: str) -> None:
+        """Ask to save ``results`` (to an editable file name), discard them, or go back.
+
+        Parameters
+        ----------
+        results : ResultsScreen
+            The screen holding the calibration.
+        then : callable
+            What to do once saved or discarded.
+        question : str
+            Why it asks.
+        path : str
+            The file name offered.
+        """
+        def answered(reply: tuple[str, str] | None) -> None:
+            key, chosen = reply if reply is not None else ("back", "")
+            if key == "d":
+                self.pending = None
+                then()
+            elif key == "s":
+                if not chosen:
+                    self.ask_to_save(results, then, "Give a file name to save to.", path)
+                    return
+                try:
+                    results.save_to(Path(chosen))
+                except (StationError, OSError) as exc:  # OSError: a folder that cannot be made
+                    self.ask_to_save(results, then, f"Could not save: {exc}", chosen)
+                    return
+                then()
+
+        self.push_screen(AskScreen(question, [("s", "save"), ("d", "discard the results")], path), answered)
 
     def exit_code_for_run(self) -> int:
-        """1 when the last run did not complete (or is cut short by quitting) or its results are
-        outside their limits, else 0."""
+        """2 (aborted) when the last run did not complete, is cut short by quitting or its data
+        gave no calibration; 1 when a result is outside its limits; else 0."""
         from station.tui.screens.wizard import WizardScreen
 
         run = self.last_run
         screen = self.screen
         cut_short = isinstance(screen, WizardScreen) and screen.result is None and screen.current >= 0
-        failed = (run is not None and run.outcome != "completed") or self.results_failed or cut_short
-        return ExitCode.OUT_OF_LIMITS if failed else ExitCode.OK
+        if cut_short or (run is not None and run.outcome != "completed") or self.calibration_failed:
+            return ExitCode.ABORTED
+        return ExitCode.OUT_OF_LIMITS if self.results_failed else ExitCode.OK
 
     def close_session(self) -> None:
         """Close the unit's session, if one is open."""
@@ -108,4 +196,8 @@ class StationApp(App[int]):
 
     def on_unmount(self) -> None:
         """Close the session when the app ends."""
+        try:
+            asyncio.get_running_loop().remove_signal_handler(signal.SIGHUP)
+        except (NotImplementedError, RuntimeError, ValueError):
+            pass  # never installed (see on_mount)
         self.close_session()

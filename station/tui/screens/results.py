@@ -23,6 +23,7 @@ from station.export.writers import write_export
 from station.tui.calibrate import calibrate_run
 from station.tui.limits import ACCEL_LIMITS, GYRO_LIMITS, Verdict, evaluate
 from station.tui.messages import LinkFailed, Snapshot
+from station.tui.saving import save_sections
 from station.tui.screens.station_screen import StationScreen
 
 
@@ -166,6 +167,7 @@ class ResultsScreen(StationScreen):
         self.query_one("#tables", Static).update(Text(f"The calibration failed: {message.error}",
                                                       style="red"))
         self.query_one("#status", Static).update("w: run the sequence again · q: quit")
+        self.station.calibration_failed = True
 
     def on_snapshot(self, message: Snapshot) -> None:
         """Show the computed calibration, its verdicts, residuals and warnings."""
@@ -190,6 +192,7 @@ class ResultsScreen(StationScreen):
             parts.append(Text(f"warning: {warning}", style="yellow"))
         self.query_one("#tables", Static).update(Group(*parts))
         self.station.results_failed = not all(v.passed for v in self.verdicts)
+        self.station.pending = self
         self.show_status()
 
     @staticmethod
@@ -235,33 +238,52 @@ class ResultsScreen(StationScreen):
             text.append(f"Enter: save to {out}" + (f" and export {', '.join(self.station.config.export)}"
                                                     if self.station.config.export else "") + ", then quit")
         else:
-            text.append("Enter: quit (no --out given: nothing is saved)")
+            text.append("Enter: choose a file to save to (no --out given), or discard, then quit")
         self.query_one("#status", Static).update(text)
 
     def action_save(self) -> None:
-        """Save the sections to --out and write the exports (or quit once saved, or without --out)."""
+        """Save the sections to --out and write the exports (or quit once saved, or without --out:
+        the app then asks where to save, or whether to discard)."""
         if self.report is None:
             return
-        config = self.station.config
-        if self.saved or config.out is None:
+        out = self.station.config.out
+        if self.saved or out is None:
             self.station.action_quit_app()
             return
         try:
-            params = ParamsFile.load_or_new(config.out)
-            session = self.station.session
-            params.update_device(session.info if session is not None else self.run.capture.device)
-            if self.report.accel is not None:
-                params.accel = self.report.accel
-            if self.report.gyro is not None:
-                params.gyro = self.report.gyro
-            params.save(config.out)
-            written = [str(config.out)] + self.write_exports(config.out)
-        except StationError as exc:
+            self.save_to(out)
+        except (StationError, OSError) as exc:  # OSError: a folder that cannot be made
             self.show_status(f"[could not save: {exc}]")
-            return
+
+    def save_to(self, path: Path) -> list[str]:
+        """Merge the accel and gyro sections into ``path`` and write the --export formats beside it.
+
+        Parameters
+        ----------
+        path : Path
+            The parameter file.
+
+        Returns
+        -------
+        list of str
+            The parameter file and each export written.
+
+        Raises
+        ------
+        StationError
+            The file could not be read, merged or written.
+        """
+        if self.report is None:
+            raise StationError("there is no calibration to save")
+        session = self.station.session
+        save_sections(path, session.info if session is not None else self.run.capture.device,
+                      accel=self.report.accel, gyro=self.report.gyro)
+        written = [str(path)] + self.write_exports(path)
         self.saved = True
         self.station.saved = written
+        self.station.pending = None
         self.show_status("saved " + ", ".join(written))
+        return written
 
     def action_export(self) -> None:
         """Write the --export formats again from the saved parameter file."""

@@ -1,0 +1,76 @@
+"""Saving the TUI's results: sections merged into a parameter file, and the file a hang-up leaves."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from station.export.params_file import ParamsFile
+
+
+def save_sections(path: Path, device: dict[str, Any], **sections: Any) -> None:
+    """Merge ``sections`` (``accel=``, ``gyro=``, ``noise=``, ``thermal=``) into the file at ``path``.
+
+    The file's other sections are kept; a section given as None is left as it is.
+
+    Parameters
+    ----------
+    path : Path
+        The parameter file (created when missing).
+    device : dict
+        What is known of the unit (serial, model, firmware).
+    **sections
+        The sections to write, by name.
+
+    Raises
+    ------
+    StationError
+        The existing file cannot be read, or the new one cannot be written.
+    """
+    params = ParamsFile.load_or_new(path)
+    params.update_device(device)
+    for name, value in sections.items():
+        if value is not None:
+            setattr(params, name, value)
+    params.save(path)
+
+
+def existing_section(path: Path | None, name: str) -> bool:
+    """True when the parameter file at ``path`` exists and already holds section ``name``.
+
+    Parameters
+    ----------
+    path : Path or None
+        The parameter file, None when there is none.
+    name : str
+        The section (``noise``, ``thermal``, ...).
+
+    Returns
+    -------
+    bool
+    """
+    if path is None or not Path(path).exists():
+        return False
+    return getattr(ParamsFile.load(path), name) is not None
+
+
+def recovery_path(out: Path | None, now: float | None = None) -> Path:
+    """Where results go when the terminal closes before the operator chose: beside ``--out`` (never
+    onto it: nobody said yes), else in the working folder; stamped with the UTC time.
+
+    Parameters
+    ----------
+    out : Path or None
+        The ``--out`` parameter file.
+    now : float, optional
+        The time to stamp (default: now).
+
+    Returns
+    -------
+    Path
+    """
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(now))
+    if out is None:
+        return Path(f"imu-station-unsaved-{stamp}.yaml")
+    return out.with_name(f"{out.stem}-unsaved-{stamp}.yaml")

@@ -1,0 +1,140 @@
+"""The TUI never loses a result: quitting (q, Ctrl-C) or leaving unsaved results asks to save, discard
+or go back; a hang-up saves them to a file of their own; the exit code says how the run ended."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+
+import numpy as np
+import pytest
+from tui_helpers import ideal_run, results_ready, screen_text, wait_for
+
+from station.errors import ExitCode
+from station.export.params_file import ParamsFile
+from station.tui.app import StationApp
+from station.tui.config import TuiConfig
+from station.tui.screens.ask import AskScreen
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def test_q_on_unsaved_results_asks_and_back_keeps_them(tmp_path):
+    out = tmp_path / "unit.yaml"
+    app = StationApp(TuiConfig(out=out))
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            results = await results_ready(pilot, app, ideal_run())
+            await pilot.press("q")
+            await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question")
+            text = screen_text(app)
+            assert "The calibration is not saved" in text and "s: save" in text and "d: discard" in text
+            await pilot.press("escape")  # back
+            await wait_for(pilot, lambda: app.screen is results, 5, "the results again")
+            assert app.return_value is None and not out.exists()
+            await pilot.press("ctrl+c")  # Ctrl-C asks too
+            await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question on Ctrl-C")
+            await pilot.press("s")
+            await wait_for(pilot, lambda: app.return_value is not None, 10, "the app to exit")
+
+    asyncio.run(run())
+    assert app.return_value == ExitCode.OK
+    assert np.allclose(ParamsFile.load(out).accel.matrix, np.eye(3), atol=1e-9)
+    assert app.saved == [str(out)]
+
+
+def test_without_out_the_question_offers_a_file_and_discard_exits_without_writing(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    app = StationApp(TuiConfig())
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await results_ready(pilot, app, ideal_run())
+            await pilot.press("enter")  # "Enter: choose a file to save to ..."
+            await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question")
+            assert "no --out was given" in screen_text(app)
+            await pilot.press("d")
+            await wait_for(pilot, lambda: app.return_value is not None, 10, "the app to exit")
+
+    asyncio.run(run())
+    assert app.return_value == ExitCode.OK and app.saved == []
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_that_cannot_be_written_asks_again_and_another_name_saves(tmp_path):
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("a file where a folder should be")
+    app = StationApp(TuiConfig(out=blocker / "unit.yaml"))
+    other = tmp_path / "other.yaml"
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await results_ready(pilot, app, ideal_run())
+            await pilot.press("q")
+            await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question")
+            await pilot.press("s")
+            await wait_for(pilot, lambda: "Could not save" in screen_text(app), 5, "the refusal")
+            assert isinstance(app.screen, AskScreen) and app.return_value is None
+            await pilot.press("e")
+            field = app.screen.query_one("#path")
+            field.value = str(other)
+            await pilot.press("enter")
+            await wait_for(pilot, lambda: app.return_value is not None, 10, "the app to exit")
+
+    asyncio.run(run())
+    assert ParamsFile.load(other).device["serial"] == "SIM-IDEAL"
+
+
+def test_leaving_unsaved_results_for_another_screen_asks_first(tmp_path):
+    app = StationApp(TuiConfig(out=tmp_path / "unit.yaml"))
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            results = await results_ready(pilot, app, ideal_run())
+            app.session = object()  # another screen needs a session; the question comes first
+            app.show("live")
+            await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question")
+            await pilot.press("escape")
+            await wait_for(pilot, lambda: app.screen is results, 5, "the results again")
+            app.session = None
+            app.exit(0)
+
+    asyncio.run(run())
+
+
+def test_a_hangup_saves_unsaved_results_beside_out_and_exits(tmp_path):
+    out = tmp_path / "unit.yaml"
+    app = StationApp(TuiConfig(out=out))
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await results_ready(pilot, app, ideal_run())
+            os.kill(os.getpid(), signal.SIGHUP)
+            await wait_for(pilot, lambda: app.return_value is not None, 10, "the app to exit")
+
+    asyncio.run(run())
+    assert not out.exists()  # nobody said yes to --out
+    assert app.recovered is not None and app.recovered.parent == tmp_path
+    assert app.recovered.name.startswith("unit-unsaved-")
+    assert ParamsFile.load(app.recovered).device["serial"] == "SIM-IDEAL"
+    assert app.return_value == ExitCode.OK
+
+
+def test_results_outside_the_limits_exit_1():
+    run_result = ideal_run()
+    run_result.capture.acc[:] += 2.0  # a 2 m/s^2 bias on every axis: beyond the 1.5 built in
+    app = StationApp(TuiConfig())
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await results_ready(pilot, app, run_result)
+            assert "FAIL" in screen_text(app)
+            await pilot.press("q")
+            await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question")
+            await pilot.press("d")
+            await wait_for(pilot, lambda: app.return_value is not None, 10, "the app to exit")
+
+    asyncio.run(run())
+    assert app.return_value == ExitCode.OUT_OF_LIMITS
