@@ -15,10 +15,10 @@ from textual.screen import Screen
 from station.acquisition.runner import RunResult
 from station.errors import ExitCode, StationError
 from station.tui.config import TuiConfig
-from station.tui.screens.connect import ConnectScreen
-from station.tui.screens.help import HelpScreen
 from station.tui.saving import recovery_path
 from station.tui.screens.ask import AskScreen
+from station.tui.screens.connect import ConnectScreen
+from station.tui.screens.help import HelpScreen
 from station.tui.session import Session
 
 if TYPE_CHECKING:
@@ -140,7 +140,8 @@ class StationApp(App[int]):
         where = f"save to {out}" if out is not None else "no --out was given"
         self.ask_to_save(results, then, f"The calibration is not saved ({where}).", str(out or "params.yaml"))
 
-    def ask_to_save(self, results: ResultsScreen, then: Callable[[], object], question: str, path: str) -> None:
+    def ask_to_save(self, results: ResultsScreen, then: Callable[[], object], question: str,
+                    path: str) -> None:
         """Ask to save ``results`` (to an editable file name), discard them, or go back.
 
         Parameters
