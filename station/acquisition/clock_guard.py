@@ -84,11 +84,6 @@ class ClockGuard:
         self._new_steps = 0  # steps added since the period was last renewed
         self._held: list[tuple[np.void, str]] = []
 
-    @property
-    def period_us(self) -> float | None:
-        """The sample period the line predicts with (None until the line is made)."""
-        return self._period
-
     def push(self, samples: np.ndarray, labels: list[str] | None = None) -> Released:
         """Screen a batch (``labels``: one per sample, or None); returns the samples cleared."""
         if len(samples) == 0:
