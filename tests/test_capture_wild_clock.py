@@ -237,6 +237,19 @@ def test_capture_command_records_the_whole_duration_past_wild_timestamps(tmp_pat
     assert len(read_capture(out)) == 1197
 
 
+def test_capture_command_reports_a_unit_restart_and_goes_on(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "restart.csv"
+    with PtyServer(SimDevice(seed=6, rate_hz=200, encoder="native-restart"), speed=2) as server:
+        code = main(["capture", "--port", server.port_path, "--duration", "4", "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "wrote 800 samples (3.995 s of device clock)" in captured.out
+    assert re.search(r"clock jump: the device clock went back 2\.\d+ s at row \d+ \(a unit restart\?\); "
+                     r"the rows after it are re-based to follow on", captured.out)
+    assert re.search(r"link: .*, 1 clock jump, \d+ bytes", captured.out)
+    assert (np.diff(read_capture(out).t) > 0).all()
+
+
 # ------------------------------------------------------------------ a capture that kept nothing
 
 
