@@ -76,8 +76,9 @@ def report(result: CaptureResult, out: IO[str]) -> None:
     if result.non_increasing:
         print(f"left out {result.non_increasing} samples whose device time did not increase", file=out)
     for jump in result.clock_jumps:
-        rebased = "; the rows after it are re-based to follow on" if jump.step_s < 0 else ""
-        print(f"clock jump: {jump.describe()} (a unit restart?){rebased}", file=out)
+        why = ("(a unit restart?); the rows after it are re-based to follow on" if jump.step_s < 0
+               else "(a clock set anew, or samples lost that seq does not show?)")
+        print(f"clock jump: {jump.describe()} {why}", file=out)
 
 
 def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 3.0) -> Detection:
