@@ -67,7 +67,7 @@ def _rate(samples: np.ndarray) -> float:
     if len(samples) < 2:
         return float("nan")
     dt = np.diff(samples["t_us"].astype(np.int64))
-    dseq = np.diff(samples["seq"].astype(np.int64)) % (1 << 32)
+    dseq = np.diff(samples["seq"].astype(np.int64)) & 0xFFFFFFFF
     ok = (dt > 0) & (dseq > 0)
     if not ok.any():
         return float("nan")
