@@ -67,7 +67,8 @@ def _rate(samples: np.ndarray) -> float:
     if len(samples) < 2:
         return float("nan")
     dt = np.diff(samples["t_us"].astype(np.int64))
-    dseq = np.diff(samples["seq"].astype(np.int64)) & 0xFFFFFFFF
+    seq = samples["seq"].astype(np.uint32)
+    dseq = (seq[1:] - seq[:-1]).astype(np.int64)  # u32 arithmetic: the step modulo 2^32
     ok = (dt > 0) & (dseq > 0)
     if not ok.any():
         return float("nan")
