@@ -19,7 +19,8 @@ then let the sequence wizard guide you through the calibration: for each step a 
 pose (which face up) or of the turn (axis, direction, angle), a live check that the unit is in
 that pose (angle error) and still (stillness bar), then automatic capture with a progress bar.
 Redo or skip any step; abort keeps what was captured. The results screen shows the parameters
-with their 1-sigma uncertainties, residuals and pass/fail against limits, and saves them to
+with their 1-sigma uncertainties, residuals and pass/fail against limits (the built-in loose ones,
+or a factory plan's with --plan), and saves them to
 --out (and any --export format). Long recordings: an Allan recording with a live Allan
 deviation plot, and a temperature-sweep monitor for the thermal fit.
 
@@ -44,7 +45,8 @@ examples:
   imu-station tui --port /dev/ttyUSB0 --out unit42.yaml --export c
   imu-station tui --simulate --sequence six-position --hold 2 --out sim.yaml
   imu-station tui --simulate --speed 4 --out sim.yaml          (a quick demonstration)
-  imu-station tui --port /dev/ttyACM0 --sequence my-fixture.yaml --no-rotations"""
+  imu-station tui --port /dev/ttyACM0 --sequence my-fixture.yaml --no-rotations
+  imu-station tui --port /dev/ttyUSB0 --plan line-a.yaml --out unit42.yaml  (the line's limits)"""
 
 
 # The simulated unit's rates (mocks.device); a turn faster than 720 deg/s no turntable or hand makes.
@@ -80,6 +82,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--allan-minutes", type=positive("min", MAX_ALLAN_MINUTES), default=60.0,
                         metavar="MIN",
                         help="length of the Allan recording before it stops by itself (default 60)")
+    parser.add_argument("--plan", "--limits", dest="plan", type=Path, metavar="PLAN.yaml",
+                        help="judge the results against this factory plan's limits (imu-station run's plan) "
+                        "instead of the built-in loose ones; the header and the results say which")
     parser.add_argument("--seed", type=SEED, default=0, help="--simulate: which simulated unit (default 0)")
     parser.add_argument("--rate", type=positive("Hz", MAX_SIM_RATE_HZ), default=200.0, metavar="HZ",
                         help="--simulate: the simulated unit's sample rate (default 200)")
@@ -106,9 +111,10 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
     Raises
     ------
     StationError
-        --export without --out, or a sequence file with an error.
+        --export without --out, or a sequence or plan file with an error.
     """
     from station.acquisition.sequences import resolve
+    from station.factory.plan import load_plan
 
     if args.export and args.out is None:
         raise StationError("--export writes from the saved parameter file: give --out PARAMS.yaml too")
@@ -117,7 +123,8 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
     return TuiConfig(port=args.port, simulate=args.simulate, protocol=args.protocol, sequence=args.sequence,
                      rotations=not args.no_rotations, out=args.out, capture=args.capture, export=args.export,
                      export_dir=args.export_dir, hold_s=args.hold, rotation_rate_dps=args.rotation_rate,
-                     seed=args.seed, rate_hz=args.rate, speed=args.speed, allan_minutes=args.allan_minutes)
+                     seed=args.seed, rate_hz=args.rate, speed=args.speed, allan_minutes=args.allan_minutes,
+                     plan=load_plan(args.plan) if args.plan is not None else None)
 
 
 def run(args: argparse.Namespace) -> int:

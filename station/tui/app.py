@@ -15,6 +15,7 @@ from textual.screen import Screen
 from station.acquisition.runner import RunResult
 from station.errors import ExitCode, StationError
 from station.tui.config import TuiConfig
+from station.tui.limits import limits_name
 from station.tui.saving import recovery_path
 from station.tui.screens.ask import AskScreen
 from station.tui.screens.connect import ConnectScreen
@@ -58,6 +59,7 @@ class StationApp(App[int]):
 
     def on_mount(self) -> None:
         """Start on the connect screen; a hang-up saves what would be lost."""
+        self.sub_title = f"limits: {limits_name(self.config.plan)}"
         self.push_screen(ConnectScreen())
         try:
             asyncio.get_running_loop().add_signal_handler(signal.SIGHUP, self.on_hangup)

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from station.factory.plan import Plan
 
 
 @dataclass
@@ -25,6 +29,7 @@ class TuiConfig:
     rate_hz: float = 200.0
     speed: float = 1.0
     allan_minutes: float = 60.0
+    plan: Plan | None = None  # whose limits judge the results (None: the built-in ones)
 
     def capture_path(self) -> Path | None:
         """Where the labelled capture goes: ``--capture``, else beside ``--out``."""

@@ -1,7 +1,9 @@
 """Pass/fail of a calibration against limits: what the results screen shows beside each parameter.
 
-The defaults suit consumer and industrial MEMS units: a parameter outside them means a damaged
-unit or a bad run (wrong pose, motion during a hold) rather than a unit that needs calibrating.
+The built-in limits suit consumer and industrial MEMS units: a parameter outside them means a
+damaged unit or a bad run (wrong pose, motion during a hold) rather than a unit that needs
+calibrating. A factory plan's limits (``tui --plan``) replace them: the unit is then judged as the
+line judges it (:func:`plan_verdicts`).
 """
 
 from __future__ import annotations
@@ -10,7 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.engines.calibration_common import CalibrationReport
 from station.engines.sensor_model import SensorCalibration
+from station.factory.measure import measure
+from station.factory.plan import Plan
+
+BUILT_IN = "built-in"
+BUILT_IN_MEANING = "loose: they catch a damaged unit or a bad run"
 
 
 @dataclass(frozen=True)
@@ -30,18 +38,80 @@ GYRO_LIMITS = SensorLimits(bias_max=0.2, scale_error_max=0.1, misalignment_max=0
 
 @dataclass(frozen=True)
 class Verdict:
-    """One checked quantity: its worst value against the limit."""
+    """One checked quantity: its worst value against the limit (``low`` too for a plan's range)."""
 
     sensor: str
     name: str
     value: float
-    limit: float
+    limit: float | None
     unit: str
+    low: float | None = None
 
     @property
     def passed(self) -> bool:
-        """True when the value is finite and within its limit."""
-        return bool(np.isfinite(self.value)) and self.value <= self.limit
+        """True when the value is finite and within its limit(s)."""
+        if not np.isfinite(self.value):
+            return False
+        above = self.limit is not None and self.value > self.limit
+        return not above and (self.low is None or self.value >= self.low)
+
+    def limit_text(self) -> str:
+        """The limit as written: ``<= 1.5 m/s^2``, ``±0.5 m/s^2`` or ``0.99 .. 1.01``."""
+        unit = f" {self.unit}" if self.unit else ""
+        if self.low is not None and self.limit is not None:
+            if self.low == -self.limit:
+                return f"±{self.limit:.4g}{unit}"
+            return f"{self.low:.4g} .. {self.limit:.4g}{unit}"
+        if self.low is not None:
+            return f">= {self.low:.4g}{unit}"
+        return f"<= {self.limit:.4g}{unit}"
+
+
+def limits_name(plan: Plan | None) -> str:
+    """Which limits judge the results, for the header and the results screen.
+
+    Parameters
+    ----------
+    plan : Plan or None
+        The factory plan given with ``--plan``.
+
+    Returns
+    -------
+    str
+    """
+    return BUILT_IN if plan is None else f"plan {plan.name}"
+
+
+def plan_verdicts(plan: Plan, report: CalibrationReport, link: dict[str, object]) -> list[Verdict]:
+    """Each quantity the plan limits, judged as the factory run judges it (its worst component).
+
+    Parameters
+    ----------
+    plan : Plan
+        The factory plan.
+    report : CalibrationReport
+        The calibration.
+    link : dict
+        The link's statistics (``samples``, ``lost``, ``overflow_drops``).
+
+    Returns
+    -------
+    list of Verdict
+        One per limited quantity the calibration has (a gyroscope limit without rotations has none).
+    """
+    out = []
+    for spec in plan.limits:
+        found = measure(plan, [spec.quantity], report, dict(link))
+        if not found:
+            continue
+        failed = [m for m in found if m.outcome != "PASS"]
+        worst = failed[0] if failed else max(found, key=lambda m: abs(m.value or 0.0))
+        sensor, _, name = spec.quantity.partition(".")
+        component = worst.name[len(spec.quantity) + 1:]  # x, y, z or xy ...; empty for a scalar
+        value = float("nan") if worst.value is None else worst.value
+        out.append(Verdict(sensor, f"{name.replace('_', ' ')} {component}".strip(), value, spec.high,
+                           spec.unit, spec.low))
+    return out
 
 
 def evaluate(sensor: str, cal: SensorCalibration, limits: SensorLimits, unit: str,

@@ -21,10 +21,31 @@ from station.errors import StationError
 from station.export.params_file import ParamsFile
 from station.export.writers import write_export
 from station.tui.calibrate import calibrate_run
-from station.tui.limits import ACCEL_LIMITS, GYRO_LIMITS, Verdict, evaluate
+from station.tui.limits import (
+    ACCEL_LIMITS,
+    BUILT_IN_MEANING,
+    GYRO_LIMITS,
+    Verdict,
+    evaluate,
+    limits_name,
+    plan_verdicts,
+)
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.saving import save_sections
 from station.tui.screens.station_screen import StationScreen
+
+# The engines' per-step keys, as the operator reads them.
+RESIDUAL_LABELS = {
+    "residual": "residual (m/s^2)",
+    "norm_error": "|g| error (m/s^2)",
+    "angle_error_deg": "angle error (deg)",
+}
+
+
+def _sigma(value: float) -> str:
+    """A 1-sigma in two digits and a short exponent: 4.3e-5, not 4.3e-05 (a row fits 80 columns)."""
+    mantissa, exponent = format(value, ".1e").split("e")
+    return f"{mantissa}e{int(exponent)}"
 
 
 def _pm(values: np.ndarray, sigma: object, fmt: str) -> list[str]:
@@ -32,7 +53,7 @@ def _pm(values: np.ndarray, sigma: object, fmt: str) -> list[str]:
     sig = np.asarray(sigma, float).ravel() if sigma is not None else None
     if sig is None or sig.shape != values.shape:
         return [format(v, fmt) for v in values]
-    return [f"{format(v, fmt)} ± {format(s, '.1e')}" for v, s in zip(values, sig, strict=True)]
+    return [f"{format(v, fmt)}±{_sigma(s)}" for v, s in zip(values, sig, strict=True)]
 
 
 def residual_unit(cal: SensorCalibration, unit: str) -> str:
@@ -70,10 +91,10 @@ def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
     rich.table.Table
     """
     table = Table(title=title, title_justify="left", title_style="bold", expand=False, padding=(0, 1))
-    table.add_column("parameter")
+    table.add_column("parameter", no_wrap=True)
     for axis in "xyz":
-        table.add_column(axis, justify="right")
-    table.add_column("unit")
+        table.add_column(axis, justify="right", no_wrap=True)
+    table.add_column("unit", no_wrap=True)
     sd = cal.stddev or {}
     table.add_row("bias", *_pm(cal.bias, sd.get("bias"), "+.5f"), unit)
     table.add_row("scale", *_pm(cal.scale, sd.get("scale"), ".5f"), "")
@@ -105,12 +126,12 @@ def verdict_table(verdicts: list[Verdict]) -> Table:
     -------
     rich.table.Table
     """
-    table = Table(title="limits", title_justify="left", title_style="bold", padding=(0, 1))
+    table = Table(padding=(0, 1))
     for col in ("sensor", "check", "value", "limit", ""):
         table.add_column(col)
     for v in verdicts:
         mark = Text("PASS", style="bold green") if v.passed else Text("FAIL", style="bold red")
-        table.add_row(v.sensor, v.name, f"{v.value:.4g} {v.unit}", f"{v.limit:.4g} {v.unit}", mark)
+        table.add_row(v.sensor, v.name, f"{v.value:.4g} {v.unit}", v.limit_text(), mark)
     return table
 
 
@@ -176,15 +197,16 @@ class ResultsScreen(StationScreen):
         parts: list[RenderableType] = [
             Text(f"method: {report.method}   gravity: {report.gravity:.5f} m/s^2   "
                  f"run: {self.run.outcome}, {len(self.run.accepted)} of {len(self.run.sequence)} steps")]
-        self.verdicts = []
+        # The verdict first: it is what the operator asks before anything else.
+        self.verdicts = self.judge(report)
+        plan = self.station.config.plan
+        source = f"{limits_name(plan)} ({BUILT_IN_MEANING if plan is None else plan.path})"
+        # A line of its own: a table's title wraps at the table's width, and a plan's path is long.
+        parts += [Text(f"limits: {source}", style="bold"), verdict_table(self.verdicts)]
         if report.accel is not None:
             parts.append(sensor_table("accelerometer", report.accel, "m/s^2"))
-            self.verdicts += evaluate("accel", report.accel, ACCEL_LIMITS, "m/s^2")
         if report.gyro is not None:
             parts.append(sensor_table("gyroscope", report.gyro, "rad/s"))
-            self.verdicts += evaluate("gyro", report.gyro, GYRO_LIMITS, "rad/s",
-                                      residual_unit(report.gyro, "rad/s"))
-        parts.append(verdict_table(self.verdicts))
         residuals = self.residual_table(report)
         if residuals is not None:
             parts.append(residuals)
@@ -194,6 +216,31 @@ class ResultsScreen(StationScreen):
         self.station.results_failed = not all(v.passed for v in self.verdicts)
         self.station.pending = self
         self.show_status()
+
+    def judge(self, report: CalibrationReport) -> list[Verdict]:
+        """The calibration against the plan's limits (``--plan``), else the built-in ones.
+
+        Parameters
+        ----------
+        report : CalibrationReport
+            The calibration.
+
+        Returns
+        -------
+        list of Verdict
+        """
+        plan = self.station.config.plan
+        if plan is not None:
+            session = self.station.session
+            link = session.device.stats.as_dict() if session is not None else {}
+            return plan_verdicts(plan, report, link)
+        verdicts = []
+        if report.accel is not None:
+            verdicts += evaluate("accel", report.accel, ACCEL_LIMITS, "m/s^2")
+        if report.gyro is not None:
+            verdicts += evaluate("gyro", report.gyro, GYRO_LIMITS, "rad/s",
+                                 residual_unit(report.gyro, "rad/s"))
+        return verdicts
 
     @staticmethod
     def residual_table(report: CalibrationReport) -> Table | None:
@@ -216,7 +263,7 @@ class ResultsScreen(StationScreen):
         table = Table(title="residuals per step", title_justify="left", title_style="bold", padding=(0, 1))
         table.add_column("step")
         for key in keys:
-            table.add_column(key, justify="right")
+            table.add_column(RESIDUAL_LABELS.get(key, key.replace("_", " ")), justify="right")
         for p in rows:
             cells = []
             for key in keys:
@@ -231,6 +278,7 @@ class ResultsScreen(StationScreen):
         out = self.station.config.out
         passed = all(v.passed for v in self.verdicts)
         text = Text("PASS" if passed else "FAIL", style="bold green" if passed else "bold red")
+        text.append(f" against the {limits_name(self.station.config.plan)} limits")
         text.append(f"  {note}\n" if note else "\n")
         if self.saved:
             text.append("Enter: quit")
