@@ -16,7 +16,7 @@ from protocols.registry import DECODERS
 from station.text import printable
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.screens.station_screen import StationScreen
-from station.tui.session import SIMULATED, Session, available_ports, open_session
+from station.tui.session import SIMULATED, PortEntry, Session, available_ports, open_session
 
 
 class ConnectScreen(StationScreen):
@@ -42,9 +42,10 @@ class ConnectScreen(StationScreen):
     def on_mount(self) -> None:
         self.title = "imu-station · connect"
         ports = self.query_one("#ports", OptionList)
-        ports.add_option(Option(f"{SIMULATED:<24} the station's simulator (no hardware)", id=SIMULATED))
+        simulator = PortEntry(SIMULATED, "the station's simulator (no hardware)")
+        ports.add_option(Option(simulator.line(), id=SIMULATED))
         for p in available_ports():
-            ports.add_option(Option(f"{p.device:<24} {p.description}  {p.hwid}", id=p.device))
+            ports.add_option(Option(Text(p.line()), id=p.device))
         ports.highlighted = 0
         ports.focus()
         self.show_hint()
