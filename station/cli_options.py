@@ -17,6 +17,7 @@ from typing import Any
 from drivers import DEFAULT_BAUDRATE
 from protocols.errors import StationError
 from protocols.registry import DECODER_OPTIONS, DECODERS, make_decoder
+from station import frame_file  # noqa: F401  (installs the reader of --protocol frame:FILE.yaml)
 
 MIN_BAUD = 50
 """The slowest standard line speed (B50)."""
@@ -188,8 +189,9 @@ def protocol(text: str) -> str:
         library is not installed (MAVLink without pymavlink).
     """
     name = text.partition(":")[0]
-    if name not in DECODERS:
-        raise argparse.ArgumentTypeError(f"unknown protocol {name!r}; known: {', '.join(sorted(DECODERS))}")
+    if name not in DECODERS and name not in DECODER_OPTIONS:
+        raise argparse.ArgumentTypeError(f"unknown protocol {name!r}; known: {', '.join(sorted(DECODERS))}, "
+                                         "frame:FILE.yaml")
     try:
         make_decoder(text)
     except (ValueError, StationError) as exc:
@@ -272,7 +274,8 @@ def add_protocol_option(parser: argparse.ArgumentParser) -> None:
                         help=f"wire protocol of the unit: {', '.join(sorted(DECODERS))} (default: native); "
                              f"auto: recognise it from the first bytes. {', '.join(DECODER_OPTIONS)} take an "
                              f"option: xsens:hr (the high-rate packets), mavlink:SCALED_IMU2 (which IMU "
-                             f"message), ascii:COLUMNS@HZ")
+                             f"message), ascii:COLUMNS@HZ, frame:FILE.yaml (a board's own frames described "
+                             f"in YAML)")
 
 
 def add_output_option(parser: argparse.ArgumentParser, *, required: bool = False, dest: str = "output",
@@ -295,6 +298,22 @@ def add_output_option(parser: argparse.ArgumentParser, *, required: bool = False
     kwargs.setdefault("type", Path)
     parser.add_argument("-o", "--output", "--out", dest=dest, required=required, metavar=metavar, help=help,
                         **kwargs)
+
+
+def add_replace_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--replace``: start the parameter file afresh instead of merging into it.
+
+    Without it a command merges its section into an existing file of the same unit and refuses
+    (exit 4) a file holding another unit's results (``station.export.params_file.open_for_unit``).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    """
+    parser.add_argument("--replace", action="store_true",
+                        help="start the parameter file afresh, dropping its sections (needed to write "
+                             "over a file that holds another unit's results)")
 
 
 def add_db_arguments(parser: argparse.ArgumentParser) -> None:

@@ -22,6 +22,7 @@ from station.cli_options import (
     MIN_GRAVITY,
     RATE_HZ,
     add_output_option,
+    add_replace_option,
     check_range,
     number,
     positive,
@@ -31,7 +32,7 @@ from station.engines.calibration_free import FreeCapture, FreeSettings, calibrat
 from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.engines.earth import normal_gravity
 from station.errors import ExitCode, StationError
-from station.export.params_file import ParamsFile, sensor_to_dict, to_plain
+from station.export.params_file import merge_sections, open_for_unit, sensor_to_dict, to_plain
 
 NAME = "calibrate"
 HELP = "accelerometer and gyroscope scale, misalignment and bias from a capture (turntable or hand-held)"
@@ -71,7 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("auto", "turntable", "free"), default="auto",
                         help="turntable (labelled poses and rotations), free (hand-held), auto (default)")
     add_output_option(parser, metavar="PARAMS.yaml",
-                      help="parameter file to merge the accel and gyro sections into")
+                      help="parameter file to merge the accel and gyro sections into (of the same unit)")
+    add_replace_option(parser)
     parser.add_argument("--gravity", type=float, metavar="G",
                         help=f"local gravity in m/s^2 (default {STANDARD_GRAVITY}, "
                              "or normal gravity from --latitude)")
@@ -283,16 +285,14 @@ def run(args: argparse.Namespace) -> int:
     with _progress(sys.stderr) as progress:
         task = progress.add_task(f"reading {args.input}", total=None)
         capture = read_capture(args.input)
+        if args.output:
+            open_for_unit(args.output, capture.device, replace=args.replace)  # refuse before the fit
         progress.update(task, description="calibrating")
         report = calibrate_capture(capture, args)
     outputs = {}
     if args.output:
-        params = ParamsFile.load_or_new(args.output)
-        params.update_device(capture.device)
-        params.accel = report.accel
-        if report.gyro is not None:
-            params.gyro = report.gyro
-        params.save(args.output)
+        merge_sections(args.output, capture.device, {"accel": report.accel, "gyro": report.gyro},
+                       capture=args.input, replace=args.replace)
         written = "accel and gyro sections" if report.gyro is not None else "accel section"
         outputs[str(args.output)] = f"{written} written"
     if args.plot:

@@ -17,6 +17,7 @@ from station.cli_options import (
     MAX_GRAVITY,
     MIN_GRAVITY,
     add_output_option,
+    add_replace_option,
     describe_range,
     number,
     positive,
@@ -24,7 +25,7 @@ from station.cli_options import (
 from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
 from station.engines.thermal_model import TERMS
 from station.errors import ExitCode, InputFileError
-from station.export.params_file import ParamsFile, to_plain
+from station.export.params_file import merge_sections, open_for_unit, to_plain
 from station.export.thermal_report import format_report
 
 NAME = "thermal"
@@ -66,7 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz) or capture file (.h5) with a temp column")
     add_output_option(parser, required=True, metavar="PARAMS",
-                      help="parameter file to write the thermal section into (created if missing)")
+                      help="parameter file to write the thermal section into (created if missing; "
+                           "of the same unit)")
+    add_replace_option(parser)
     parser.add_argument("--segments", default="auto", type=_segments, metavar="auto|N",
                         help="temperature segments: auto (1 to --max-segments, by cross-validation) or N "
                              "equal-width segments (default: auto)")
@@ -125,7 +128,6 @@ def _terms(text: str) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Fit the sweep, write the thermal section, print the report (or JSON)."""
     err = Console(stderr=True)
-    params = ParamsFile.load_or_new(args.output)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
                   transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task(f"reading {args.input}", total=1.0)
@@ -133,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
         if capture.temp is None:
             raise InputFileError(args.input, "has no temperature; a thermal fit needs the 'temp' column",
                                  column="temp")
+        # its accel and gyro sections calibrate the sweep: only the same unit's
+        params = open_for_unit(args.output, capture.device, replace=args.replace)
         progress.update(task, description="fitting the thermal model", completed=0.0)
         settings = ThermalSettings(
             gravity=args.gravity, segments=args.joins if args.joins else args.segments, terms=args.terms,
@@ -148,9 +152,8 @@ def run(args: argparse.Namespace) -> int:
 
             plot_thermal(fit, args.plot)
         progress.update(task, description=f"writing {args.output}")
-        params.thermal = fit.model
-        params.update_device(capture.device)
-        params.save(args.output)
+        merge_sections(args.output, capture.device, {"thermal": fit.model}, capture=args.input,
+                       replace=args.replace)
     calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
     for message in fit.warnings:
         print(f"warning: {message}", file=sys.stderr)

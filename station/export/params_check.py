@@ -157,6 +157,16 @@ def check_params(data: Any, path: str | Path = "<params>", locate: Locate | None
         _mag(c, doc["mag"])
     if doc.get("characterisation") is not None:
         _characterisation(c, doc["characterisation"])
+    if doc.get("sources") is not None:
+        _sources(c, doc["sources"])
+
+
+def _sources(c: _Checker, value: Any) -> None:
+    """``sources``: per section, the capture and unit it came from, every value text."""
+    for name, source in c.mapping(value, ("sources",)).items():
+        for key, item in c.mapping(source, ("sources", name)).items():
+            if isinstance(item, bool) or not isinstance(item, str | int | float):
+                raise c.fail(("sources", name, key), f"must be text, not {_shown(item)}")
 
 
 def _sensor(c: _Checker, value: Any, name: str) -> None:

@@ -13,7 +13,6 @@ whole record as JSON, which is what queries return.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import sqlite3
 import time
@@ -24,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from station.errors import ExitCode, StationError
+from station.files import sha256_file
 
 SCHEMA = "imu-station/record/1"
 OUTCOMES = ("PASS", "FAIL", "ABORTED", "TIMEOUT", "ERROR")
@@ -34,14 +34,6 @@ EXIT_CODES = {"PASS": ExitCode.OK, "FAIL": ExitCode.OUT_OF_LIMITS, "ABORTED": Ex
 def utc_now() -> str:
     """Now in UTC, ISO 8601 with microseconds: sorts as text, in SQLite and PostgreSQL alike."""
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-
-
-def sha256_file(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 @dataclass
