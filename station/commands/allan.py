@@ -12,12 +12,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
-from station.cli_options import RATE_HZ, add_output_option, number
+from station.cli_options import RATE_HZ, add_output_option, add_replace_option, number
 from station.engines.allan import allan_curve, cluster_sizes
-from station.engines.allan_fit import identify_noise
+from station.engines.allan_fit import TERMS, identify_noise, missing_terms
 from station.errors import EngineInputError, ExitCode
 from station.export import allan_report, kalibr
-from station.export.params_file import ParamsFile, to_plain
+from station.export.params_file import merge_sections, open_for_unit, to_plain
 from station.files import atomic_write_text
 
 NAME = "allan"
@@ -49,7 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz), capture file (.h5) or ROS bag (.bag, ROS 2 dir)")
     add_output_option(parser, metavar="PARAMS",
-                      help="parameter file to write the 'noise' section into (other sections are kept)")
+                      help="parameter file to write the 'noise' section into (other sections are kept; "
+                           "of the same unit)")
+    add_replace_option(parser)
     parser.add_argument("--curve", type=Path, metavar="FILE.csv",
                         help="write the curve: tau, gx..az, n, then EDF and 68%% interval columns per axis")
     parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write the log-log plot as PNG")
@@ -65,6 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="refuse records whose gaps miss more than this fraction of samples (0.001)")
     parser.add_argument("--per-decade", type=number(int, 1, MAX_PER_DECADE), default=10, metavar="N",
                         help=f"cluster sizes per decade of tau, 10 to {MAX_PER_DECADE} (default 10)")
+    parser.add_argument("--terms", type=_terms, default=("N", "K"), metavar="T,T",
+                        help="noise terms the record must resolve on every axis, among "
+                             f"{','.join(TERMS)} (default N,K); a record too short for them is refused")
+    parser.add_argument("--force", action="store_true",
+                        help="keep what a record too short for --terms shows (its missing terms null)")
     parser.add_argument("--workdir", type=Path, metavar="DIR",
                         help="folder for the temporary cumulative sums (default: the system's temp folder)")
 
@@ -78,6 +85,49 @@ def _fraction(text: str) -> float:
     if not 0 <= value < 1:
         raise argparse.ArgumentTypeError(f"{text} is outside the allowed range, a fraction in [0, 1)")
     return value
+
+
+def _terms(text: str) -> tuple[str, ...]:
+    """``N,K``: noise terms among TERMS."""
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    unknown = [t for t in names if t not in TERMS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: give terms among {','.join(TERMS)}, e.g. N,K")
+    return names
+
+
+def _length(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.3g} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.3g} min"
+    return f"{seconds / 3600:.3g} h"
+
+
+def refuse_short_record(noise: list, terms: tuple[str, ...], duration_s: float, source: str) -> None:
+    """Refuse a record that leaves a term asked for null on some axis, with the length it needs.
+
+    Raises
+    ------
+    EngineInputError
+        Naming the terms, the axes, the record's length and the length needed (exit 4).
+    """
+    missing = missing_terms(noise, terms, duration_s)
+    if not missing:
+        return
+    parts = []
+    for term in dict.fromkeys(m.term for m in missing):
+        of_term = [m for m in missing if m.term == term]
+        needed = [m.needed_s for m in of_term if m.needed_s is not None]
+        length = (f"a still record of at least {_length(max(needed))}" if needed
+                  else "a longer record (this one shows no sign of it)")
+        axes = ", ".join(m.axis for m in of_term)
+        parts.append(f"{term} ({allan_report.NAMES[term]}) is not resolved on {axes} "
+                     f"({of_term[0].axis}: {of_term[0].reason}); it needs {length}")
+    raise EngineInputError(
+        f"{source}: the record ({_length(duration_s)}) is too short for the terms asked for "
+        f"({','.join(terms)}): {'; '.join(parts)}. Record longer, ask for fewer terms (--terms), "
+        "or keep what it shows with --force")
 
 
 def _progress(err: IO[str]) -> Progress:
@@ -108,6 +158,8 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     if args.per_decade < 10:
         raise EngineInputError(f"--per-decade {args.per_decade}: use at least 10 points per decade")
     chunks, device, size = capture_chunks(args.input, args.topic)
+    if args.output:
+        open_for_unit(args.output, device, replace=args.replace)  # refuse before hours of computing
     with _progress(err) as progress:
         reading = progress.add_task("reading", total=None)
         record = integrate_stream(chunks, str(args.input), rate_hz=args.rate, workdir=args.workdir,
@@ -125,6 +177,8 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
                                 on_progress=lambda done, total: progress.update(computing, completed=done,
                                                                                 total=total))
             curve, noise = identify_noise(curve, record.phase)  # the likelihood of K reads the sums again
+            if not args.force:
+                refuse_short_record(noise, args.terms, curve.duration_s, str(args.input))
     source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
               "timing_problems": timing.problems()}
     section = to_plain(allan_report.noise_section(noise, curve, source))
@@ -149,10 +203,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
         write_png(args.plot, curve, noise, title=f"imu-station allan {args.input.name}")
         outputs[str(args.plot)] = "written"
     if args.output:
-        params = ParamsFile.load_or_new(args.output)
-        params.update_device(device)
-        params.noise = section
-        params.save(args.output)
+        merge_sections(args.output, device, {"noise": section}, capture=args.input, replace=args.replace)
         outputs[str(args.output)] = "noise section written"
     return {"noise": section, "outputs": outputs}
 

@@ -139,6 +139,7 @@ class AxisNoise:
     crossing_tau_nk: float | None = None
     gauss_markov: tuple[float, float] | None = None  # (sigma, correlation time s) where a hump was fitted
     fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
+    k_needed_s: float | None = None  # record length that could show K, where K is not shown (a lower bound)
 
     def value(self, term: str) -> float | None:
         """The estimate of noise term ``term`` (N, B, K, ...) in its own unit, or None if not resolved.
@@ -432,7 +433,55 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
                             f"{K_CROSSING_FRACTION * result.crossing_tau_nk / 3600:.2g} h still")
             k_est.value = None
             k_est.stddev = None
+    if k_est.value is None and n_val > 0 and np.isfinite(var["K"]):
+        # the largest K this record allows (its estimate where significant, else 2-sigma above it) puts
+        # the crossing with N, hence the length that would show K, no earlier than this
+        c_k, sd_k = values.get("K", 0.0), math.sqrt(var["K"])
+        bound = c_k if c_k >= SIGNIFICANCE * sd_k else max(c_k, 0.0) + 2.0 * sd_k
+        if bound > 0:
+            result.k_needed_s = K_CROSSING_FRACTION * math.sqrt(3.0 * n_val / bound)
     return result
+
+
+@dataclass(frozen=True)
+class MissingTerm:
+    """A noise term asked for that an axis's record does not resolve."""
+
+    axis: str
+    term: str
+    reason: str
+    needed_s: float | None  # record length that could resolve it, where one can be told
+
+
+def missing_terms(noise: Sequence[AxisNoise], terms: Sequence[str], duration_s: float) -> list[MissingTerm]:
+    """The terms of ``terms`` that some axis leaves null, with why and the record length they need.
+
+    Parameters
+    ----------
+    noise : sequence of AxisNoise
+        Every axis's fit (:func:`identify_noise`).
+    terms : sequence of str
+        The terms asked for (keys of ``TERMS``).
+    duration_s : float
+        Length of the record, s.
+
+    Returns
+    -------
+    list of MissingTerm
+        Empty when every axis resolves every term asked for. K's length is the one at which its
+        line would cross the white noise's before T/20; the other terms give none but "longer".
+    """
+    out = []
+    for axis in noise:
+        for term in terms:
+            est = axis.terms[term]
+            if est.value is not None:
+                continue
+            needed = axis.k_needed_s if term == "K" else None
+            if needed is not None and needed <= duration_s:
+                needed = None  # the bound says nothing this record did not
+            out.append(MissingTerm(axis.axis, term, est.reason or "not resolved", needed))
+    return out
 
 
 def _departure_tau(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray) -> float | None:

@@ -138,20 +138,24 @@ def summary_lines(section: dict[str, Any]) -> list[str]:
             vals = s[t] or [None, None, None]
             sds = s["stddev"][t] or [None, None, None]
             cells = []
-            for v, sd in zip(vals, sds, strict=True):
+            for axis, v, sd in zip(SENSOR_AXES[sensor], vals, sds, strict=True):
                 if v is None:
-                    cells.append("null")
+                    cells.append(f"{axis} null")
                 else:
-                    cells.append(f"{v:.4g}" + (f" +/- {sd:.2g}" if sd is not None else "")
+                    cells.append(f"{axis} {v:.4g}" + (f" +/- {sd:.2g}" if sd is not None else "")
                                  + f" ({v * factor:.4g} {alt})")
             lines.append(f"  {t} {NAMES[t]} [{si}]: " + " | ".join(cells))
         for t, fit in s.get("adev_fit", {}).items():
-            cells = ["null" if v is None else f"{v:.4g}" for v in fit["value"]]
+            cells = [f"{axis} " + ("null" if v is None else f"{v:.4g}")
+                     for axis, v in zip(SENSOR_AXES[sensor], fit["value"], strict=True)]
             lines.append(f"  {t} by the IEEE 952 fit of the curve, for comparison: " + " | ".join(cells))
         for t, reasons in s["reasons"].items():
             if t not in ("N", "K"):  # the optional terms' absence is the normal case
                 continue
-            shown = {r for r in reasons if r}
-            for r in sorted(shown):
-                lines.append(f"  {t}: {r}")
+            axes_of: dict[str, list[str]] = {}
+            for axis, r in zip(SENSOR_AXES[sensor], reasons, strict=True):
+                if r:
+                    axes_of.setdefault(r, []).append(axis)
+            for r, axes in sorted(axes_of.items()):
+                lines.append(f"  {t} of {', '.join(axes)}: {r}")
     return lines
