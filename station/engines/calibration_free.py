@@ -370,6 +370,7 @@ def find_still_period(data: FreeCapture, settings: FreeSettings) -> StillPeriod:
                 f"no initial still period found (the unit moved after {initial_still_s:.1f} s): keep it "
                 "still for the first 10 s or more, or give its length with --initial-still S")
     n_still = _still_samples(t, initial_still_s, settings.inclusive_still_end)
+    _check_starts_still(t, acc, window, n_still, given=data.initial_still_s is not None)
     if n_still < window:
         raise EngineInputError(f"the initial still period ({initial_still_s:g} s, {n_still} samples) is "
                                f"shorter than the detector window ({window} samples); record a longer one")
@@ -378,6 +379,34 @@ def find_still_period(data: FreeCapture, settings: FreeSettings) -> StillPeriod:
         raise EngineInputError("the accelerometer does not vary at all during the still period (constant "
                                "values): the variance threshold needs sensor noise; is the stream frozen?")
     return StillPeriod(float(initial_still_s), n_still, window, rate, base)
+
+
+STILL_FACTOR = 10.0
+"""A still period whose moving variance is this many times the record's quietest is a move (the
+detector's own factor: a static interval's threshold is 2..10 times the still period's)."""
+
+
+def _check_starts_still(t: np.ndarray, acc: np.ndarray, window: int, n_still: int, given: bool) -> None:
+    """Refuse a session that does not start still: the still period would then be a move, its
+    variance the detector's unit, and every threshold would find one "static" interval, the whole
+    record, which reads as "too few static intervals" rather than what went wrong."""
+    vnorm = moving_variance_norm(acc, window)
+    if len(vnorm) < 2:
+        return
+    rate = 1.0 / float(np.median(np.diff(t)))
+    # a detected period is judged on its first second (the detector's own reference), a given one whole
+    first = n_still if given else max(window, int(round(rate)))
+    level = float(np.median(vnorm[:max(1, first - window + 1)]))
+    quiet = max(float(np.percentile(vnorm, 5)), float(np.finfo(float).tiny))
+    if level <= STILL_FACTOR * quiet:
+        return
+    where = f"the given --initial-still period ({n_still / rate:.1f} s)" if given else \
+        f"its first {first / rate:.1f} s"
+    raise EngineInputError(
+        f"the capture does not start still: in {where} the accelerometer varies {level / quiet:.0f} times "
+        "as much as in its stillest part. The hand-held method takes the gyroscope bias and the noise level "
+        "that tells still from moving from an initial still period: record again with the unit lying "
+        f"still for the first 10 s or more (at least {2 * window / rate:.1f} s) before the first move")
 
 
 @dataclass
