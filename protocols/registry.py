@@ -7,6 +7,7 @@ from collections.abc import Callable
 from protocols.ascii_lines import AsciiDecoder
 from protocols.base import StreamDecoderBase
 from protocols.detect import AutoDecoder
+from protocols.frame import decoder_from_option
 from protocols.mavlink import MavlinkDecoder
 from protocols.native import NativeDecoder
 from protocols.xsens import XsensDecoder
@@ -23,11 +24,13 @@ DECODERS: dict[str, Callable[[], StreamDecoderBase]] = {
 # Decoders that take one option, given as ``name:option``: the CSV column spec and/or the rate of
 # lines without a clock for ``ascii`` (``ascii:t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``,
 # ``ascii:@50``), the IMU message of ``mavlink`` (``mavlink:SCALED_IMU2``), the packets of ``xsens``
-# that make the samples (``xsens:hr`` for AccelerationHR / RateOfTurnHR, ``xsens:normal``).
+# that make the samples (``xsens:hr`` for AccelerationHR / RateOfTurnHR, ``xsens:normal``), the
+# description file of a board's own frames for ``frame`` (``frame:board.yaml``, read by station.frame_file).
 DECODER_OPTIONS: dict[str, Callable[[str], StreamDecoderBase]] = {
     "ascii": AsciiDecoder.from_option,
     "xsens": lambda source: XsensDecoder(source=source),
     "mavlink": lambda source: MavlinkDecoder(source=source),
+    "frame": decoder_from_option,
 }
 
 

@@ -26,11 +26,14 @@ from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
+from frame_helpers import SPEC_EXAMPLE, plain_frames
 
 from protocols import ascii_lines, mavlink, native, xsens
 from protocols.ascii_lines import AsciiDecoder
 from protocols.base import SAMPLE_DTYPE, StreamDecoderBase
 from protocols.detect import AutoDecoder
+from protocols.frame import FrameDecoder
+from protocols.frame_description import FrameDescription, describe
 from protocols.native import NativeDecoder
 from protocols.xsens import XsensDecoder
 
@@ -68,6 +71,11 @@ def _native_frames(samples: np.ndarray) -> list[bytes]:
 
 def _mavlink_frames(samples: np.ndarray, message: str) -> list[bytes]:
     return [mavlink.encode_samples(samples[i : i + 1], message) for i in range(len(samples))]
+
+
+def _frame_frames(desc: FrameDescription, samples: np.ndarray) -> list[bytes]:
+    data = plain_frames(desc, samples)
+    return [data[i : i + desc.length] for i in range(0, len(data), desc.length)]
 
 
 def _line_frames(samples: np.ndarray, kind: str) -> list[bytes]:
@@ -124,6 +132,8 @@ CASES: list[Case] = [
     Case("ascii-vectornav", AsciiDecoder, partial(_line_frames, kind="vnymr"), _any_garbage, b"$VNYMR,",
          _SENTENCES, lines=True),
     Case("auto-native", AutoDecoder, _native_frames, _any_garbage, native.SYNC, _BINARY),
+    Case("frame", partial(FrameDecoder, describe(SPEC_EXAMPLE)),
+         partial(_frame_frames, describe(SPEC_EXAMPLE)), _any_garbage, b"\xaa\x55", _BINARY),
     Case("auto-xsens", AutoDecoder, _xsens_frames, _any_garbage, xsens.SYNC, _XSENS,
          allowed_losses=_xsens_losses),
 ]

@@ -1,0 +1,475 @@
+"""Frames a board describes in data (``shared/specs/frame-description.md``), decoded in numpy.
+
+A :class:`~protocols.frame_description.FrameDescription` compiles into :class:`FrameDecoder`: the
+frame becomes one numpy record type (each field at its offset, in its byte order), so a run of
+back-to-back frames in the buffer is viewed as records without copying; the sync and the checksum
+of every frame in the run are checked at once, and the values come out of the record columns with
+their scale and offset. Python only steps in where the run breaks (garbage, a damaged frame), as in
+the native decoder, and follows the native protocol's resync rules: a frame whose checksum fails is
+counted (``truncated`` when a sync starts inside it, ``crc_errors`` otherwise), the search resumes
+at the next sync candidate after the one it tried, and garbage is counted and skipped, so no good
+frame after it is lost.
+
+Sequence counters and integer clocks narrower than 64 bits are unwrapped (a step back of up to half
+their range is a step back, not a wrap). A board without a clock is timed by ``rate_hz``: by its
+counter when it has one, else by the count of samples. Without a counter, the counter is made from
+the clock: a step of more than 1.5 sample periods counts the samples missing in it.
+
+The station reads description files (``station.frame_file``) and registers its reader here with
+:func:`set_description_reader`, so ``make_decoder("frame:board.yaml")`` works wherever a protocol is
+named; this layer reads no files itself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from protocols.base import SAMPLE_DTYPE, Decoded, StreamDecoderBase
+from protocols.errors import StationError
+from protocols.frame_checksums import checksum, checksum_rows
+from protocols.frame_description import FieldSpec, FrameDescription
+
+# Frames checked per vectorised run. After a damaged frame the next run re-checks at most this many,
+# so a stream with errors costs little more than a clean one.
+_WINDOW = 1024
+# Samples whose clock steps give the period of a board with neither counter nor stated rate.
+_PERIOD_SAMPLES = 8
+
+DescriptionReader = Callable[[str], FrameDescription]
+_reader: DescriptionReader | None = None
+
+
+def set_description_reader(reader: DescriptionReader) -> None:
+    """Install the function that reads a description file for ``frame:FILE`` (the station's YAML reader).
+
+    Parameters
+    ----------
+    reader : callable
+        ``path -> FrameDescription``; it raises a ``StationError`` naming the file and line.
+    """
+    global _reader
+    _reader = reader
+
+
+def decoder_from_option(path: str) -> FrameDecoder:
+    """The decoder for ``--protocol frame:PATH``: the description file read by the installed reader.
+
+    Parameters
+    ----------
+    path : str
+        The description file.
+
+    Returns
+    -------
+    FrameDecoder
+
+    Raises
+    ------
+    StationError
+        No path, no reader installed (import ``station.frame_file``), or the reader's refusal.
+    """
+    if not path:
+        raise StationError("frame needs its description file: --protocol frame:FILE.yaml")
+    if _reader is None:
+        raise StationError("frame descriptions are read by the station: import station.frame_file first, or "
+                           "build FrameDecoder(describe({...}))")
+    return FrameDecoder(_reader(path))
+
+
+def _field_dtype(spec: FieldSpec) -> np.dtype:
+    if spec.size == 3:
+        return np.dtype((np.uint8, 3))  # assembled by _raw_values
+    return np.dtype(f"{'<' if spec.byte_order == 'little' else '>'}{spec.kind}{spec.size}")
+
+
+def frame_dtype(desc: FrameDescription) -> np.dtype:
+    """The numpy record of one whole frame: ``sync``, ``check`` (when there is a checksum) and each field.
+
+    Parameters
+    ----------
+    desc : FrameDescription
+        The frame.
+
+    Returns
+    -------
+    numpy.dtype
+        A structured type of ``desc.length`` bytes whose fields lie at their offsets.
+    """
+    names, formats, offsets = [], [], []
+    ls = len(desc.sync)
+    names.append("sync")
+    formats.append(np.dtype(f"<u{ls}") if ls in (1, 2, 4, 8) else np.dtype((np.uint8, ls)))
+    offsets.append(0)
+    if desc.checksum is not None:
+        cs = desc.checksum
+        names.append("check")
+        formats.append(np.dtype(f"{'<' if cs.byte_order == 'little' else '>'}u{cs.size}"))
+        offsets.append(cs.at)
+    for spec in desc.fields:
+        names.append(f"f_{spec.name}")
+        formats.append(_field_dtype(spec))
+        offsets.append(spec.at)
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": desc.length})
+
+
+def _raw_values(records: np.ndarray, spec: FieldSpec) -> np.ndarray:
+    """A field's raw numbers; 24-bit integers assembled from their bytes and sign-extended."""
+    column = records[f"f_{spec.name}"]
+    if spec.size != 3:
+        return column
+    b = column.astype(np.int32)
+    lo, hi = (0, 2) if spec.byte_order == "little" else (2, 0)
+    value = b[:, lo] | (b[:, 1] << 8) | (b[:, hi] << 16)
+    return (value ^ 0x800000) - 0x800000 if spec.kind == "i" else value
+
+
+class _Extractor:
+    """Some fields of a batch of records as one ``(frames, fields)`` float64 matrix, ``raw * scale + offset``.
+
+    Fields of one type and byte order are gathered together: one fancy index over the frame bytes,
+    one view as that type and one conversion per type, whatever the number of fields.
+    """
+
+    def __init__(self, desc: FrameDescription, specs: list[FieldSpec]):
+        self.length = desc.length
+        groups: dict[np.dtype, list[int]] = {}
+        self.wide: list[tuple[int, FieldSpec]] = []  # 24-bit fields, assembled from their bytes
+        for col, spec in enumerate(specs):
+            if spec.size == 3:
+                self.wide.append((col, spec))
+            else:
+                groups.setdefault(_field_dtype(spec), []).append(col)
+        self.groups = []
+        for dtype, cols in groups.items():
+            index = np.concatenate([np.arange(specs[c].at, specs[c].at + dtype.itemsize) for c in cols])
+            self.groups.append((dtype, index, np.array(cols)))
+        self.single = len(self.groups) == 1 and not self.wide
+        self.width = len(specs)
+        self.scales = np.array([f.scale for f in specs])
+        self.offsets = np.array([f.offset for f in specs])
+        self.identity = bool((self.scales == 1).all() and (self.offsets == 0).all())
+
+    def __call__(self, records: np.ndarray) -> np.ndarray:
+        rows = records.view(np.uint8).reshape(len(records), self.length)
+        with np.errstate(over="ignore", invalid="ignore"):
+            if self.single:
+                dtype, index, _ = self.groups[0]
+                raw = np.ascontiguousarray(rows[:, index]).view(dtype)
+                return raw.astype(np.float64) if self.identity else raw * self.scales + self.offsets
+            out = np.empty((len(records), self.width))
+            for dtype, index, cols in self.groups:
+                out[:, cols] = np.ascontiguousarray(rows[:, index]).view(dtype)
+            for col, spec in self.wide:
+                out[:, col] = _raw_values(records, spec)
+            if not self.identity:
+                out *= self.scales
+                out += self.offsets
+        return out
+
+
+def field_values(desc: FrameDescription, records: np.ndarray) -> dict[str, np.ndarray]:
+    """Every described field of a batch of frame records, scaled: ``raw * scale + offset`` (float64).
+
+    Parameters
+    ----------
+    desc : FrameDescription
+        The frame.
+    records : numpy.ndarray
+        Records of :func:`frame_dtype`.
+
+    Returns
+    -------
+    dict
+        Field name to values.
+    """
+    matrix = _Extractor(desc, list(desc.fields))(np.ascontiguousarray(records))
+    return {spec.name: matrix[:, i] for i, spec in enumerate(desc.fields)}
+
+
+class _Unwrapper:
+    """An integer that wraps at ``2**bits``, made continuous across calls: steps are taken modulo the
+    range, and a step of more than half of it counts as a step back."""
+
+    def __init__(self, bits: int):
+        self.modulus = 1 << bits
+        self.last: int | None = None
+        self.total = 0
+
+    def __call__(self, raw: np.ndarray) -> np.ndarray:
+        r = raw.astype(np.int64)
+        if self.last is None:
+            self.last, self.total = int(r[0]), int(r[0])
+        steps = np.empty_like(r)
+        steps[0] = r[0] - self.last
+        np.subtract(r[1:], r[:-1], out=steps[1:])
+        half = self.modulus // 2
+        steps = ((steps + half) & (self.modulus - 1)) - half
+        out = self.total + np.cumsum(steps)
+        self.last, self.total = int(r[-1]), int(out[-1])
+        return out
+
+
+class FrameDecoder(StreamDecoderBase):
+    """Incremental decoder of the frames a :class:`FrameDescription` describes (``StreamDecoderBase``).
+
+    Parameters
+    ----------
+    desc : FrameDescription
+        The checked description (``protocols.frame_description.describe``).
+    """
+
+    name = "frame"
+
+    def __init__(self, desc: FrameDescription):
+        super().__init__()
+        self.description = desc
+        self._dtype = frame_dtype(desc)
+        self._sync = desc.sync
+        self._len = desc.length
+        ls = len(desc.sync)
+        self._sync_value = int.from_bytes(desc.sync, "little") if ls in (1, 2, 4, 8) else None
+        self._last_records = np.zeros(0, dtype=self._dtype)
+        # acc, gyro and temp lie side by side in a sample record: 7 float32 from byte 12.
+        imu = [desc.field(n) for n in ("ax", "ay", "az", "gx", "gy", "gz", "temp")]
+        self._imu = _Extractor(desc, [f for f in imu if f is not None])
+        seq = desc.field("seq")
+        self._seq = _Unwrapper(8 * seq.size) if seq is not None and seq.size < 8 else None
+        t = desc.field("t")
+        self._clock = _Unwrapper(8 * t.size) if t is not None and t.kind != "f" and t.size < 8 else None
+        self._count = 0  # samples so far
+        self._seq0: float | None = None
+        self._period_s = 1.0 / desc.rate_hz if desc.rate_hz else None
+        self._last_t: float | None = None
+        self._synth_seq = -1
+
+    # -- framing -------------------------------------------------------------------------------
+
+    def _valid_run(self, pos: int) -> tuple[np.ndarray, int]:
+        """Records of the longest run of valid frames at ``pos`` (a copy: the buffer may then shrink)."""
+        buf = self._buf
+        count = min((len(buf) - pos) // self._len, _WINDOW)
+        records = np.frombuffer(buf, dtype=self._dtype, count=count, offset=pos)
+        if self._sync_value is not None:
+            ok = records["sync"] == self._sync_value
+        else:
+            ok = (records["sync"] == np.frombuffer(self._sync, dtype=np.uint8)).all(axis=1)
+        cs = self.description.checksum
+        if cs is not None:
+            rows = np.frombuffer(buf, dtype=np.uint8, count=count * self._len, offset=pos)
+            rows = rows.reshape(count, self._len)[:, cs.start : cs.end]
+            ok &= checksum_rows(cs.type, rows) == records["check"]
+        n_ok = count if ok.all() else int(ok.argmin())
+        return records[:n_ok].copy(), n_ok
+
+    def _partial_sync_start(self, pos: int) -> int:
+        """Where a sync cut by the end of the buffer starts (its first bytes are kept), else the end."""
+        buf, sync = self._buf, self._sync
+        for keep in range(min(len(sync) - 1, len(buf) - pos), 0, -1):
+            if buf.endswith(sync[:keep]):
+                return len(buf) - keep
+        return len(buf)
+
+    def _seek(self, pos: int) -> tuple[int, bool]:
+        """The next sync at or after ``pos``, counting the bytes skipped as garbage."""
+        start = self._buf.find(self._sync, pos)
+        found = start >= 0
+        if not found:
+            start = self._partial_sync_start(pos)
+        if start > pos:
+            self.stats.garbage_bytes += start - pos
+            self.stats.resyncs += 1
+        return start, found
+
+    def _reject(self, pos: int) -> int:
+        """Count the damaged frame at ``pos`` and resume at the next sync candidate after it."""
+        buf = self._buf
+        nxt = buf.find(self._sync, pos + 1)
+        if 0 <= nxt < pos + self._len:
+            self.stats.truncated += 1  # the next frame started inside this one
+        else:
+            self.stats.crc_errors += 1
+        if nxt < 0:
+            nxt = self._partial_sync_start(pos + 1)
+        self.stats.resyncs += 1
+        self.stats.garbage_bytes += nxt - pos
+        return nxt
+
+    def feed(self, data: bytes) -> Decoded:
+        """Decode ``data`` after what is buffered (``StreamDecoderBase.feed``)."""
+        buf = self._buf
+        buf += data
+        runs: list[np.ndarray] = []
+        pos = 0
+        while True:
+            pos, found = self._seek(pos)
+            if not found or len(buf) - pos < self._len:
+                break
+            records, n_ok = self._valid_run(pos)
+            if n_ok:
+                runs.append(records)
+                pos += n_ok * self._len
+            else:
+                pos = self._reject(pos)
+        if pos:
+            del buf[:pos]
+        if not runs:
+            self._last_records = self._last_records[:0]
+            return Decoded()
+        # Joined as bytes: numpy would pack the records' type (dropping the bytes between fields).
+        records = runs[0] if len(runs) == 1 else \
+            np.concatenate([r.view(np.uint8) for r in runs]).view(self._dtype)
+        samples = self._samples(records)
+        self.stats.frames += len(samples)
+        self.stats.samples += len(samples)
+        return Decoded(samples)
+
+    def flush(self) -> Decoded:
+        """End of stream: every sync candidate left is a truncated frame, the rest garbage."""
+        buf = self._buf
+        if buf:
+            candidates, at = 0, buf.find(self._sync)
+            while at >= 0:
+                candidates += 1
+                at = buf.find(self._sync, at + 1)
+            self.stats.truncated += candidates
+            self.stats.garbage_bytes += len(buf)
+            buf.clear()
+        return Decoded()
+
+    # -- values --------------------------------------------------------------------------------
+
+    @property
+    def last_values(self) -> dict[str, np.ndarray]:
+        """Every described field of the frames the last ``feed`` completed, scaled (``mx``.. included)."""
+        return field_values(self.description, self._last_records)
+
+    def _samples(self, records: np.ndarray) -> np.ndarray:
+        self._last_records = records
+        n = len(records)
+        out = np.empty(n, dtype=SAMPLE_DTYPE)
+        floats = out.view(np.uint8).reshape(n, SAMPLE_DTYPE.itemsize)[:, 12:40].view(np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            floats[:, : self._imu.width] = self._imu(records)
+        if self._imu.width == 6:
+            floats[:, 6] = np.nan
+        seq = self._counter(records)
+        out["t_us"] = self._time_us(records, seq)
+        if seq is None:
+            seq = self._counter_from_clock(out["t_us"])
+        out["seq"] = seq & 0xFFFFFFFF
+        self._count += n
+        return out
+
+    def _counter(self, records: np.ndarray) -> np.ndarray | None:
+        """The board's counter, unwrapped, or None when it has none."""
+        spec = self.description.field("seq")
+        if spec is None:
+            return None
+        raw = _raw_values(records, spec)
+        if self._seq is not None:
+            return self._seq(raw)
+        return raw.astype(np.uint64).astype(np.int64)
+
+    def _time_us(self, records: np.ndarray, seq: np.ndarray | None) -> np.ndarray:
+        """Microseconds of each sample: the clock (unwrapped), else the counter or the count at the rate."""
+        spec = self.description.field("t")
+        with np.errstate(invalid="ignore", over="ignore"):
+            if spec is None:
+                rate = self.description.rate_hz or 1.0
+                if seq is not None:
+                    if self._seq0 is None:
+                        self._seq0 = int(seq[0])
+                    ticks = (seq - self._seq0).astype(np.float64)
+                else:
+                    ticks = self._count + np.arange(len(records), dtype=np.float64)
+                t_us = np.rint(ticks * (1e6 / rate))
+            else:
+                raw = _raw_values(records, spec)
+                if self._clock is not None:
+                    raw = self._clock(raw)
+                t_us = np.rint(raw * (spec.scale * 1e6) + spec.offset * 1e6)
+                if spec.kind == "f" or spec.size == 8:
+                    t_us[~np.isfinite(t_us)] = 0.0
+                    np.minimum(t_us, 2.0**63, out=t_us)
+            return np.maximum(t_us, 0.0, out=t_us)
+
+    def _counter_from_clock(self, t_us: np.ndarray) -> np.ndarray:
+        """A counter for a board without one: a clock step of k sample periods (rounded) counts k."""
+        t = t_us.astype(np.float64)
+        if self._period_s is None:
+            steps = np.diff(t)
+            steps = steps[steps > 0]
+            if len(steps) >= _PERIOD_SAMPLES:
+                self._period_s = float(np.median(steps)) / 1e6
+        if self._period_s is None:
+            inc = np.ones(len(t), dtype=np.int64)
+        else:
+            dt = np.diff(t, prepend=t[0] if self._last_t is None else self._last_t)
+            inc = np.rint(dt / (self._period_s * 1e6)).clip(1, 2**31).astype(np.int64)
+        if self._last_t is None:
+            inc[0] = 1
+        self._last_t = float(t[-1])
+        seq = self._synth_seq + np.cumsum(inc)
+        self._synth_seq = int(seq[-1])
+        return seq
+
+
+def encode_frames(desc: FrameDescription, values: dict[str, np.ndarray]) -> bytes:
+    """Frames of ``desc`` carrying ``values`` (field name to physical values), back to back.
+
+    The inverse of the decoder, for the tests, the examples' recordings and the benchmark:
+    ``raw = round((value - offset) / scale)``, wrapped into the field's type; the checksum is computed.
+
+    Parameters
+    ----------
+    desc : FrameDescription
+        The frame.
+    values : dict
+        One array per described field, all of one length (missing fields are 0).
+
+    Returns
+    -------
+    bytes
+        The encoded frames.
+    """
+    n = len(next(iter(values.values())))
+    records = np.zeros(n, dtype=frame_dtype(desc))
+    ls = len(desc.sync)
+    records["sync"] = int.from_bytes(desc.sync, "little") if ls in (1, 2, 4, 8) else np.frombuffer(desc.sync,
+                                                                                                     np.uint8)
+    for spec in desc.fields:
+        if spec.name not in values:
+            continue
+        raw = (np.asarray(values[spec.name], dtype=np.float64) - spec.offset) / spec.scale
+        column = f"f_{spec.name}"
+        if spec.kind == "f":
+            records[column] = raw
+            continue
+        as_int = np.rint(raw).astype(np.int64)
+        if spec.size == 3:
+            b = np.stack([(as_int >> s) & 0xFF for s in (0, 8, 16)], axis=1).astype(np.uint8)
+            records[column] = b if spec.byte_order == "little" else b[:, ::-1]
+        else:
+            records[column] = as_int.astype(records.dtype[column])  # wraps into the field's range
+    rows = records.view(np.uint8).reshape(n, desc.length)
+    if desc.checksum is not None:
+        cs = desc.checksum
+        records["check"] = checksum_rows(cs.type, rows[:, cs.start : cs.end])
+    return records.tobytes()
+
+
+def frame_checksum(desc: FrameDescription, frame: bytes) -> int | None:
+    """The checksum ``desc`` expects in ``frame`` (None without one): for tools that patch a frame.
+
+    Parameters
+    ----------
+    desc : FrameDescription
+        The frame.
+    frame : bytes
+        One frame's bytes.
+    """
+    if desc.checksum is None:
+        return None
+    return checksum(desc.checksum.type, frame[desc.checksum.start : desc.checksum.end])
