@@ -5,8 +5,8 @@ size is printed); its C unit tests and the fuzzing of its parser run under Addre
 UBSan; its parser finds the same frames as the station's decoder. The POSIX example device, built
 from the library, serves a simulated unit on a pseudo-terminal, and the station talks to it as to a
 real board: its frames are the station's encoding bit for bit, it answers every host command, the
-device contract suite (``tests/test_contract.py --imu-port``) passes on it, and ``imu-station
-capture`` then ``allan`` run on it unchanged.
+device contract suite (``tests/test_contract.py --imu-port``) passes on it, ``imu-station capture``
+then ``allan`` find its noise terms, and the TUI connects to it and shows it live.
 
 Without gcc (or arm-none-eabi-gcc) the tests that need it skip, except in CI (``CI=true``), where
 ``.ci/run`` installs both and a missing compiler fails the run.
@@ -14,6 +14,7 @@ Without gcc (or arm-none-eabi-gcc) the tests that need it skip, except in CI (``
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import re
@@ -27,11 +28,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import serial
+from tui_helpers import screen_text, wait_for
 
 from drivers import CommandRejected, SerialDevice, open_device
 from protocols import native
 from protocols.base import SAMPLE_DTYPE, Message
 from station.acquisition.capture_h5 import read_samples
+from station.tui.app import StationApp
+from station.tui.config import TuiConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 LIB = ROOT / "firmware" / "imu_link"
@@ -376,3 +380,27 @@ def test_capture_then_allan_noise_terms_on_the_example(example: ExampleDevice, t
     # station's Allan engine finds: N = sigma / sqrt(rate).
     assert noise["gyro"]["N"] == pytest.approx([0.002 / np.sqrt(200)] * 3, rel=0.1)
     assert noise["accel"]["N"] == pytest.approx([0.02 / np.sqrt(200)] * 3, rel=0.1)
+
+
+def test_tui_connects_to_the_example_and_shows_it_live(example: ExampleDevice) -> None:
+    app = StationApp(TuiConfig(port=example.port))
+    seen: dict[str, object] = {}
+
+    async def drive() -> None:
+        async with app.run_test(size=(120, 44)) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the example device to connect")
+            assert app.session is not None
+            seen["info"] = dict(app.session.info)
+            await pilot.press("enter")  # connect -> live view
+            await wait_for(pilot, lambda: type(app.screen).__name__ == "LiveScreen", 5, "the live view")
+            await wait_for(pilot, lambda: "rate 200.0 Hz" in screen_text(app), 15, "the live rate")
+            seen["screen"] = screen_text(app)
+            app.exit(0)
+
+    asyncio.run(drive())
+    assert seen["info"] == {"serial": "IMULINK-0001", "model": "imu_link POSIX example",
+                            "firmware": "imu_link 1.0", "rate_hz": 200}
+    screen = str(seen["screen"])
+    assert "errors 0 (CRC 0)" in screen and "lost 0" in screen
+    gravity = re.search(r"\|a\|\s+([0-9.]+)", screen)
+    assert gravity and float(gravity[1]) == pytest.approx(G, rel=0.02)
