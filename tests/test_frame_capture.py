@@ -1,0 +1,89 @@
+"""``imu-station capture --protocol frame:FILE.yaml`` through a real pty: a board's own frames, with noise
+and damaged frames on the line, recorded and read back; and the Python API (``open_device``)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+from frame_helpers import SPEC_EXAMPLE, damaged_stream, plain_frames, still_samples
+
+from drivers import open_device
+from mocks.raw_pty import open_raw_pty
+from protocols.frame_description import describe
+from station.acquisition.capture import read_capture
+from station.cli import main
+
+
+class BytePty:
+    """A raw pty the test writes a byte stream into from a thread, ``chunk`` bytes every ``period_s``,
+    starting after ``delay_s`` (time for the reader to open the port)."""
+
+    def __init__(self, data: bytes, chunk: int, period_s: float, delay_s: float = 0.0) -> None:
+        self.master, self.slave, self.path = open_raw_pty()
+        self._data, self._chunk, self._period, self._delay = data, chunk, period_s, delay_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        if self._stop.wait(self._delay):
+            return
+        for i in range(0, len(self._data), self._chunk):
+            if self._stop.is_set():
+                return
+            try:
+                os.write(self.master, self._data[i : i + self._chunk])
+            except OSError:
+                return
+            time.sleep(self._period)
+
+    def __enter__(self) -> BytePty:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        for fd in (self.master, self.slave):
+            os.close(fd)
+
+
+def test_capture_records_a_boards_own_frames_through_a_pty(tmp_path: Path, capsys) -> None:
+    desc_file = tmp_path / "acme.yaml"
+    desc_file.write_text(yaml.safe_dump(SPEC_EXAMPLE), encoding="utf-8")
+    desc = describe(SPEC_EXAMPLE)
+    sent = still_samples(1200, 200.0, seed=5)
+    stream, _ = damaged_stream(plain_frames(desc, sent), desc.length, seed=5)
+    out = tmp_path / "acme.csv"
+    # 200 frames a second, written 10 at a time, cut anywhere by the pty.
+    with BytePty(stream, chunk=10 * desc.length + 3, period_s=0.05) as pty:
+        code = main(["capture", "--port", pty.path, "--protocol", f"frame:{desc_file}", "--duration", "1",
+                     "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    cap = read_capture(out)
+    assert 180 <= len(cap) <= 220
+    index = np.round(cap.t * 200.0).astype(int)  # t is the board's clock: 5 ms a sample from 0
+    np.testing.assert_allclose(cap.acc, sent["acc"][index], atol=0.0024)  # one count of the i16 scale
+    np.testing.assert_allclose(cap.gyro, sent["gyro"][index], atol=0.00027)
+    np.testing.assert_allclose(cap.temp, sent["temp"][index], atol=0.006)
+
+
+def test_a_shipped_description_by_name_and_the_python_api(tmp_path: Path) -> None:
+    import station.frame_file  # noqa: F401  (installs the reader of frame: descriptions, as the CLI does)
+
+    stream = (Path(__file__).parent / "data" / "frames" / "mpu6050_dump.bin").read_bytes()
+    with BytePty(stream, chunk=500, period_s=0.01, delay_s=0.5) as pty:
+        with open_device(pty.path, protocol="frame:mpu6050_dump") as device:
+            got, deadline = [], time.monotonic() + 5.0
+            while sum(len(g) for g in got) < 590 and time.monotonic() < deadline:
+                got.append(device.read(timeout=0.2))
+            stats = device.stats
+    samples = np.concatenate(got)
+    assert len(samples) >= 590
+    assert np.allclose(np.linalg.norm(samples["acc"], axis=1), 9.81, atol=0.2)
+    assert stats.lost == 2  # the counter's gaps (frames 10 and 20 of the recording)
