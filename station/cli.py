@@ -22,6 +22,7 @@ COMMANDS = [
     "demo",
     "simulate",
     "capture",
+    "frame",
     "calibrate",
     "allan",
     "thermal",

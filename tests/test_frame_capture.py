@@ -3,53 +3,17 @@ and damaged frames on the line, recorded and read back; and the Python API (``op
 
 from __future__ import annotations
 
-import os
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import yaml
-from frame_helpers import SPEC_EXAMPLE, damaged_stream, plain_frames, still_samples
+from frame_helpers import SPEC_EXAMPLE, BytePty, damaged_stream, plain_frames, still_samples
 
 from drivers import open_device
-from mocks.raw_pty import open_raw_pty
 from protocols.frame_description import describe
 from station.acquisition.capture import read_capture
 from station.cli import main
-
-
-class BytePty:
-    """A raw pty the test writes a byte stream into from a thread, ``chunk`` bytes every ``period_s``,
-    starting after ``delay_s`` (time for the reader to open the port)."""
-
-    def __init__(self, data: bytes, chunk: int, period_s: float, delay_s: float = 0.0) -> None:
-        self.master, self.slave, self.path = open_raw_pty()
-        self._data, self._chunk, self._period, self._delay = data, chunk, period_s, delay_s
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        if self._stop.wait(self._delay):
-            return
-        for i in range(0, len(self._data), self._chunk):
-            if self._stop.is_set():
-                return
-            try:
-                os.write(self.master, self._data[i : i + self._chunk])
-            except OSError:
-                return
-            time.sleep(self._period)
-
-    def __enter__(self) -> BytePty:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        for fd in (self.master, self.slave):
-            os.close(fd)
 
 
 def test_capture_records_a_boards_own_frames_through_a_pty(tmp_path: Path, capsys) -> None:
