@@ -405,3 +405,17 @@ def test_tui_connects_to_the_example_and_shows_it_live(example: ExampleDevice) -
     assert "errors 0 (CRC 0)" in screen and "lost 0" in screen
     gravity = re.search(r"\|a\|\s+([0-9.]+)", screen)
     assert gravity and float(gravity[1]) == pytest.approx(G, rel=0.02)
+
+
+def test_the_worked_example_in_the_manual_compiles(build: Path) -> None:
+    page = (ROOT / "docs" / "workflows" / "own-board.md").read_text()
+    section = page[page.index("## Give your board our protocol: the C library"):]
+    code = re.search(r"```c\n(.*?)```", section, re.S)
+    assert code, "the section has no C example"
+    source = build / "board_main.c"
+    source.write_text(code[1])
+    flags = [*STRICT, "-Wmissing-prototypes", "-I", str(LIB), "-c", str(source)]
+    result = run([tool("gcc"), *flags, "-o", str(build / "board_main.o")])
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+    result = run([tool("arm-none-eabi-gcc"), *CORTEX_M4, *flags, "-o", str(build / "board_main_m4.o")])
+    assert result.returncode == 0 and result.stderr == "", result.stderr
