@@ -419,3 +419,15 @@ def test_the_worked_example_in_the_manual_compiles(build: Path) -> None:
     assert result.returncode == 0 and result.stderr == "", result.stderr
     result = run([tool("arm-none-eabi-gcc"), *CORTEX_M4, *flags, "-o", str(build / "board_main_m4.o")])
     assert result.returncode == 0 and result.stderr == "", result.stderr
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--rate", "0"], "--rate 0: expected 1..8000 Hz"),
+    (["--spin-dps", "fast"], "--spin-dps fast: not a number"),
+    (["--serial"], "--serial needs a value"),
+    (["--baud", "9600"], "unknown option --baud"),
+])
+def test_example_refuses_bad_options_with_exit_4(example_exe: Path, args: list[str], message: str) -> None:
+    result = run([str(example_exe), *args])
+    assert result.returncode == 4 and result.stdout == ""
+    assert result.stderr.strip() == f"posix_device: {message}"
