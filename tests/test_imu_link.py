@@ -58,7 +58,7 @@ def tool(name: str) -> str:
     path = shutil.which(name)
     if path is None:
         if os.environ.get("CI") == "true":
-            pytest.fail(f"{name} is not installed: .ci/run installs it (Debian package of that name)")
+            pytest.fail(f"{name} is not installed: .ci/run installs it (Debian: gcc, gcc-arm-none-eabi)")
         pytest.skip(f"{name} is not installed")
     return path
 
