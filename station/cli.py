@@ -118,6 +118,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return ExitCode.USAGE
+    # frame descriptions (--protocol frame:FILE.yaml, a plan's protocol) are readable by every command
+    from station import frame_file  # noqa: F401
     try:
         return int(args._run(args) or ExitCode.OK)
     except StationError as exc:

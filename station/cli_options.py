@@ -14,10 +14,25 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from drivers import DEFAULT_BAUDRATE
 from protocols.errors import StationError
-from protocols.registry import DECODER_OPTIONS, DECODERS, make_decoder
-from station import frame_file  # noqa: F401  (installs the reader of --protocol frame:FILE.yaml)
+
+# The names --help shows, kept here so that `COMMAND --help` loads neither the drivers nor the
+# decoders (numpy, pyserial); tests/test_cli_startup.py checks that they are the registries' own.
+DEFAULT_BAUDRATE = 921_600
+"""``drivers.DEFAULT_BAUDRATE``."""
+PROTOCOLS = ("ascii", "auto", "mavlink", "native", "xsens")
+"""The keys of ``protocols.registry.DECODERS``, sorted."""
+PROTOCOL_OPTIONS = ("ascii", "xsens", "mavlink", "frame")
+"""The keys of ``protocols.registry.DECODER_OPTIONS``."""
+EXPORT_FORMATS = ("c", "bin", "json", "yaml", "px4", "ardupilot")
+"""``station.export.writers.FORMATS``."""
+EXPORT_MAX_INSTANCE = {"px4": 3, "ardupilot": 2}
+"""``station.export.writers.MAX_INSTANCE``: the highest sensor instance each autopilot has parameters for."""
+SIM_SCENARIOS = ("still", "chamber", "six-position", "twelve-position", "six-position-static", "handheld")
+"""``mocks.device.SCENARIOS``: how the simulated unit moves."""
+SIM_ENCODERS = ("ascii", "mavlink", "mavlink-raw", "mavlink-scaled", "motioncal", "native", "vnymr", "xsens",
+                "xsens-fp1632")
+"""``mocks.device.ENCODERS`` (with ``mocks.encoders_extra``), sorted: the simulated unit's wire formats."""
 
 MIN_BAUD = 50
 """The slowest standard line speed (B50)."""
@@ -161,6 +176,11 @@ SEED = number(int, 0, MAX_SEED)
 """A random seed of the simulated unit."""
 DURATION_S = positive("s", MAX_DURATION_S)
 """A length of recording in seconds."""
+MAX_SPEED = 100.0
+"""The fastest a simulated unit's clock runs against the wall clock (demo, simulate, tui --simulate):
+beyond it the pty and the host's decoding, not the simulated unit, set the pace."""
+SPEED = number(float, 0.0, MAX_SPEED, low_open=True)
+"""``--speed X``: the simulated unit's clock X times the wall clock."""
 BAUD = number(int, MIN_BAUD, MAX_BAUD, unit="bit/s")
 """A serial line speed."""
 RATE_HZ = positive("Hz", MAX_RATE_HZ)
@@ -188,6 +208,9 @@ def protocol(text: str) -> str:
         An unknown protocol, an option it does not take or cannot read, or a protocol whose
         library is not installed (MAVLink without pymavlink).
     """
+    from protocols.registry import DECODER_OPTIONS, DECODERS, make_decoder
+    from station import frame_file  # noqa: F401  (installs the reader of --protocol frame:FILE.yaml)
+
     name = text.partition(":")[0]
     if name not in DECODERS and name not in DECODER_OPTIONS:
         raise argparse.ArgumentTypeError(f"unknown protocol {name!r}; known: {', '.join(sorted(DECODERS))}, "
@@ -271,9 +294,9 @@ def add_protocol_option(parser: argparse.ArgumentParser) -> None:
         The command's parser.
     """
     parser.add_argument("--protocol", default="native", type=protocol, metavar="NAME[:OPTION]",
-                        help=f"wire protocol of the unit: {', '.join(sorted(DECODERS))} (default: native); "
-                             f"auto: recognise it from the first bytes. {', '.join(DECODER_OPTIONS)} take an "
-                             f"option: xsens:hr (the high-rate packets), mavlink:SCALED_IMU2 (which IMU "
+                        help=f"wire protocol of the unit: {', '.join(PROTOCOLS)} (default: native); "
+                             f"auto: recognise it from the first bytes. {', '.join(PROTOCOL_OPTIONS)} take "
+                             f"an option: xsens:hr (the high-rate packets), mavlink:SCALED_IMU2 (which IMU "
                              f"message), ascii:COLUMNS@HZ, frame:FILE.yaml (a board's own frames described "
                              f"in YAML)")
 

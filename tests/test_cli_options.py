@@ -33,7 +33,7 @@ CASES = [
     (["tui"], "--rate", "0"),
     (["tui"], "--rate", "1e6"),
     (["tui"], "--speed", "0"),
-    (["tui"], "--speed", "21"),
+    (["tui"], "--speed", "101"),
     (["demo", "--out", "{tmp}/demo"], "--seconds", "0"),
     (["demo", "--out", "{tmp}/demo"], "--rate", "0"),
     (["demo", "--out", "{tmp}/demo"], "--seed", "-1"),

@@ -116,8 +116,10 @@ def test_firmware_export_holds_the_parameters(demo_run) -> None:
 
 
 def test_demo_refuses_bad_options(capsys) -> None:
-    assert main(["demo", "--speed", "0"]) == 4
-    assert "--speed 0: give a factor above 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as usage:  # --speed is checked where it is parsed, as in simulate and tui
+        main(["demo", "--speed", "0"])
+    assert usage.value.code == 4
+    assert "argument --speed: 0 is outside the allowed range, above 0 up to 100" in capsys.readouterr().err
     assert main(["demo", "--hold", "-1"]) == 4
     assert "--hold -1" in capsys.readouterr().err
     assert main(["demo", "--rate", "0"]) == 4

@@ -6,19 +6,14 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
 from station.cli_options import RATE_HZ, add_output_option, add_replace_option, number
-from station.engines.allan import allan_curve, cluster_sizes
-from station.engines.allan_fit import TERMS, identify_noise, missing_terms
+from station.engines.allan_terms import TERMS
 from station.errors import EngineInputError, ExitCode
-from station.export import allan_report, kalibr
-from station.export.params_file import merge_sections, open_for_unit, to_plain
-from station.files import atomic_write_text
+
+if TYPE_CHECKING:
+    from rich.progress import Progress
 
 NAME = "allan"
 HELP = "Allan deviation of a still recording: noise terms (N, K, B, Q, R), Kalibr/VINS/ORB-SLAM3 values"
@@ -112,6 +107,9 @@ def refuse_short_record(noise: list, terms: tuple[str, ...], duration_s: float, 
     EngineInputError
         Naming the terms, the axes, the record's length and the length needed (exit 4).
     """
+    from station.engines.allan_fit import missing_terms
+    from station.export import allan_report
+
     missing = missing_terms(noise, terms, duration_s)
     if not missing:
         return
@@ -131,6 +129,9 @@ def refuse_short_record(noise: list, terms: tuple[str, ...], duration_s: float, 
 
 
 def _progress(err: IO[str]) -> Progress:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     console=Console(file=err), transient=True, disable=not err.isatty())
 
@@ -155,6 +156,14 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     EngineInputError
         Too few points per decade, or a record missing more than --max-missing of its samples.
     """
+    # the engines load here, not when --help is asked for
+    from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
+    from station.engines.allan import allan_curve, cluster_sizes
+    from station.engines.allan_fit import identify_noise
+    from station.export import allan_report, kalibr
+    from station.export.params_file import merge_sections, open_for_unit, to_plain
+    from station.files import atomic_write_text
+
     if args.per_decade < 10:
         raise EngineInputError(f"--per-decade {args.per_decade}: use at least 10 points per decade")
     chunks, device, size = capture_chunks(args.input, args.topic)
@@ -210,6 +219,8 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Analyse the recording and print the noise terms (or the JSON result)."""
+    from station.export import allan_report
+
     result = analyse(args, sys.stderr)
     section = result["noise"]
     if args.json:

@@ -5,17 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from rich.console import Console
-from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-from station.acquisition.capture import Capture, read_capture
-from station.acquisition.capture_csv import write_csv
 from station.cli_options import add_output_option
-from station.engines.correction import apply_calibration
-from station.engines.thermal_model import estimate_dtemp
 from station.errors import ExitCode
-from station.export.params_file import ParamsFile
+
+if TYPE_CHECKING:
+    from station.acquisition.capture import Capture
+    from station.export.params_file import ParamsFile
 
 NAME = "apply"
 HELP = "apply a parameter file (matrix, bias, thermal) to every sample of a capture"
@@ -62,6 +59,10 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
     dict of str to str
         Per section (accel, gyro, thermal), how it was applied.
     """
+    from station.acquisition.capture import Capture
+    from station.engines.correction import apply_calibration
+    from station.engines.thermal_model import estimate_dtemp
+
     dtemp = capture.dtemp
     how = {
         "accel": "matrix and bias" if params.accel else "absent (identity)",
@@ -86,6 +87,13 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
 
 def run(args: argparse.Namespace) -> int:
     """Correct the capture, write it, and say how each section was applied."""
+    from rich.console import Console
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from station.acquisition.capture import read_capture
+    from station.acquisition.capture_csv import write_csv
+    from station.export.params_file import ParamsFile
+
     params = ParamsFile.load(args.params)
     quiet = not sys.stderr.isatty()
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),

@@ -7,15 +7,9 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import IO, Any
-
-import numpy as np
-from rich.console import Console
-from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-from rich.table import Table
+from typing import IO, TYPE_CHECKING, Any
 
 from protocols.units import STANDARD_GRAVITY
-from station.acquisition.capture import Capture, read_capture
 from station.cli_options import (
     DURATION_S,
     MAX_GRAVITY,
@@ -27,12 +21,14 @@ from station.cli_options import (
     number,
     positive,
 )
-from station.engines.calibration_common import CalibrationReport
-from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
-from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
-from station.engines.earth import normal_gravity
 from station.errors import ExitCode, StationError
-from station.export.params_file import merge_sections, open_for_unit, sensor_to_dict, to_plain
+
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from station.acquisition.capture import Capture
+    from station.engines.calibration_common import CalibrationReport
 
 NAME = "calibrate"
 HELP = "accelerometer and gyroscope scale, misalignment and bias from a capture (turntable or hand-held)"
@@ -123,6 +119,8 @@ def local_gravity(args: argparse.Namespace) -> float:
     StationError
         Both --gravity and --latitude, or either outside its range.
     """
+    from station.engines.earth import normal_gravity
+
     if args.gravity is not None and args.latitude is not None:
         raise StationError("give either --gravity or --latitude/--height, not both")
     if args.gravity is not None:
@@ -150,6 +148,9 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
     CalibrationReport
         Both triads with their 1-sigma, per-pose residuals and warnings.
     """
+    from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
+    from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+
     gravity = local_gravity(args)
     has_labels = capture.step is not None and any(str(s).strip() for s in capture.step)
     method = args.method if args.method != "auto" else ("turntable" if has_labels else "free")
@@ -170,6 +171,8 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
 
 def report_dict(report: CalibrationReport, source: str) -> dict[str, Any]:
     """The report as the JSON ``--json`` prints: method, gravity, both triads, poses, warnings."""
+    from station.export.params_file import sensor_to_dict, to_plain
+
     out: dict[str, Any] = {"source": source, "method": report.method, "gravity": report.gravity}
     for name in ("accel", "gyro"):
         cal = getattr(report, name)
@@ -182,6 +185,8 @@ def report_dict(report: CalibrationReport, source: str) -> dict[str, Any]:
 
 
 def _fmt(value: float, sd: float | None) -> str:
+    import numpy as np
+
     if sd is None or not np.isfinite(sd) or sd == 0:
         return f"{value:.7g}"
     return f"{value:.7g} ± {sd:.2g}"
@@ -189,6 +194,9 @@ def _fmt(value: float, sd: float | None) -> str:
 
 def print_report(report: CalibrationReport, console: Console) -> None:
     """Every parameter with its 1-sigma, the per-pose residuals and the warnings, as tables."""
+    import numpy as np
+    from rich.table import Table
+
     console.print(f"[bold]{report.method}[/] calibration, g = {report.gravity:.6f} m/s^2")
     for name, unit in (("accel", "raw per m/s^2"), ("gyro", "raw per rad/s")):
         cal = getattr(report, name)
@@ -231,7 +239,7 @@ def print_report(report: CalibrationReport, console: Console) -> None:
             elif "norm_error" in p:
                 value = f"|a| - g {p['norm_error']:+.5f} m/s^2"
             else:
-                value = f"g - |a| {p['residual']:+.5f} m/s^2"
+                value = f"|a| - g {p['residual']:+.5f} m/s^2"
                 if p.get("gyro_residual") is not None:
                     value += f", gyro {p['gyro_residual']:.4f}"
             table.add_row(p["label"], f"{p['t0']:.1f}..{p['t1']:.1f}", value)
@@ -253,10 +261,8 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
     rotations = [p for p in report.poses if "angle_error_deg" in p]
     fig, axes = plt.subplots(2 if rotations else 1, 1, figsize=(9, 6 if rotations else 3.5), squeeze=False)
     ax = axes[0, 0]
-    # |a| - g per hold (turntable) or g - |a| per interval (free): one number a pose either way
+    # |a| - g per hold (turntable) or per interval (free): measured minus model, as every residual
     values = [float(p["norm_error"] if "norm_error" in p else p["residual"]) for p in statics]
-    if report.method == "free":
-        values = [-v for v in values]
     ax.bar(range(len(values)), values, color="tab:blue")
     ax.set_xticks(range(len(values)), [p["label"] for p in statics], rotation=90, fontsize=7)
     ax.set_ylabel("|a| - g (m/s^2)")
@@ -275,12 +281,20 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
 
 
 def _progress(err: IO[str]) -> Progress:
+    from rich.console import Console
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
     return Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
                     console=Console(file=err), transient=True, disable=not err.isatty())
 
 
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
+    from rich.console import Console
+
+    from station.acquisition.capture import read_capture
+    from station.export.params_file import merge_sections, open_for_unit
+
     local_gravity(args)  # refuse bad options before reading a long capture
     with _progress(sys.stderr) as progress:
         task = progress.add_task(f"reading {args.input}", total=None)

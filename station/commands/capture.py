@@ -5,20 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
-from serial import SerialException
-
-from drivers import DEFAULT_BAUDRATE, NoSamples
-from drivers.serial_device import open_serial
-from protocols.ascii_lines import parse_columns
-from protocols.detect import ENOUGH_BYTES, Detection, detect
-from protocols.mavlink import pymavlink_available
-from station.acquisition.port_capture import capture_to_file
-from station.acquisition.recorder import CaptureResult
-from station.cli_options import DURATION_S, add_output_option, add_port_options, number
+from station.cli_options import DEFAULT_BAUDRATE, DURATION_S, add_output_option, add_port_options, number
 from station.errors import ExitCode, StationError
-from station.status_line import CaptureStatusLine
+
+if TYPE_CHECKING:
+    from protocols.detect import Detection
+    from station.acquisition.recorder import CaptureResult
 
 NAME = "capture"
 HELP = "record samples from a unit (serial port, pty or sim://) into a CSV or HDF5 capture file"
@@ -98,6 +92,11 @@ def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float
     Detection
         The protocol found (None when none was), with the explanation shown to the user.
     """
+    from serial import SerialException
+
+    from drivers.serial_device import open_serial
+    from protocols.detect import ENOUGH_BYTES, detect
+
     data = bytearray()
     found = detect(b"")
     deadline = time.monotonic() + timeout_s
@@ -153,6 +152,10 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
     NoSamples
         ``auto`` recognised no protocol.
     """
+    from drivers import NoSamples
+    from protocols.ascii_lines import parse_columns
+    from protocols.mavlink import pymavlink_available
+
     if columns is not None:
         if protocol != "ascii":
             raise StationError(f"--columns applies to --protocol ascii, not {protocol}")
@@ -175,6 +178,9 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
 
 def run(args: argparse.Namespace) -> int:
     """Capture, print the summary, and exit with the capture's outcome."""
+    from station.acquisition.port_capture import capture_to_file
+    from station.status_line import CaptureStatusLine
+
     protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr, args.rate)
     result = capture_to_file(args.port, args.output, protocol=protocol, duration_s=args.duration,
                              rate_hz=args.rate, baudrate=args.baud,

@@ -27,19 +27,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
-import numpy as np
-
 from protocols.units import STANDARD_GRAVITY
-from station.acquisition.operator import ScriptedOperator
-from station.acquisition.recorder import CaptureResult
-from station.cli_options import SEED, add_output_option, check_range, describe_range
+from station.cli_options import MAX_SPEED, SEED, SPEED, add_output_option, check_range, describe_range
 from station.errors import ExitCode, StationError
 from station.text import printable
 
 if TYPE_CHECKING:
+    import numpy as np
     from rich.progress import Progress, TaskID
 
     from drivers.link_stats import LinkStats
+    from station.acquisition.operator import ScriptedOperator
+    from station.acquisition.recorder import CaptureResult
     from station.acquisition.runner import LiveStatus, RunResult
     from station.engines.calibration_common import CalibrationReport
     from station.engines.sensor_model import SensorCalibration
@@ -61,13 +60,12 @@ examples:
   imu-station demo
   imu-station demo --seed 7 --hold 20 --speed 10 --out /tmp/demo"""
 
-MAX_SPEED = 100.0
 # The sequence, as a careful operator runs it: 10 s per pose, 360 deg turns at 90 deg/s with 1 s
 # still before and after. At x20 it takes about 10 s of wall clock.
 HOLD_S = 10.0
 ROTATION_RATE_DPS = 90.0
 SETTLE_S = 1.0
-SPEED = 20.0
+DEMO_SPEED = 20.0
 # Wall-clock seconds a step may wait for the unit before the run gives up (a stalled simulator).
 STEP_TIMEOUT_S = 30.0
 STATION_ID = "demo-station"
@@ -82,7 +80,7 @@ class DemoContext:
     rate_hz: int = 200
     seconds: float = 5.0
     scenario: str = "still"
-    speed: float = SPEED
+    speed: float = DEMO_SPEED
     hold_s: float = HOLD_S
     rotation_rate_dps: float = ROTATION_RATE_DPS
     settle_s: float = SETTLE_S
@@ -152,6 +150,8 @@ def capture_samples(ctx: DemoContext) -> None:
 
 def verify_capture(ctx: DemoContext) -> None:
     """Every sample in the file must be, bit for bit, one the simulator sent, none missing between."""
+    import numpy as np
+
     from station.acquisition.capture_h5 import read_samples
 
     assert ctx.capture_path is not None
@@ -178,7 +178,7 @@ def run_sequence(ctx: DemoContext) -> None:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from drivers import open_device
-    from station.acquisition.operator import FACTORY_ANSWERS, SimulatedOperator
+    from station.acquisition.operator import SimulatedOperator
     from station.acquisition.recorder import Recorder
     from station.acquisition.runner import RecorderSink, RunOptions, SequenceRunner
     from station.acquisition.sequences import builtin
@@ -198,7 +198,7 @@ def run_sequence(ctx: DemoContext) -> None:
     with open_device(ctx.port) as device, progress:
         device.get_info()
         task = progress.add_task("sequence", total=len(sequence), status="starting")
-        inner = _ProgressOperator(answers=FACTORY_ANSWERS, progress=progress, task=task)
+        inner = _progress_operator(progress, task)
         operator = SimulatedOperator(ctx.server.device, inner, move_s=1.0)
         recorder = Recorder(ctx.sequence_path, device=device.info, with_step=True, port=device.port,
                             protocol=device.protocol)
@@ -226,22 +226,21 @@ def run_sequence(ctx: DemoContext) -> None:
             f"{recorder.rows} samples to {ctx.sequence_path}")
 
 
-@dataclass
-class _ProgressOperator(ScriptedOperator):
+def _progress_operator(progress: Progress, task: TaskID) -> ScriptedOperator:
     """The factory's answers (go on, redo a failed step while offered), with the live state on a bar."""
+    from station.acquisition.operator import FACTORY_ANSWERS, ScriptedOperator
 
-    progress: Progress | None = None
-    task: TaskID | None = None
+    class ProgressOperator(ScriptedOperator):
+        def status(self, status: LiveStatus) -> None:
+            super().status(status)
+            capturing = status.state.value in ("capturing", "settling")
+            done = status.index + (status.progress if capturing else 0.0)
+            label = f"{status.step.label:<5} {status.state.value}"
+            if status.angle_deg is not None:
+                label += f" {status.angle_deg:+4.0f} deg"
+            progress.update(task, completed=done, status=label)
 
-    def status(self, status: LiveStatus) -> None:
-        super().status(status)
-        capturing = status.state.value in ("capturing", "settling")
-        done = status.index + (status.progress if capturing else 0.0)
-        label = f"{status.step.label:<5} {status.state.value}"
-        if status.angle_deg is not None:
-            label += f" {status.angle_deg:+4.0f} deg"
-        if self.progress is not None and self.task is not None:
-            self.progress.update(self.task, completed=done, status=label)
+    return ProgressOperator(answers=FACTORY_ANSWERS)
 
 
 def report_link(ctx: DemoContext) -> None:
@@ -280,6 +279,8 @@ def report_link(ctx: DemoContext) -> None:
 def calibrate_unit(ctx: DemoContext) -> None:
     """The turntable method on the labelled capture read back from its file, as `calibrate` does;
     the accel and gyro sections, with the unit's info, go to ``out_dir/params.yaml``."""
+    import numpy as np
+
     from station.acquisition.capture import read_capture
     from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
     from station.export.params_file import ParamsFile
@@ -354,6 +355,8 @@ C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
 def export_firmware(ctx: DemoContext) -> None:
     """imu_calib.h/.c/.bin into ``out_dir/firmware`` as `export --format c` writes them; with gcc,
     compile them and check that the blob corrects a raw sample as the station does."""
+    import numpy as np
+
     from station.export.c_export import BLOB_NAME, write_c_export
     from station.export.params_file import ParamsFile
 
@@ -415,6 +418,7 @@ _OFF_DIAGONAL = ((1, 0), (2, 0), (2, 1), (0, 1), (0, 2), (1, 2))
 def compare_with_truth(ctx: DemoContext) -> None:
     """Recovered scale, misalignment and bias of both triads against the simulator's true ones,
     with each error and the 1-sigma the calibration reported."""
+    import numpy as np
     from rich import box
     from rich.console import Console
     from rich.table import Table
@@ -479,6 +483,7 @@ def _size(n: int) -> str:
 
 
 def _vec(v: np.ndarray, digits: int) -> str:
+
     return ", ".join(f"{x:+.{digits}f}" for x in v)
 
 
@@ -537,9 +542,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=SEED, default=1, help="seed of the simulated unit (default: 1)")
     parser.add_argument("--hold", type=float, default=HOLD_S, metavar="S",
                         help=f"seconds of each pose of the sequence (default: {HOLD_S:g})")
-    parser.add_argument("--speed", type=float, default=SPEED, metavar="X",
+    parser.add_argument("--speed", type=SPEED, default=DEMO_SPEED, metavar="X",
                         help=f"the simulated unit's clock runs X times faster than the wall clock, at most "
-                             f"{MAX_SPEED:g} (default: {SPEED:g})")
+                             f"{MAX_SPEED:g} (default: {DEMO_SPEED:g})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -547,7 +552,6 @@ def run(args: argparse.Namespace) -> int:
     from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ
 
     check_range("--rate", args.rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")
-    check_range("--speed", args.speed, 0.0, MAX_SPEED, low_open=True, what="a factor")
     check_range("--hold", args.hold, 0.0, MAX_STEP_S, low_open=True, unit="s", what="seconds per pose")
     check_range("--seconds", args.seconds, 0.0, MAX_STEP_S, low_open=True, unit="s",
                 what="a capture length")

@@ -5,10 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from station.cli_options import add_output_option, describe_range, number
+from station.cli_options import EXPORT_FORMATS, EXPORT_MAX_INSTANCE, add_output_option, describe_range, number
 from station.errors import ExitCode, StationError
-from station.export.params_file import ParamsFile
-from station.export.writers import AUTOPILOTS, FORMATS, MAX_INSTANCE, report_lines, write_export
 
 NAME = "export"
 HELP = "write a calibration for firmware: C header + blob, PX4, ArduPilot, JSON or YAML"
@@ -38,7 +36,7 @@ DEVICE_ID = number(int, 0, INT32_MAX, unit="the autopilots' int32 range")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the export command's options to ``parser``."""
     parser.add_argument("params", metavar="PARAMS", help="the unit's parameter file (YAML)")
-    parser.add_argument("-f", "--format", required=True, choices=FORMATS, help="what to write")
+    parser.add_argument("-f", "--format", required=True, choices=EXPORT_FORMATS, help="what to write")
     add_output_option(parser, required=True, metavar="PATH", type=str,
                       help="directory for 'c'; file for the others (a directory gets imu_calib.<ext>)")
     parser.add_argument("--station-id", default=None, metavar="ID",
@@ -50,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="px4/ardupilot: the gyro's device id when it differs from the accel's")
     parser.add_argument("--instance", type=int, default=0, metavar="N",
                         help="px4/ardupilot: sensor instance, 0-based (px4 CAL_ACC0 / ardupilot first IMU), "
-                        + ", ".join(f"{fmt} {describe_range(0, high)}" for fmt, high in MAX_INSTANCE.items())
+                        + ", ".join(f"{fmt} {describe_range(0, high)}"
+                                    for fmt, high in EXPORT_MAX_INSTANCE.items())
                         + "; default 0")
     parser.add_argument("--plot", metavar="FILE.png",
                         help="px4/ardupilot: PNG of the offset the target subtracts against ours, "
@@ -60,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export the parameter file and print the report (text, or JSON with ``--json``)."""
+    from station.export.params_file import ParamsFile
+    from station.export.writers import AUTOPILOTS, MAX_INSTANCE, report_lines, write_export
+
     # The range depends on --format, so it is checked here rather than by argparse.
     high = MAX_INSTANCE.get(args.format, max(MAX_INSTANCE.values()))
     if not 0 <= args.instance <= high:

@@ -6,17 +6,16 @@ import argparse
 import json
 import sys
 from pathlib import Path
-
-from rich.console import Console
-from rich.table import Table
-from rich.text import Text
+from typing import TYPE_CHECKING
 
 from station.cli_options import add_db_arguments, db_url
 from station.errors import ExitCode, StationError
 from station.factory.records import OUTCOMES, RecordStore, RunRecord, utc_now
-from station.factory.trend_plot import write_trend_plot
 from station.files import atomic_write_text
 from station.text import printable
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 NAME = "records"
 HELP = "list factory run records by serial and date, export a unit's history as JSON, verify files"
@@ -60,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _table(records: list[RunRecord]) -> Table:
+    from rich.table import Table
+    from rich.text import Text
+
     table = Table(title=f"{len(records)} record(s)")
     for column in ("start (UTC)", "serial", "station", "plan", "outcome", "failed", "run id"):
         table.add_column(column)
@@ -74,6 +76,10 @@ def _table(records: list[RunRecord]) -> Table:
 
 def run(args: argparse.Namespace) -> int:
     """Query, print, export, plot and verify the records; exit 1 when --verify finds a problem."""
+    from rich.console import Console
+
+    from station.factory.trend_plot import write_trend_plot
+
     url = db_url(args)
     if "://" not in url and not Path(url).exists():
         raise StationError(f"--db {url}: no such record database; give the file 'imu-station run' wrote "

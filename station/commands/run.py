@@ -9,15 +9,14 @@ import os
 import socket
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from station.cli_options import DURATION_S, SEED, add_db_arguments, check_range, db_url, files_root, port
 from station.errors import StationError
-from station.factory.plan import load_plan
-from station.factory.records import RecordStore, RunRecord
-from station.factory.run import RunRequest, configure_logging, run_unit
-from station.factory.simrig import SimulatedUnit
 from station.text import printable
+
+if TYPE_CHECKING:
+    from station.factory.records import RunRecord
 
 NAME = "run"
 HELP = "run a factory plan on one unit unattended (turntable or --simulate), record it, exit with its outcome"
@@ -106,6 +105,11 @@ def summary(record: RunRecord) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the plan on the unit, store the record, print it; exit with the run's outcome."""
+    from station.factory.plan import load_plan
+    from station.factory.records import RecordStore
+    from station.factory.run import RunRequest, configure_logging, run_unit
+    from station.factory.simrig import SimulatedUnit
+
     _check(args)
     plan = load_plan(args.plan)
     station = args.station or os.environ.get("IMU_STATION_ID") or socket.gethostname()

@@ -6,8 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-
-from rich.console import Console
+from typing import TYPE_CHECKING
 
 from station.cli_options import (
     MAX_SEED,
@@ -20,8 +19,9 @@ from station.cli_options import (
     port,
 )
 from station.errors import ExitCode, StationError
-from station.factory.many import RunMany, UnitSpec, summary_table, worst_exit_code
-from station.factory.plan import load_plan
+
+if TYPE_CHECKING:
+    from station.factory.many import UnitSpec
 
 NAME = "run-many"
 HELP = "run a factory plan on several units at once, one process per port, with a live summary table"
@@ -90,6 +90,8 @@ def units_of(args: argparse.Namespace) -> list[UnitSpec]:
     StationError
         What is wrong with the combination of options.
     """
+    from station.factory.many import UnitSpec
+
     if args.simulate is not None:
         if args.port or args.table_port:
             raise StationError("give either --simulate N or --port/--table-port pairs, not both")
@@ -121,6 +123,11 @@ def units_of(args: argparse.Namespace) -> list[UnitSpec]:
 
 def run(args: argparse.Namespace) -> int:
     """Run every unit, print the summary (or JSON); exit with the worst unit's code."""
+    from rich.console import Console
+
+    from station.factory.many import RunMany, summary_table, worst_exit_code
+    from station.factory.plan import load_plan
+
     units = units_of(args)
     plan = load_plan(args.plan)  # refused here, once, rather than by every child
     url = db_url(args)

@@ -10,7 +10,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import DURATION_S, SEED, check_range
+from station.cli_options import DURATION_S, MAX_SPEED, SEED, SIM_ENCODERS, SIM_SCENARIOS, SPEED, check_range
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
@@ -43,19 +43,13 @@ examples:
   imu-station simulate --scenario chamber --chamber t_min=0,t_max=40,rate_c_per_min=2 --speed 100
   imu-station capture --port /tmp/imu --duration 10 -o still.csv   (in another terminal)"""
 
-# Beyond this the pty and the host's decoding, not the simulated unit, would set the pace.
-MAX_SPEED = 100.0
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the simulate command's options to ``parser``."""
-    import mocks.encoders_extra  # noqa: F401  (registers the xsens, mavlink and text encoders)
-    from mocks.device import ENCODERS, SCENARIOS
-
     parser.add_argument("--seed", type=SEED, default=0, help="unit, noise and scenario seed (default: 0)")
     parser.add_argument("--rate", type=int, default=200, metavar="HZ",
                         help="sample rate at power-up (default: 200)")
-    parser.add_argument("--scenario", default="still", choices=list(SCENARIOS),
+    parser.add_argument("--scenario", default="still", choices=SIM_SCENARIOS,
                         help="how the unit moves (default: still)")
     parser.add_argument("--chamber", default="", metavar="SPEC",
                         help="programme of --scenario chamber: t_min=C,t_max=C,rate_c_per_min=R,soak_s=S, "
@@ -65,20 +59,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grade", default="mems", choices=["mems", "tactical"],
                         help="intrinsics and noise of the random unit (default: mems)")
     parser.add_argument("--ideal", action="store_true", help="an ideal unit: identity intrinsics, no noise")
-    parser.add_argument("--protocol", default="native", choices=sorted(ENCODERS),
+    parser.add_argument("--protocol", default="native", choices=SIM_ENCODERS,
                         help="wire format of the samples (default: native)")
     parser.add_argument("--faults", default="", metavar="SPEC",
                         help="link faults, e.g. garbage=0.01,drop=0.001 (default: none)")
     parser.add_argument("--link", type=Path, metavar="PATH",
                         help="also make a symlink at PATH to the port (removed at exit)")
-    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
-                        help="device clock runs X times faster than the wall clock (default: 1)")
+    parser.add_argument("--speed", type=SPEED, default=1.0, metavar="X",
+                        help=f"device clock runs X times faster than the wall clock, at most {MAX_SPEED:g} "
+                             "(default: 1)")
     parser.add_argument("--duration", type=DURATION_S, metavar="S",
                         help="stop after S seconds of wall clock (default: until Ctrl-C)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Serve the simulated unit until Ctrl-C, SIGTERM, --duration or a disconnect fault."""
+    import mocks.encoders_extra  # noqa: F401  (registers the xsens, mavlink and text encoders)
     from mocks.chamber import describe_scenario, parse_chamber_spec
     from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ, SimDevice
     from mocks.faults import FaultSpec
@@ -98,7 +94,6 @@ def run(args: argparse.Namespace) -> int:
     elif args.chamber:
         raise StationError(f"--chamber applies to --scenario chamber only, not {args.scenario}")
     check_range("--rate", args.rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")
-    check_range("--speed", args.speed, 0.0, MAX_SPEED, low_open=True, what="a factor")
     if args.link is not None and os.path.lexists(args.link) and not args.link.is_symlink():
         raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)

@@ -7,11 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
 from protocols.units import STANDARD_GRAVITY
-from station.acquisition.capture import read_capture
 from station.cli_options import (
     GRAVITY,
     MAX_GRAVITY,
@@ -22,11 +18,7 @@ from station.cli_options import (
     number,
     positive,
 )
-from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
-from station.engines.thermal_model import TERMS
 from station.errors import ExitCode, InputFileError
-from station.export.params_file import merge_sections, open_for_unit, to_plain
-from station.export.thermal_report import format_report
 
 NAME = "thermal"
 HELP = "fit the bias against temperature and its rate from a still temperature sweep"
@@ -118,6 +110,8 @@ def _joins(text: str) -> list[float]:
 
 
 def _terms(text: str) -> list[str]:
+    from station.engines.thermal_model import TERMS
+
     names = [v.strip() for v in text.split(",") if v.strip()]
     unknown = [n for n in names if n not in TERMS]
     if unknown:
@@ -127,6 +121,14 @@ def _terms(text: str) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Fit the sweep, write the thermal section, print the report (or JSON)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from station.acquisition.capture import read_capture
+    from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
+    from station.export.params_file import merge_sections, open_for_unit, to_plain
+    from station.export.thermal_report import format_report
+
     err = Console(stderr=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
                   transient=True, disable=not sys.stderr.isatty()) as progress:

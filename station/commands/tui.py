@@ -5,12 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from station.cli_options import SEED, add_output_option, add_port_options, positive
+from station.cli_options import (
+    EXPORT_FORMATS,
+    MAX_SPEED,
+    SEED,
+    SPEED,
+    add_output_option,
+    add_port_options,
+    positive,
+)
 from station.errors import ExitCode, StationError
-from station.export.writers import FORMATS
 from station.tui.config import TuiConfig
 
-MAX_SPEED = 20.0
 NAME = "tui"
 HELP = "guided calibration in the terminal: connect, live view, sequence wizard, results, Allan, thermal"
 DESCRIPTION = """\
@@ -75,8 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_output_option(parser, dest="out", metavar="PARAMS.yaml", help="parameter file to write")
     parser.add_argument("--capture", type=Path, metavar="FILE",
                         help="labelled capture of the sequence (.csv or .h5; default beside --out)")
-    parser.add_argument("--export", action="append", default=[], choices=FORMATS, metavar="FORMAT",
-                        help=f"also export the saved parameters ({', '.join(FORMATS)}); repeatable")
+    parser.add_argument("--export", action="append", default=[], choices=EXPORT_FORMATS, metavar="FORMAT",
+                        help=f"also export the saved parameters ({', '.join(EXPORT_FORMATS)}); repeatable")
     parser.add_argument("--export-dir", type=Path, metavar="DIR",
                         help="where exports go (default: beside --out)")
     parser.add_argument("--allan-minutes", type=positive("min", MAX_ALLAN_MINUTES), default=60.0,
@@ -88,7 +94,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=SEED, default=0, help="--simulate: which simulated unit (default 0)")
     parser.add_argument("--rate", type=positive("Hz", MAX_SIM_RATE_HZ), default=200.0, metavar="HZ",
                         help="--simulate: the simulated unit's sample rate (default 200)")
-    parser.add_argument("--speed", type=positive("", MAX_SPEED), default=1.0, metavar="X",
+    parser.add_argument("--speed", type=SPEED, default=1.0, metavar="X",
                         help="--simulate: run the simulated unit's clock X times faster than the wall clock "
                         "(demos and tests; every hold and turn is timed on the device clock), at most "
                         f"{MAX_SPEED:g}")

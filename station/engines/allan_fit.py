@@ -44,9 +44,9 @@ from scipy import optimize
 
 from station.engines.allan import AllanCurve
 from station.engines.allan_ml import block_length, white_walk_ml
+from station.engines.allan_terms import TERMS
 from station.errors import EngineInputError
 
-TERMS = ("Q", "N", "B", "K", "R")
 B_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.66428
 ALPHA_OF_TERM = {"Q": 2, "N": 0, "B": -1, "K": -2, "R": -2}
 SLOPE_OF_TERM = {"Q": -1.0, "N": -0.5, "B": 0.0, "K": 0.5, "R": 1.0}
