@@ -11,6 +11,7 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
      ├── OutputFileError                  a file the station writes cannot be written
      ├── SequenceError                    a step label that does not follow the spec (acquisition)
      ├── BlobError                        a parameter blob that cannot be built or read (export)
+     ├── UnitMismatchError                a parameter file holds another unit's results (export)
      ├── DemoFailed                       a check of the demo did not hold
      ├── MavlinkUnavailable               the MAVLink protocol needs pymavlink (protocols)
      ├── FrameDescriptionError            a frame description breaks its schema's rules (protocols)
