@@ -421,7 +421,7 @@ class AccelStage:
     bias: np.ndarray
     cov: np.ndarray             # (9, 9) of ``fit.params``
     directions: np.ndarray      # (K, 3) calibrated mean specific force of each interval
-    pose_residual: list[float]  # eq. (10) on each interval's mean, m/s^2
+    pose_residual: list[float]  # |a| - g of each interval's mean (measured minus model), m/s^2
     warnings: list[str]
 
 
@@ -484,7 +484,8 @@ def fit_accelerometer_thresholds(data: FreeCapture, settings: FreeSettings,
     # Gravity directions: means over each whole interval (imu_tk).
     directions = np.array([calibrated[a:b + 1].mean(axis=0) for a, b in intervals])
     warnings = _coverage_warnings(directions, "accelerometer")
-    pose_res = [float(g) for g in settings.gravity - np.linalg.norm(directions, axis=1)]
+    # reported as every residual of the station is: measured minus model (the fit's eq. 10 is the reverse)
+    pose_res = [float(r) for r in np.linalg.norm(directions, axis=1) - settings.gravity]
     return AccelStage(trials, trial, fit, intervals, acc_c, acc_b, cov_a, directions, pose_res, warnings)
 
 
@@ -660,7 +661,7 @@ def accel_calibration(accel: AccelStage, settings: FreeSettings, method: str) ->
                              * np.sum(np.linalg.inv(acc_c) ** 2, axis=1))
     return SensorCalibration(np.linalg.inv(acc_c), accel.bias, method=method,
                              residual_rms=float(np.sqrt(np.mean(fit.residual**2))), stddev=acc_sd,
-                             extra={"convention": convention, "residual": "g - |a| (m/s^2)",
+                             extra={"convention": convention, "residual": "|a| - g (m/s^2)",
                                     "threshold_multiplier": accel.trial.multiplier,
                                     "static_intervals": len(accel.intervals)})
 
