@@ -138,3 +138,38 @@ def test_results_outside_the_limits_exit_1():
 
     asyncio.run(run())
     assert app.return_value == ExitCode.OUT_OF_LIMITS
+
+
+def test_replacing_a_noise_section_from_the_allan_screen_asks_first(tmp_path):
+    out = tmp_path / "unit.yaml"
+    old_noise = {"gyro": {"N": [1.0, 1.0, 1.0]}, "note": "the noise of last week"}
+    ParamsFile(device={"serial": "SIM-000006"}, noise=old_noise).save(out)
+    app = StationApp(TuiConfig(simulate=True, seed=6, rate_hz=1000.0, out=out, speed=4.0))
+
+    async def record_and_fit(pilot) -> None:
+        await pilot.press("a")
+        screen = await wait_for(pilot, lambda: type(app.screen).__name__ == "AllanScreen" and app.screen, 5,
+                                "Allan")
+        await wait_for(pilot, lambda: getattr(getattr(screen, "recording", None), "count", 0) >= 6000, 60,
+                       "6 s of samples")
+        await pilot.press("enter")
+        await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 60, "the question")
+        assert "already holds a noise section" in screen_text(app)
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
+            await record_and_fit(pilot)
+            await pilot.press("k")  # keep the file's
+            await wait_for(pilot, lambda: "keeps the one it had" in screen_text(app), 5, "the answer")
+            assert ParamsFile.load(out).noise == old_noise
+            await pilot.press("escape")
+            await wait_for(pilot, lambda: type(app.screen).__name__ == "LiveScreen", 5, "the live view")
+            await record_and_fit(pilot)
+            await pilot.press("r")  # replace it
+            await wait_for(pilot, lambda: "noise section saved" in screen_text(app), 10, "the save")
+            await pilot.press("q")
+
+    asyncio.run(run())
+    noise = ParamsFile.load(out).noise
+    assert noise != old_noise and len(noise["gyro"]["N"]) == 3

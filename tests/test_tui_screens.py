@@ -23,7 +23,7 @@ from station.tui.app import StationApp
 from station.tui.art import bar, pose_art, rotation_art
 from station.tui.config import TuiConfig
 from station.tui.limits import ACCEL_LIMITS, evaluate
-from station.tui.plot import Series, braille_plot
+from station.tui.plot import Series, draw
 from station.tui.screens.allan import AllanScreen
 from station.tui.screens.results import ResultsScreen
 from station.tui.screens.thermal import ThermalScreen, block_means, temperature_rate
@@ -51,15 +51,45 @@ def test_pose_and_rotation_drawings_name_the_faces_and_the_turn():
     assert bar(0.55, 10) == "█████▌░░░░"
 
 
-def test_braille_log_log_plot_places_a_falling_line_from_top_left_to_bottom_right():
+def test_log_log_plot_draws_a_falling_line_with_its_axes_labels_and_legend():
+    from rich.text import Text
+    from textual.app import App
+    from textual_plotext import PlotextPlot
+
+    class One(App[None]):
+        def compose(self):
+            yield PlotextPlot()
+
     tau = np.logspace(-2, 2, 200)
-    text = braille_plot([Series("white", tau, 0.01 / np.sqrt(tau))], width=40, height=8, logx=True, logy=True)
-    rows = text.plain.splitlines()[:8]
-    canvas = [row.split("┤", 1)[-1].split("│", 1)[-1] for row in rows]
-    first = [next(i for i, ch in enumerate(row) if ch.strip()) for row in canvas]
-    assert first == sorted(first) and first[0] == 0 and first[-1] >= 30
-    assert "1e-01" in rows[0] and "1e-03" in rows[-1]
-    assert "(no data yet)" in braille_plot([Series("x", np.array([]), np.array([]))]).plain
+    app = One()
+    drawn = {}
+
+    async def run() -> None:
+        async with app.run_test(size=(60, 20)) as pilot:
+            widget = app.query_one(PlotextPlot)
+            drawn["count"] = draw(widget, [Series("white", tau, 0.01 / np.sqrt(tau), "red"),
+                                           Series("none", tau[:1], tau[:1])],  # one point: left out
+                                  title="ADEV", xlabel="tau (s)", ylabel="rad/s", logx=True, logy=True)
+            await pilot.pause(0.3)
+            drawn["rows"] = Text.from_ansi(widget.plt.build()).plain.splitlines()  # as rendered, 60x20
+            await pilot.resize_terminal(70, 22)  # rendered again: plotext's log scale took log(log) here
+            await pilot.pause(0.2)
+            empty = app.query_one(PlotextPlot)
+            draw(empty, [], title="ADEV", xlabel="tau (s)", ylabel="rad/s")
+            await pilot.pause(0.2)
+            drawn["empty"] = svg_rows(app.export_screenshot())
+
+    asyncio.run(run())
+    rows = drawn["rows"]
+    assert drawn["count"] == 1
+    text = "\n".join(rows)
+    assert "ADEV" in rows[0] and "tau (s)" in text and "rad/s" in text and "white" in text
+    braille = [(i, next(j for j, ch in enumerate(row) if 0x2800 < ord(ch) <= 0x28FF and ch != "⢕"))
+               for i, row in enumerate(rows) if any(0x2800 < ord(ch) <= 0x28FF and ch != "⢕" for ch in row)]
+    columns = [j for _, j in braille]
+    assert len(braille) >= 8 and columns == sorted(columns), "the line does not fall left to right"
+    assert "0.1" in text and "0.001" in text  # the log axis' ticks, in values, not exponents
+    assert "waiting for data" in "\n".join(drawn["empty"])
 
 
 def test_limits_flag_what_is_outside():
@@ -164,7 +194,7 @@ def test_allan_screen_plots_and_fits_the_white_noise(tmp_path):
             await wait_for(pilot, lambda: recorded(screen) >= 8000, 60, "8 s of samples")
             await pilot.pause(1.2)
             rows = svg_rows(app.export_screenshot())
-            assert any("gyro ADEV (rad/s)" in r for r in rows)
+            assert any("gyro ADEV" in r for r in rows) and any("rad/s" in r for r in rows)
             assert sum(any(0x2800 < ord(c) <= 0x28FF for c in r) for r in rows) >= 6  # braille dots drawn
             await pilot.press("enter")
             await wait_for(pilot, lambda: out.exists(), 60, "the noise section")

@@ -36,6 +36,9 @@ class StationApp(App[int]):
     """
 
     TITLE = "imu-station"
+    ENABLE_COMMAND_PALETTE = False  # its footer entry would push the screen's own keys off at 80 columns
+    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (36, "-tall")]
     BINDINGS = [
         Binding("question_mark", "help", "help", key_display="?"),
         Binding("q", "quit_app", "quit"),

@@ -8,7 +8,9 @@ line judges it (:func:`plan_verdicts`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -82,7 +84,7 @@ def limits_name(plan: Plan | None) -> str:
     return BUILT_IN if plan is None else f"plan {plan.name}"
 
 
-def plan_verdicts(plan: Plan, report: CalibrationReport, link: dict[str, object]) -> list[Verdict]:
+def plan_verdicts(plan: Plan, report: CalibrationReport, link: Mapping[str, Any]) -> list[Verdict]:
     """Each quantity the plan limits, judged as the factory run judges it (its worst component).
 
     Parameters
@@ -104,11 +106,13 @@ def plan_verdicts(plan: Plan, report: CalibrationReport, link: dict[str, object]
         found = measure(plan, [spec.quantity], report, dict(link))
         if not found:
             continue
-        failed = [m for m in found if m.outcome != "PASS"]
-        worst = failed[0] if failed else max(found, key=lambda m: abs(m.value or 0.0))
+        # measure() gives numbers (None where not finite); a record read back may hold text
+        values = [float(m.value) if isinstance(m.value, (int, float)) else float("nan") for m in found]
+        failed = [k for k, m in enumerate(found) if m.outcome != "PASS"]
+        k = failed[0] if failed else max(range(len(found)), key=lambda i: abs(values[i]))
+        worst, value = found[k], values[k]
         sensor, _, name = spec.quantity.partition(".")
         component = worst.name[len(spec.quantity) + 1:]  # x, y, z or xy ...; empty for a scalar
-        value = float("nan") if worst.value is None else worst.value
         out.append(Verdict(sensor, f"{name.replace('_', ' ')} {component}".strip(), value, spec.high,
                            spec.unit, spec.low))
     return out

@@ -1,100 +1,112 @@
-"""A small braille plot for the terminal: several series, linear or logarithmic axes.
+"""The TUI's plots: curves drawn in a textual-plotext widget, with axes, ticks, labels and a legend.
 
-Each character cell holds 2 x 4 dots (Unicode braille, U+2800 + dot bits), so a plot of
-W x H cells has 2W x 4H points. Textual has no plot widget; this is the ADEV and the
-temperature plot of the TUI.
+Every plot of the TUI (the live traces, the Allan deviation with its fitted lines, the temperature
+sweep) is a :class:`~textual_plotext.PlotextPlot` redrawn with :func:`draw`.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from rich.text import Text
+from textual_plotext import PlotextPlot
 
-# Dot bit of (column 0..1, row 0..3) in a braille cell.
-_DOT_BITS = ((0x01, 0x08), (0x02, 0x10), (0x04, 0x20), (0x40, 0x80))
+# Plotext's markers: measured points in braille dots (fine), fitted lines in small dots.
+DATA_MARKER = "braille"
+FIT_MARKER = "dot"
+MANTISSAS = (1.0, 2.0, 5.0)
 
 
 @dataclass(frozen=True)
 class Series:
-    """One curve of a braille plot: its name, x and y values and colour style."""
+    """One curve: its name (the legend), x and y values, colour, and whether it is a fitted line."""
 
     name: str
     x: np.ndarray
     y: np.ndarray
-    style: str = "white"
+    color: str = "white"
+    fitted: bool = False
 
 
-def _scale(v: np.ndarray, log: bool) -> np.ndarray:
-    v = np.asarray(v, float)
-    if log:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(v > 0, np.log10(v), np.nan)
-    return v
+def _finite(series: Series, logx: bool, logy: bool) -> tuple[np.ndarray, np.ndarray]:
+    x, y = np.asarray(series.x, float), np.asarray(series.y, float)
+    keep = np.isfinite(x) & np.isfinite(y)
+    if logx:
+        keep &= x > 0
+    if logy:
+        keep &= y > 0
+    return x[keep], y[keep]
 
 
-def _fmt(v: float, log: bool) -> str:
-    value = 10**v if log else v
-    if value == 0 or not math.isfinite(value):
-        return "0"
-    return f"{value:.0e}" if log or abs(value) >= 1e4 or abs(value) < 1e-2 else f"{value:.3g}"
+def log_ticks(low: float, high: float) -> tuple[list[float], list[str]]:
+    """Tick positions (log10) and labels (values) for a log axis from ``low`` to ``high`` (log10).
 
+    Decades; 1, 2, 5 of each decade where the axis spans less than two.
 
-def braille_plot(series: Sequence[Series], width: int = 60, height: int = 14, logx: bool = False,
-                 logy: bool = False, xlabel: str = "", ylabel: str = "") -> Text:
-    """The series drawn as dots in a ``width`` x ``height`` cell canvas, with axis extents and a legend.
+    Parameters
+    ----------
+    low, high : float
+        The axis' extent, log10 of the values.
 
-    Points that are not finite (or not positive on a log axis) are left out.
+    Returns
+    -------
+    tuple of (list of float, list of str)
     """
-    xs = [_scale(s.x, logx) for s in series]
-    ys = [_scale(s.y, logy) for s in series]
-    finite = [np.isfinite(x) & np.isfinite(y) for x, y in zip(xs, ys, strict=True)]
-    all_x = np.concatenate([x[f] for x, f in zip(xs, finite, strict=True)] or [np.zeros(0)])
-    all_y = np.concatenate([y[f] for y, f in zip(ys, finite, strict=True)] or [np.zeros(0)])
-    out = Text()
-    if ylabel:
-        out.append(ylabel + "\n", style="bold")
-    if not len(all_x):
-        out.append("(no data yet)\n".rjust(width // 2 + 8), style="dim")
-        return out
-    x0, x1 = float(all_x.min()), float(all_x.max())
-    y0, y1 = float(all_y.min()), float(all_y.max())
-    if x1 == x0:
-        x0, x1 = x0 - 0.5, x1 + 0.5
-    if y1 == y0:
-        y0, y1 = y0 - 0.5, y1 + 0.5
-    bits = np.zeros((height, width), dtype=np.int32)
-    owner = np.full((height, width), -1, dtype=np.int32)
-    for k, (x, y, f) in enumerate(zip(xs, ys, finite, strict=True)):
-        px = np.clip(((x[f] - x0) / (x1 - x0) * (2 * width - 1)).round().astype(int), 0, 2 * width - 1)
-        py = np.clip(((y1 - y[f]) / (y1 - y0) * (4 * height - 1)).round().astype(int), 0, 4 * height - 1)
-        for cx, cy in zip(px, py, strict=True):
-            row, col = cy // 4, cx // 2
-            bits[row, col] |= _DOT_BITS[cy % 4][cx % 2]
-            owner[row, col] = k
-    label_w = 8
-    for row in range(height):
-        if row == 0:
-            label = _fmt(y1, logy)
-        elif row == height - 1:
-            label = _fmt(y0, logy)
-        else:
-            label = ""
-        out.append(f"{label:>{label_w}} ┤" if label else " " * label_w + " │", style="dim")
-        for col in range(width):
-            b = int(bits[row, col])
-            out.append(chr(0x2800 + b) if b else " ", style=series[owner[row, col]].style if b else "")
-        out.append("\n")
-    out.append(" " * label_w + " └" + "─" * width + "\n", style="dim")
-    left, right = _fmt(x0, logx), _fmt(x1, logx)
-    out.append(" " * (label_w + 2) + left + " " * max(1, width - len(left) - len(right)) + right + "\n",
-               style="dim")
-    if xlabel:
-        out.append(" " * (label_w + 2) + xlabel.center(width) + "\n", style="dim")
+    decades = range(int(np.floor(low)), int(np.ceil(high)) + 1)
+    mantissas = MANTISSAS if high - low < 2 else (1.0,)
+    values = [m * 10.0**k for k in decades for m in mantissas]
+    inside = [v for v in values if low - 1e-9 <= np.log10(v) <= high + 1e-9]
+    return [float(np.log10(v)) for v in inside], [f"{v:g}" for v in inside]
+
+
+def draw(widget: PlotextPlot, series: Sequence[Series], *, title: str, xlabel: str, ylabel: str,
+         logx: bool = False, logy: bool = False) -> int:
+    """Redraw ``widget`` with ``series``; points that are not finite (or not positive on a log axis)
+    are left out.
+
+    Parameters
+    ----------
+    widget : PlotextPlot
+        The plot to redraw.
+    series : sequence of Series
+        The curves, drawn in order (a fitted line over its data, when given after it).
+    title, xlabel, ylabel : str
+        The plot's title and axis labels (with units).
+    logx, logy : bool
+        Logarithmic axes.
+
+    Returns
+    -------
+    int
+        The number of curves drawn (0: the plot says it waits for data).
+    """
+    plt = widget.plt
+    plt.clear_figure()
+    plt.title(title)
+    plt.xlabel(xlabel)
+    plt.ylabel(ylabel)
+    # Log axes are drawn as log10 on linear ones with value labels: plotext's own log scale
+    # transforms the data in place, so a second render (any resize) takes the log of a log.
+    extents: list[tuple[np.ndarray, np.ndarray]] = []
+    drawn = 0
     for s in series:
-        out.append(" " * (label_w + 2) + "⣿ ", style=s.style)
-        out.append(s.name + "\n")
-    return out
+        x, y = _finite(s, logx, logy)
+        if len(x) < 2:
+            continue
+        x, y = (np.log10(x) if logx else x), (np.log10(y) if logy else y)
+        extents.append((x, y))
+        plt.plot(x.tolist(), y.tolist(), label=s.name, color=s.color,
+                 marker=FIT_MARKER if s.fitted else DATA_MARKER)
+        drawn += 1
+    if not drawn:
+        plt.title(f"{title} (waiting for data)")
+    else:
+        xs = np.concatenate([x for x, _ in extents])
+        ys = np.concatenate([y for _, y in extents])
+        if logx:
+            plt.xticks(*log_ticks(float(xs.min()), float(xs.max())))
+        if logy:
+            plt.yticks(*log_ticks(float(ys.min()), float(ys.max())))
+    widget.refresh()
+    return drawn

@@ -41,7 +41,7 @@ def pump(device: Device, on_batch: Callable[[np.ndarray], None], on_tick: Callab
 
 
 class Tail:
-    """The last ``size`` samples of a few float columns, kept in a ring for sparklines."""
+    """The last ``size`` samples of a few float columns, kept in a ring for the live traces."""
 
     def __init__(self, size: int, columns: int):
         self.data = np.full((size, columns), np.nan)

@@ -5,44 +5,74 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from rich.console import Group
 from rich.text import Text
 from textual import work
 from textual.widgets import Static
 
 from station.acquisition.allan_source import AXES
 from station.engines.allan import allan_curve, cluster_sizes, integrate_rates, overlapping_adev
-from station.engines.allan_fit import identify_noise
+from station.engines.allan_fit import AxisNoise, identify_noise
 from station.errors import StationError
 from station.export import allan_report
-from station.export.params_file import ParamsFile, to_plain
+from station.export.params_file import to_plain
 from station.tui.messages import LinkFailed, Snapshot
-from station.tui.plot import Series, braille_plot
+from station.tui.plot import Series, draw
 from station.tui.pump import pump
 from station.tui.recording import Recording
 from station.tui.screens.long_recording import LongRecordingScreen
 
-COLORS = ("red", "green", "dodger_blue1")
+COLORS = ("red", "green", "blue")
 MIN_SAMPLES = 64
 
 
-def adev_plots(tau: np.ndarray, adev: np.ndarray, width: int = 50, height: int = 10) -> Group:
-    """The gyro and accel ADEV (columns in ``AXES`` order) as two log-log braille plots."""
-    gyro = [Series(AXES[j], tau, adev[:, j], COLORS[j]) for j in range(3)]
-    acc = [Series(AXES[3 + j], tau, adev[:, 3 + j], COLORS[j]) for j in range(3)]
-    return Group(braille_plot(gyro, width, height, True, True, "tau (s)", "gyro ADEV (rad/s)"),
-                 braille_plot(acc, width, height, True, True, "tau (s)", "accel ADEV (m/s^2)"))
+def adev_series(tau: np.ndarray, adev: np.ndarray, noise: list[AxisNoise] | None,
+                first: int) -> list[Series]:
+    """The ADEV of the three axes from column ``first`` (``AXES`` order), each followed by its fitted
+    model when ``noise`` is given.
+
+    Parameters
+    ----------
+    tau : numpy.ndarray
+        Averaging times, s.
+    adev : numpy.ndarray
+        Allan deviation, one column per axis of ``AXES``.
+    noise : list of AxisNoise or None
+        The fit of every axis (None while recording).
+    first : int
+        0 for the gyroscope, 3 for the accelerometer.
+
+    Returns
+    -------
+    list of Series
+    """
+    out = []
+    for j in range(3):
+        k = first + j
+        out.append(Series(AXES[k], tau, adev[:, k], COLORS[j]))
+        if noise is not None:
+            out.append(Series(f"{AXES[k]} fit", tau, noise[k].model(tau), COLORS[j], fitted=True))
+    return out
+
+
+def draw_adev(screen: LongRecordingScreen, tau: np.ndarray, adev: np.ndarray,
+              noise: list[AxisNoise] | None = None) -> None:
+    """The gyro and accel ADEV on log-log axes, with the fitted lines once fitted."""
+    gyro_plot, acc_plot = screen.plots()
+    draw(gyro_plot, adev_series(tau, adev, noise, 0), title="gyro ADEV", xlabel="tau (s)",
+         ylabel="rad/s", logx=True, logy=True)
+    draw(acc_plot, adev_series(tau, adev, noise, 3), title="accel ADEV", xlabel="tau (s)",
+         ylabel="m/s^2", logx=True, logy=True)
 
 
 class AllanScreen(LongRecordingScreen):
+    """A long still recording with its Allan deviation redrawn as it grows; Enter fits the noise
+    terms and saves the ``noise`` section (asking before replacing one)."""
+
     HEADING = "Allan recording"
     KIND = "allan"
+    SECTION = "noise"
     INTRO = "Keep the unit still. The recording runs until Enter."
     FITTING = "fitting the noise terms ..."
-    DEFAULT_CSS = """
-    AllanScreen #plots { width: 1fr; border: round $accent; }
-    AllanScreen #side { width: 60; border: round $secondary; padding: 0 1; }
-    """
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
@@ -69,21 +99,21 @@ class AllanScreen(LongRecordingScreen):
         pump(device, self.recording.add, on_tick, lambda exc: self.post_message(LinkFailed(exc)))
 
     def show_progress(self, d: dict) -> None:
+        """The recording's length and link, and the ADEV so far."""
         stats = d["stats"]
         # The device clock, not the wall clock: the record's length is what the Allan deviation sees.
         elapsed = d["count"] / stats.rate_hz if stats.rate_hz > 0 else 0.0
         side = Text()
-        side.append("Allan recording\n", style="bold")
-        side.append(f"recorded  {elapsed / 60:6.1f} min of {self.station.config.allan_minutes:g} min asked\n")
-        side.append(f"samples   {d['count']}\n")
-        side.append(f"rate      {stats.rate_hz:.1f} Hz\n")
-        side.append(f"lost      {stats.lost}   errors {stats.errors}\n\n")
-        side.append("Keep the unit still and the temperature steady.\n"
-                    "Hours of data show bias instability and random walk;\n"
-                    "minutes show white noise only.\n\nEnter: stop and fit · Escape: back")
+        side.append("Allan recording  ", style="bold")
+        side.append(f"{elapsed / 60:.1f} min of {self.station.config.allan_minutes:g} min asked, "
+                    f"{d['count']} samples\n")
+        side.append(f"rate {stats.rate_hz:.1f} Hz · lost {stats.lost} · errors {stats.errors}\n")
+        side.append("Keep the unit still and the temperature steady: hours of data show bias instability "
+                    "and random walk, minutes white noise only.\n")
+        side.append("Enter: stop and fit · Escape: back", style="bold")
         self.query_one("#side", Static).update(side)
         if "adev" in d:
-            self.query_one("#plots", Static).update(adev_plots(d["tau"], d["adev"], self.plot_width()))
+            draw_adev(self, d["tau"], d["adev"])
         if elapsed >= 60 * self.station.config.allan_minutes:
             self.action_stop()
 
@@ -101,26 +131,13 @@ class AllanScreen(LongRecordingScreen):
         except StationError as exc:
             self.post_message(LinkFailed(exc))
             return
-        saved = None
-        out = self.station.config.out
-        if out is not None:
-            params = ParamsFile.load_or_new(out)
-            params.update_device(self.session.info)
-            params.noise = section
-            params.save(out)
-            saved = str(out)
-        self.post_message(Snapshot({"fit": (curve, section), "saved": saved}))
+        self.post_message(Snapshot({"fit": (curve, noise, section), "section": section}))
 
-    def show_fit(self, fit: tuple, saved: str | None) -> None:
-        curve, section = fit
-        self.query_one("#plots", Static).update(adev_plots(curve.tau, curve.adev, self.plot_width()))
-        text = Text("\n".join(allan_report.summary_lines(section)) + "\n\n")
-        text.append(f"noise section saved to {saved}" if saved else "no --out: nothing saved", style="bold")
+    def show_fit(self, fit: tuple) -> None:
+        """The fitted lines over the curves, and the noise terms of every axis."""
+        curve, noise, section = fit
+        draw_adev(self, curve.tau, curve.adev, noise)
+        text = Text("\n".join(allan_report.summary_lines(section)))
         if self.recording.path is not None:
             text.append(f"\nrecording in {self.recording.path}")
-        text.append("\nEscape: back · q: quit")
         self.query_one("#side", Static).update(text)
-
-    def plot_width(self) -> int:
-        """Plot cells that fit the panel beside the axis labels."""
-        return max(20, self.query_one("#plots", Static).size.width - 14)

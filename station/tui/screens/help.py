@@ -9,44 +9,52 @@ from textual.screen import ModalScreen
 from textual.widgets import Static
 
 HELP = """\
-[b]imu-station TUI: keys[/b]   (keyboard only; Enter always does the next thing)
+[b]imu-station TUI: keys[/b]  (Enter always does the next thing)
 
 [b]Everywhere[/b]
-  ?        this help              q / ctrl+q   quit
-  l        live view              w            sequence wizard
-  a        Allan recording        t            temperature-sweep monitor
+  ?        this help              q, ctrl+c  quit (asks first about
+                                             unsaved results)
+  l        live view              w          sequence wizard
+  a        Allan recording        t          temperature sweep
 
 [b]Connect[/b]
-  up/down  choose a port          Enter        connect / continue to the live view
-  c        choose another port
+  up/down  choose a port          Enter      connect, then the live view
+  c        choose another port    p          change the protocol
 
 [b]Live view[/b]
   Enter    start the sequence wizard
 
 [b]Sequence wizard[/b]
-  Enter    answer the prompt with its default (start, redo a failed step, ...)
-  r        redo the current step  s            skip the current step
-  k        keep a step that failed a check   x   abort (what was captured is kept)
-  The unit is captured automatically once it is in the asked pose and still.
+  Enter    answer the prompt with its default (start, redo, ...)
+  r        redo the current step  s          skip the current step
+  k        keep a failed step     x          abort (keeps what was
+                                             captured)
+  Capture starts by itself once the unit is in the pose and still.
 
 [b]Results[/b]
-  Enter    save the parameter file (--out) and the exports, then quit
-  e        export only
+  Enter    save to --out and write the exports, then quit
+  e        export only            up/down    scroll the tables
+  Judged against the built-in loose limits or a factory plan's
+  (--plan); the header says which.
 
 [b]Allan recording / temperature sweep[/b]
-  Enter    stop the recording and fit        Escape   back
+  Enter    stop the recording and fit   Escape   back
 """
 
 
 class HelpScreen(ModalScreen[None]):
+    """Every key of every screen; it scrolls where the terminal is smaller than it."""
+
     BINDINGS = [Binding("escape,question_mark,enter,q", "dismiss", "close")]
     DEFAULT_CSS = """
     HelpScreen { align: center middle; }
     HelpScreen > VerticalScroll {
-        width: 84; height: 30; border: round $accent; background: $panel; padding: 0 1;
+        width: 92; max-width: 100%; height: 30; max-height: 100%; border: round $accent;
+        background: $panel; padding: 0 1;
     }
     """
 
     def compose(self) -> ComposeResult:
+        """The keys, in a scrolling box."""
         with VerticalScroll():
             yield Static(HELP)

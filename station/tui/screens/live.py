@@ -1,4 +1,5 @@
-"""Live view: the latest values, the measured rate, a sparkline per axis, errors and lost samples."""
+"""Live view: the latest values, the measured rate, the accelerometer and gyroscope traces, errors
+and lost samples."""
 
 from __future__ import annotations
 
@@ -9,41 +10,47 @@ from rich.table import Table
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
-from textual.containers import Grid, Horizontal
-from textual.widgets import Footer, Header, Label, Sparkline, Static
+from textual.containers import Horizontal
+from textual.widgets import Footer, Header, Static
+from textual_plotext import PlotextPlot
 
 from station.tui.messages import LinkFailed, Snapshot
+from station.tui.plot import Series, draw
 from station.tui.pump import Tail, pump
 from station.tui.screens.station_screen import StationScreen
 
-CHANNELS = ("ax", "ay", "az", "gx", "gy", "gz")
+AXIS_COLORS = ("red", "green", "blue")
 TAIL_SAMPLES = 400
+# Tail columns: device time (s), acc x y z, gyro x y z, temperature.
+T, ACC, GYRO, TEMP = 0, slice(1, 4), slice(4, 7), 7
 
 
 class LiveScreen(StationScreen):
+    """The unit's latest values and link health, and the last seconds of each triad as traces."""
+
     BINDINGS = [Binding("enter", "wizard", "sequence wizard", show=True)]
     DEFAULT_CSS = """
     LiveScreen #values { height: auto; border: round $accent; padding: 0 1; }
-    LiveScreen Grid { grid-size: 2; grid-columns: 8 1fr; height: auto; grid-rows: 2; }
-    LiveScreen Sparkline { height: 2; }
+    LiveScreen #plots { height: 1fr; min-height: 8; }
+    LiveScreen PlotextPlot { width: 1fr; height: 1fr; }
+    LiveScreen #hint { height: 1; padding: 0 1; color: $text-muted; }
     """
 
     def compose(self) -> ComposeResult:
+        """The values, the two trace plots side by side, the keys."""
         yield Header()
         yield Static("waiting for samples ...", id="values")
-        with Grid():
-            for name in CHANNELS:
-                yield Label(name)
-                yield Sparkline([], id=f"spark-{name}", summary_function=np.mean)
-        with Horizontal():
-            yield Static("Enter: sequence wizard · a: Allan recording · t: temperature sweep · ?: help",
-                         id="hint")
+        with Horizontal(id="plots"):
+            yield PlotextPlot(id="plot-acc")
+            yield PlotextPlot(id="plot-gyro")
+        yield Static("Enter: sequence wizard · a: Allan · t: temperature sweep · ?: help", id="hint")
         yield Footer()
 
     def on_mount(self) -> None:
+        """Start reading the unit."""
         self.title = "imu-station · live"
         self._lock = threading.Lock()
-        self._tail = Tail(TAIL_SAMPLES, 7)
+        self._tail = Tail(TAIL_SAMPLES, 8)
         self._read()
 
     @work(thread=True, exclusive=True, group="reader")
@@ -51,7 +58,7 @@ class LiveScreen(StationScreen):
         device = self.session.device
 
         def on_batch(batch: np.ndarray) -> None:
-            rows = np.column_stack([batch["acc"], batch["gyro"], batch["temp"]])
+            rows = np.column_stack([batch["t_us"] * 1e-6, batch["acc"], batch["gyro"], batch["temp"]])
             with self._lock:
                 self._tail.add(rows)
 
@@ -64,12 +71,13 @@ class LiveScreen(StationScreen):
         pump(device, on_batch, on_tick, lambda exc: self.post_message(LinkFailed(exc)))
 
     def on_snapshot(self, message: Snapshot) -> None:
+        """Show the latest values, the link, and the traces of the last samples."""
         tail = message.data["tail"]
         stats = message.data["stats"]
         rows = tail[np.isfinite(tail[:, 0])]
         if not len(rows):
             return
-        last = rows[-1]
+        last = rows[-1, 1:]
         table = Table(box=None, padding=(0, 2), show_header=True, header_style="bold")
         for col in ("", "x", "y", "z", "unit"):
             table.add_column(col, justify="right")
@@ -83,12 +91,18 @@ class LiveScreen(StationScreen):
         grid.add_row(table)
         grid.add_row(link)
         self.query_one("#values", Static).update(grid)
-        for j, name in enumerate(CHANNELS):
-            series = rows[:, j]
-            self.query_one(f"#spark-{name}", Sparkline).data = (series - series.mean()).tolist()
+        t = rows[:, T] - rows[-1, T]  # seconds before the latest sample
+        for name, columns, title, unit in (("acc", ACC, "accelerometer", "m/s^2"),
+                                            ("gyro", GYRO, "gyroscope", "rad/s")):
+            values = rows[:, columns]
+            draw(self.query_one(f"#plot-{name}", PlotextPlot),
+                 [Series(axis, t, values[:, j], AXIS_COLORS[j]) for j, axis in enumerate("xyz")],
+                 title=title, xlabel="time (s)", ylabel=unit)
 
     def on_link_failed(self, message: LinkFailed) -> None:
+        """The link failed: say so where the values were."""
         self.query_one("#values", Static).update(f"[red]link lost: {message.error}[/red]")
 
     def action_wizard(self) -> None:
+        """Enter: the sequence wizard."""
         self.station.show("wizard")

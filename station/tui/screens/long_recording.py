@@ -2,37 +2,53 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
-from textual.containers import Horizontal
+from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Footer, Header, Static
+from textual_plotext import PlotextPlot
 
+from station.errors import StationError
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.recording import open_recording
+from station.tui.saving import existing_section, save_sections
+from station.tui.screens.ask import AskScreen
 from station.tui.screens.station_screen import StationScreen
 
 
 class LongRecordingScreen(StationScreen):
-    """A ``#plots`` panel and a ``#side`` panel over a recording named ``KIND``.
+    """Two plots side by side (``#plot-0``, ``#plot-1``) over a ``#side`` panel, for a recording
+    named ``KIND``.
 
     A subclass supplies the texts below, a ``_read`` worker that fills ``self.recording`` and posts
     progress snapshots for ``show_progress``, and a ``_fit`` worker, run once the reader is stopped,
-    that posts ``{"fit": ..., "saved": path or None}`` for ``show_fit``.
+    that posts ``{"fit": ..., "section": ...}``: ``show_fit`` shows the fit, then the ``SECTION`` is
+    saved to ``--out``, asking first when the file already holds one.
     """
 
     BINDINGS = [Binding("enter", "stop", "stop and fit", show=True), Binding("escape", "back", "back")]
+    DEFAULT_CSS = """
+    LongRecordingScreen #plots { height: 2fr; min-height: 10; }
+    LongRecordingScreen PlotextPlot { width: 1fr; height: 1fr; }
+    LongRecordingScreen #side-box { height: 1fr; min-height: 7; border: round $secondary; padding: 0 1; }
+    """
     HEADING = ""
     KIND = ""
     INTRO = ""
     FITTING = ""
+    SECTION = ""
 
     def compose(self) -> ComposeResult:
         yield Header()
-        with Horizontal():
-            yield Static("", id="plots")
+        with Horizontal(id="plots"):
+            yield PlotextPlot(id="plot-0")
+            yield PlotextPlot(id="plot-1")
+        with VerticalScroll(id="side-box"):
+            yield Static("", id="saved")
             yield Static(self.INTRO, id="side")
         yield Footer()
 
@@ -42,15 +58,59 @@ class LongRecordingScreen(StationScreen):
         self.stopped = False
         self._read()
 
+    def plots(self) -> tuple[PlotextPlot, PlotextPlot]:
+        """The two plots, left and right."""
+        return self.query_one("#plot-0", PlotextPlot), self.query_one("#plot-1", PlotextPlot)
+
     def on_unmount(self) -> None:
+        """Close the recording file."""
         self.recording.close()
 
     def on_snapshot(self, message: Snapshot) -> None:
         d = message.data
         if "fit" in d:
-            self.show_fit(d["fit"], d["saved"])
+            self.show_fit(d["fit"])
+            self.save_section(d["section"])
         elif not self.stopped:
             self.show_progress(d)
+
+    def say_saved(self, text: str) -> None:
+        """What became of the fit, above it, with the keys."""
+        self.query_one("#saved", Static).update(Text(f"{text}\nEscape: back · q: quit", style="bold"))
+
+    def save_section(self, value: Any) -> None:
+        """Merge the fitted ``SECTION`` into ``--out``; a section already there is replaced only if the
+        operator says so."""
+        out = self.station.config.out
+        name = self.SECTION
+        if out is None:
+            self.say_saved("no --out: nothing saved")
+            return
+        try:
+            exists = existing_section(out, name)
+        except StationError as exc:
+            self.say_saved(f"{name} section not saved: {exc}")
+            return
+        if not exists:
+            self._write(out, value)
+            return
+
+        def answered(reply: tuple[str, str] | None) -> None:
+            if reply is not None and reply[0] == "r":
+                self._write(out, value)
+            else:
+                self.say_saved(f"{name} section not saved: {out} keeps the one it had")
+
+        self.app.push_screen(AskScreen(f"{out} already holds a {name} section. Replace it with this fit?",
+                                       [("k", "keep the file's"), ("r", "replace it")]), answered)
+
+    def _write(self, out: Path, value: Any) -> None:
+        try:
+            save_sections(out, self.session.info, **{self.SECTION: value})
+        except (StationError, OSError) as exc:  # OSError: a folder that cannot be made
+            self.say_saved(f"{self.SECTION} section not saved: {exc}")
+            return
+        self.say_saved(f"{self.SECTION} section saved to {out}")
 
     def on_link_failed(self, message: LinkFailed) -> None:
         self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))
@@ -78,7 +138,9 @@ class LongRecordingScreen(StationScreen):
         raise NotImplementedError
 
     def show_progress(self, data: dict[str, Any]) -> None:
+        """Show a progress snapshot of ``_read``."""
         raise NotImplementedError
 
-    def show_fit(self, fit: Any, saved: str | None) -> None:
+    def show_fit(self, fit: Any) -> None:
+        """Show what ``_fit`` posted."""
         raise NotImplementedError

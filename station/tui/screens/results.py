@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from rich import box
 from rich.console import Group, RenderableType
 from rich.table import Table
 from rich.text import Text
@@ -90,7 +91,9 @@ def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
     -------
     rich.table.Table
     """
-    table = Table(title=title, title_justify="left", title_style="bold", expand=False, padding=(0, 1))
+    # No vertical rules: a row of three values with their 1-sigma fits 80 columns unclipped.
+    table = Table(title=title, title_justify="left", title_style="bold", expand=False, padding=(0, 1),
+                  box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False)
     table.add_column("parameter", no_wrap=True)
     for axis in "xyz":
         table.add_column(axis, justify="right", no_wrap=True)
@@ -110,7 +113,7 @@ def sensor_table(title: str, cal: SensorCalibration, unit: str) -> Table:
                 cells.append(_pm(np.array([s[i, j]]), None if sig is None else np.array([sig]), "+.5f")[0])
         table.add_row(f"misalign {axis}·", *cells, "rad")
     if cal.residual_rms is not None:
-        table.add_row("residual rms", f"{cal.residual_rms:.3e}", "", "", residual_unit(cal, unit))
+        table.add_row("rms resid.", f"{cal.residual_rms:.3e}", "", "", residual_unit(cal, unit))
     return table
 
 
@@ -126,7 +129,7 @@ def verdict_table(verdicts: list[Verdict]) -> Table:
     -------
     rich.table.Table
     """
-    table = Table(padding=(0, 1))
+    table = Table(padding=(0, 1), box=box.SIMPLE_HEAD)
     for col in ("sensor", "check", "value", "limit", ""):
         table.add_column(col)
     for v in verdicts:
@@ -260,7 +263,8 @@ class ResultsScreen(StationScreen):
         keys = sorted({k for p in rows for k in p if "resid" in k or "error" in k})
         if not rows or not keys:
             return None
-        table = Table(title="residuals per step", title_justify="left", title_style="bold", padding=(0, 1))
+        table = Table(title="residuals per step", title_justify="left", title_style="bold", padding=(0, 1),
+                      box=box.SIMPLE_HEAD)
         table.add_column("step")
         for key in keys:
             table.add_column(RESIDUAL_LABELS.get(key, key.replace("_", " ")), justify="right")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from rich.console import Group
 from rich.text import Text
 from textual import work
 from textual.widgets import Static
@@ -16,11 +15,11 @@ from station.errors import StationError
 from station.export.params_file import ParamsFile
 from station.export.thermal_report import format_report
 from station.tui.messages import LinkFailed, Snapshot
-from station.tui.plot import Series, braille_plot
+from station.tui.plot import Series, draw
 from station.tui.pump import pump
 from station.tui.screens.long_recording import LongRecordingScreen
 
-COLORS = ("red", "green", "dodger_blue1")
+COLORS = ("red", "green", "blue")
 BLOCK_S = 1.0
 DTEMP_WINDOW_S = 30.0
 
@@ -76,28 +75,23 @@ def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = DTEMP_WI
     return float(np.polyfit(t[recent], temp[recent], 1)[0])
 
 
-def sweep_plots(blocks: dict[str, np.ndarray], width: int = 50, height: int = 8) -> Group:
-    """Temperature against time, and the gyro bias change against temperature, as braille plots.
+def draw_sweep(screen: LongRecordingScreen, blocks: dict[str, np.ndarray]) -> None:
+    """Temperature against time, and the gyro bias change against temperature.
 
     Parameters
     ----------
+    screen : LongRecordingScreen
+        The screen whose two plots are redrawn.
     blocks : dict of str to numpy.ndarray
         The block means (:func:`block_means`).
-    width, height : int
-        Size of each plot in characters.
-
-    Returns
-    -------
-    rich.console.Group
     """
     t, temp = blocks["t"], blocks["temp"]
     gyro = blocks["gyro"] - blocks["gyro"].mean(axis=0)
-    return Group(
-        braille_plot([Series("temperature", t / 60, temp, "yellow")], width, height, xlabel="time (min)",
-                     ylabel="temperature (degC)"),
-        braille_plot([Series(f"g{a}", temp, gyro[:, j], COLORS[j]) for j, a in enumerate("xyz")], width,
-                     height, xlabel="temperature (degC)", ylabel="gyro bias change (rad/s)"),
-    )
+    left, right = screen.plots()
+    draw(left, [Series("temperature", t / 60, temp, "yellow")], title="temperature", xlabel="time (min)",
+         ylabel="degC")
+    draw(right, [Series(f"g{a}", temp, gyro[:, j], COLORS[j]) for j, a in enumerate("xyz")],
+         title="gyro bias change", xlabel="temperature (degC)", ylabel="rad/s")
 
 
 class ThermalScreen(LongRecordingScreen):
@@ -105,13 +99,9 @@ class ThermalScreen(LongRecordingScreen):
 
     HEADING = "temperature sweep"
     KIND = "thermal"
+    SECTION = "thermal"
     INTRO = "Keep the unit still in the chamber. The sweep is recorded until Enter."
     FITTING = "fitting the thermal model ..."
-    DEFAULT_CSS = """
-    ThermalScreen #plots { width: 1fr; border: round $accent; }
-    ThermalScreen #side { width: 48; border: round $secondary; padding: 0 1; }
-    """
-
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
         device = self.session.device
@@ -135,24 +125,24 @@ class ThermalScreen(LongRecordingScreen):
         temp = blocks["temp"]
         rate = temperature_rate(blocks["t"], temp)
         side = Text()
-        side.append("Temperature sweep\n", style="bold")
-        side.append(f"recorded     {blocks['t'][-1] / 60:6.1f} min, {self.recording.count} samples\n")
-        side.append(f"temperature  {temp[-1]:6.2f} degC\n")
-        side.append(f"rate         {rate * 60:+6.2f} degC/min\n")
-        side.append(f"range        {np.nanmin(temp):.1f} .. {np.nanmax(temp):.1f} degC\n")
-        side.append(f"link         {stats.rate_hz:.0f} Hz, {stats.lost} lost, {stats.errors} errors\n\n")
-        side.append("Sweep the chamber over the whole operating range, slowly\n"
-                    "(about 1 degC/min), up and down.\n\nEnter: stop and fit · Escape: back")
+        side.append("Temperature sweep  ", style="bold")
+        side.append(f"{blocks['t'][-1] / 60:.1f} min, {self.recording.count} samples\n")
+        side.append(f"temperature {temp[-1]:.2f} degC · rate {rate * 60:+.2f} degC/min · "
+                    f"range {np.nanmin(temp):.1f} .. {np.nanmax(temp):.1f} degC\n")
+        side.append(f"link {stats.rate_hz:.0f} Hz · lost {stats.lost} · errors {stats.errors}\n")
+        side.append("Sweep the chamber over the whole operating range, slowly (about 1 degC/min), "
+                    "up and down.\n")
+        side.append("Enter: stop and fit · Escape: back", style="bold")
         self.query_one("#side", Static).update(side)
-        width = max(20, self.query_one("#plots", Static).size.width - 14)
-        self.query_one("#plots", Static).update(sweep_plots(blocks, width))
+        draw_sweep(self, blocks)
 
     @work(thread=True, exclusive=True, group="fit")
     def _fit(self) -> None:
         samples = self.recording.snapshot()
         out = self.station.config.out
-        params = ParamsFile.load_or_new(out) if out is not None else ParamsFile()
         try:
+            # the file's accel and gyro sections, when there, make the fit of calibrated readings
+            params = ParamsFile.load_or_new(out) if out is not None else ParamsFile()
             capture = samples_to_capture(samples)
             if capture.temp is None:
                 raise StationError("the recording has no temperature readings; the unit must send its "
@@ -162,18 +152,9 @@ class ThermalScreen(LongRecordingScreen):
         except (StationError, ValueError) as exc:
             self.post_message(LinkFailed(StationError(f"the thermal fit failed: {exc}")))
             return
-        saved = None
-        if out is not None:
-            params.thermal = fit.model
-            params.update_device(self.session.info)
-            params.save(out)
-            saved = str(out)
         calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
-        self.post_message(Snapshot({"fit": format_report(fit, calibrated), "saved": saved}))
+        self.post_message(Snapshot({"fit": format_report(fit, calibrated), "section": fit.model}))
 
-    def show_fit(self, report: str, saved: str | None) -> None:
-        """Show the fit's report and where the thermal section was saved."""
-        text = Text(report + "\n\n")
-        text.append(f"thermal section saved to {saved}" if saved else "no --out: nothing saved", style="bold")
-        text.append("\nEscape: back · q: quit")
-        self.query_one("#side", Static).update(text)
+    def show_fit(self, report: str) -> None:
+        """Show the fit's report."""
+        self.query_one("#side", Static).update(Text(report))

@@ -21,9 +21,9 @@ from station.acquisition.runner import (
     State,
     StepRecord,
 )
-from station.acquisition.sequences import Sequence, Step, resolve
+from station.acquisition.sequences import PoseStep, Sequence, Step, resolve
 from station.errors import StationError
-from station.tui.art import bar, step_art, step_instruction
+from station.tui.art import bar, step_caption, step_drawing, step_instruction
 from station.tui.bridge import RunnerEvent, TuiOperator
 from station.tui.config import TuiConfig
 from station.tui.messages import LinkFailed
@@ -32,31 +32,41 @@ from station.tui.screens.station_screen import StationScreen
 MARKS = {"accepted": "[green]✓[/green]", "skipped": "[yellow]↷[/yellow]", "failed": "[red]✗[/red]",
          "aborted": "[red]✗[/red]"}
 KEYS = {Action.ACCEPT: "k", Action.REDO: "r", Action.SKIP: "s", Action.ABORT: "x"}
-IDLE_HINT = "r: redo this step · s: skip it · x: abort the run (what was captured is kept)"
+IDLE_HINT = "r: redo this step · s: skip it · x: abort (what was captured is kept)"
+STEP_NOTICE_S = 3600.0  # a step's notice stays until the step ends (cleared then), not on a timer
 NAMES = {Action.ACCEPT: "go on", Action.REDO: "redo", Action.SKIP: "skip", Action.ABORT: "abort"}
 
 
 def build_sequence(config: TuiConfig) -> Sequence:
+    """The sequence the config asks for (built-in name or file, rotations, hold, turn rate)."""
     return resolve(config.sequence, rotations=config.rotations, hold_s=config.hold_s,
                    rotation_rate_dps=config.rotation_rate_dps)
 
 
 class WizardScreen(StationScreen):
+    """The sequence run step by step: what to do and its drawing on the left, the live checks and
+    the capture's progress on the right, the steps and the prompt below."""
+
     BINDINGS = [
         Binding("enter", "answer('default')", "next", show=True),
-        Binding("r", "answer('redo')", "redo step"),
-        Binding("s", "answer('skip')", "skip step"),
-        Binding("k", "answer('accept')", "keep step"),
+        Binding("r", "answer('redo')", "redo"),
+        Binding("s", "answer('skip')", "skip"),
+        Binding("k", "answer('accept')", "keep", show=False),  # offered by the prompt that needs it
         Binding("x", "answer('abort')", "abort"),
     ]
+    # At 80x24 the borders go but the steps' and the prompt's top rule: the drawing keeps its rows.
     DEFAULT_CSS = """
     WizardScreen #top { height: 1fr; }
     WizardScreen #step { width: 1fr; border: round $accent; padding: 0 1; }
     WizardScreen #side { width: 52; }
+    WizardScreen.-narrow #side { width: 34; }
     WizardScreen #checks { border: round $secondary; padding: 0 1; height: auto; }
+    WizardScreen.-short #checks { border: none; border-left: round $secondary; }
     WizardScreen #capture { padding: 0 1; height: 1; }
     WizardScreen #steps { height: auto; padding: 0 1; border: round $primary; }
+    WizardScreen.-short #steps { border: none; border-top: solid $primary; }
     WizardScreen #prompt { height: auto; min-height: 3; border: heavy $warning; padding: 0 1; }
+    WizardScreen.-short #prompt { min-height: 2; border: none; border-top: heavy $warning; }
     """
 
     def __init__(self, sequence: Sequence) -> None:
@@ -68,6 +78,7 @@ class WizardScreen(StationScreen):
         self.prompt: Prompt | None = None
 
     def compose(self) -> ComposeResult:
+        """The step panel, the checks with the progress bar, the steps, the prompt, the keys."""
         yield Header()
         with Horizontal(id="top"):
             yield Static("", id="step")
@@ -79,7 +90,9 @@ class WizardScreen(StationScreen):
         yield Footer()
 
     def on_mount(self) -> None:
-        self.title = f"imu-station · sequence {self.sequence.name}"
+        """Show the overview and start the run."""
+        self.title = f"imu-station · {self.sequence.name}"
+        self.step_notices = False
         self.operator = TuiOperator(self)
         overview = Text(f"Sequence {self.sequence.name}\n\n", style="bold")
         overview.append("For each step: put the unit as drawn and let go. Capture starts by itself once the "
@@ -91,6 +104,7 @@ class WizardScreen(StationScreen):
         self._run()
 
     def on_unmount(self) -> None:
+        """Abort the run's prompts: the screen is going away."""
         self.operator.close()
 
     @work(thread=True, exclusive=True, group="reader")
@@ -114,12 +128,14 @@ class WizardScreen(StationScreen):
             self.post_message(LinkFailed(exc))
 
     def on_link_failed(self, message: LinkFailed) -> None:
+        """The run stopped: say why."""
         text = Text(f"The run stopped: {message.error}\nq: quit", style="red")
         self.query_one("#prompt", Static).update(text)
 
     # ---- runner events -------------------------------------------------------------------------
 
     def on_runner_event(self, event: RunnerEvent) -> None:
+        """Dispatch what the runner told the operator to ``_on_<kind>``."""
         handler = getattr(self, f"_on_{event.kind}")
         handler(event)
 
@@ -129,36 +145,53 @@ class WizardScreen(StationScreen):
     def _on_place(self, event: RunnerEvent) -> None:
         self.current = event.index
         step: Step = event.payload
-        title = Text(f"Step {event.index + 1} of {event.total}: {step.label}\n\n", style="bold")
-        title.append(step_instruction(step) + "\n\n", style="")
-        title.append(step_art(step))
+        # The caption first: on a short terminal the drawing's foot is what gets cut, not the words.
+        title = Text(f"Step {event.index + 1} of {event.total}: {step.label}\n", style="bold")
+        if isinstance(step, PoseStep):  # a turn's caption says all its instruction does
+            title.append(step_instruction(step) + "\n")
+        title.append("\n".join(step_caption(step)) + "\n", style="bold cyan")
+        title.append("\n".join(step_drawing(step)))
         self.query_one("#step", Static).update(title)
         self.show_steps()
 
     def _on_rotate(self, event: RunnerEvent) -> None:
-        self.notify(f"Turn now: {event.payload.label}", timeout=2)
+        self.notify(f"Turn now: {event.payload.label}", timeout=STEP_NOTICE_S)
+        self.step_notices = True
+
+    def end_step_notices(self) -> None:
+        """Take down the notices of the step that ended."""
+        if self.step_notices:
+            self.app.clear_notifications()
+            self.step_notices = False
 
     def _on_status(self, event: RunnerEvent) -> None:
         s: LiveStatus = event.payload
         table = Table.grid(padding=(0, 1))
-        table.add_column(style="bold", width=8)
+        table.add_column(style="bold", width=6)
         table.add_column()
+        width = max(10, self.query_one("#checks", Static).content_size.width - 10)
         table.add_row("state", f"{s.state.value}" + (f" (attempt {s.attempt})" if s.attempt > 1 else ""))
         if s.pose is not None:
             ok = "[green]✓[/green]" if s.pose.ok else "[red]✗[/red]"
-            table.add_row("pose", f"{ok} {s.pose.angle_deg:5.1f} deg off, now {s.pose.nearest or '?'} up")
+            table.add_row("pose", f"{ok} {s.pose.angle_deg:5.1f} deg off, {s.pose.nearest or '?'} up")
         if s.stillness is not None:
             ok = "[green]✓[/green]" if s.stillness.still else "[yellow]…[/yellow]"
-            table.add_row("still", f"{ok} {bar(s.stillness.score, 28)}")
+            table.add_row("still", f"{ok} {bar(s.stillness.score, width)}")
+        turned = 0.0
         if s.angle_deg is not None and s.target_deg:
-            frac = max(0.0, s.angle_deg / s.target_deg)
+            turned = max(0.0, s.angle_deg / s.target_deg)
             table.add_row("angle", f"{s.angle_deg:+7.1f} of {s.target_deg:+.0f} deg")
-            table.add_row("", bar(frac, 28))
-        table.add_row("link", f"{s.rate_hz:.0f} Hz, {s.lost} lost, {s.link_errors} errors")
+        table.add_row("link", f"{s.rate_hz:.0f} Hz, {s.lost} lost, {s.link_errors} err")
         table.add_row("", Text(s.message, style="italic"))
         self.query_one("#checks", Static).update(table)
-        capturing = s.state in (State.CAPTURING, State.SETTLING)
-        self.query_one("#capture", ProgressBar).update(progress=s.progress if capturing else 0.0)
+        # The bar follows the capture of a hold, and the turn itself during a rotation.
+        if s.state is State.ROTATING:
+            progress = min(1.0, turned)
+        elif s.state in (State.CAPTURING, State.SETTLING):
+            progress = s.progress
+        else:
+            progress = 0.0
+        self.query_one("#capture", ProgressBar).update(progress=progress)
 
     def _on_prompt(self, event: RunnerEvent) -> None:
         prompt: Prompt = event.payload
@@ -170,11 +203,13 @@ class WizardScreen(StationScreen):
         self.query_one("#prompt", Static).update(Text(IDLE_HINT, style="dim"))
 
     def _on_finished(self, event: RunnerEvent) -> None:
+        self.end_step_notices()
         record: StepRecord = event.payload
         self.records[record.label] = record
         self.show_steps()
 
     def _on_end(self, event: RunnerEvent) -> None:
+        self.end_step_notices()
         result: RunResult = event.payload
         self.result = result
         self.station.last_run = result
@@ -192,6 +227,7 @@ class WizardScreen(StationScreen):
     # ---- drawing -------------------------------------------------------------------------------
 
     def show_steps(self) -> None:
+        """One mark per step: done, skipped, failed, current or to come."""
         text = Text()
         for i, step in enumerate(self.sequence.steps):
             record = self.records.get(step.label)
@@ -205,6 +241,7 @@ class WizardScreen(StationScreen):
         self.query_one("#steps", Static).update(text)
 
     def show_prompt(self, prompt: Prompt) -> None:
+        """The runner's question, its details and the key of each answer."""
         text = Text(prompt.text + "\n", style="bold")
         for line in prompt.details:
             text.append(f"  {line}\n", style="yellow")
@@ -215,6 +252,7 @@ class WizardScreen(StationScreen):
     # ---- keys ----------------------------------------------------------------------------------
 
     def action_answer(self, which: str) -> None:
+        """Answer the prompt (Enter: its default), or request redo, skip or abort between prompts."""
         if self.result is not None:
             if which == "default":
                 self.station.show_results(self.result)
