@@ -22,6 +22,7 @@ named; this layer reads no files itself.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 
 import numpy as np
@@ -146,12 +147,30 @@ class _Extractor:
             index = np.concatenate([np.arange(specs[c].at, specs[c].at + dtype.itemsize) for c in cols])
             self.groups.append((dtype, index, np.array(cols)))
         self.single = len(self.groups) == 1 and not self.wide
+        # The values side by side in the frame, in order: a strided view of the records, no gathering.
+        self.strided_at: int | None = None
+        if self.single:
+            dtype, index, _ = self.groups[0]
+            if np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+                self.strided_at = int(index[0])
         self.width = len(specs)
         self.scales = np.array([f.scale for f in specs])
         self.offsets = np.array([f.offset for f in specs])
         self.identity = bool((self.scales == 1).all() and (self.offsets == 0).all())
+        # Whether a value can overflow float32 (or is a float, which may be inf or NaN): only then are
+        # numpy's overflow warnings silenced, which costs a little on every batch.
+        self.wild = any(f.kind == "f" or 2.0 ** (8 * f.size) * abs(f.scale) + abs(f.offset) > 1e38
+                        for f in specs)
 
     def __call__(self, records: np.ndarray) -> np.ndarray:
+        if self.strided_at is not None:
+            dtype = self.groups[0][0]
+            raw = np.ndarray((len(records), self.width), dtype=dtype, buffer=records, offset=self.strided_at,
+                             strides=(self.length, dtype.itemsize))
+            if self.identity:
+                return raw.astype(np.float64)
+            with _quiet(self.wild):
+                return raw * self.scales + self.offsets
         rows = records.view(np.uint8).reshape(len(records), self.length)
         with np.errstate(over="ignore", invalid="ignore"):
             if self.single:
@@ -188,6 +207,11 @@ def field_values(desc: FrameDescription, records: np.ndarray) -> dict[str, np.nd
     return {spec.name: matrix[:, i] for i, spec in enumerate(desc.fields)}
 
 
+def _quiet(needed: bool) -> contextlib.AbstractContextManager:
+    """numpy's overflow and invalid-value warnings silenced where values may be wild (not on every batch)."""
+    return np.errstate(over="ignore", invalid="ignore") if needed else contextlib.nullcontext()
+
+
 class _Unwrapper:
     """An integer that wraps at ``2**bits``, made continuous across calls: steps are taken modulo the
     range, and a step of more than half of it counts as a step back."""
@@ -201,14 +225,23 @@ class _Unwrapper:
         r = raw.astype(np.int64)
         if self.last is None:
             self.last, self.total = int(r[0]), int(r[0])
+        half = self.modulus // 2
+        first, end = int(r[0]), int(r[-1])
+        if 0 <= first - self.last < half and 0 <= end - first < half and bool((r[1:] >= r[:-1]).all()):
+            # No wrap and no step back in the batch (the usual case): one shift.
+            r += self.total - self.last
+            self.last, self.total = end, int(r[-1])
+            return r
         steps = np.empty_like(r)
         steps[0] = r[0] - self.last
         np.subtract(r[1:], r[:-1], out=steps[1:])
-        half = self.modulus // 2
-        steps = ((steps + half) & (self.modulus - 1)) - half
-        out = self.total + np.cumsum(steps)
-        self.last, self.total = int(r[-1]), int(out[-1])
-        return out
+        steps += half
+        steps &= self.modulus - 1
+        steps -= half
+        np.cumsum(steps, out=steps)
+        steps += self.total
+        self.last, self.total = int(r[-1]), int(steps[-1])
+        return steps
 
 
 class FrameDecoder(StreamDecoderBase):
@@ -231,12 +264,15 @@ class FrameDecoder(StreamDecoderBase):
         ls = len(desc.sync)
         self._sync_value = int.from_bytes(desc.sync, "little") if ls in (1, 2, 4, 8) else None
         self._last_records = np.zeros(0, dtype=self._dtype)
+        self._checked_at: int | None = None  # where the validity of frames in this feed was computed
+        self._checked = np.zeros(0, dtype=bool)
         # acc, gyro and temp lie side by side in a sample record: 7 float32 from byte 12.
         imu = [desc.field(n) for n in ("ax", "ay", "az", "gx", "gy", "gz", "temp")]
         self._imu = _Extractor(desc, [f for f in imu if f is not None])
-        seq = desc.field("seq")
-        self._seq = _Unwrapper(8 * seq.size) if seq is not None and seq.size < 8 else None
-        t = desc.field("t")
+        seq = self._seq_spec = desc.field("seq")
+        # A counter of 32 bits or more is read as it is: the sample's seq wraps at 2^32 anyway.
+        self._seq = _Unwrapper(8 * seq.size) if seq is not None and seq.size < 4 else None
+        t = self._t_spec = desc.field("t")
         self._clock = _Unwrapper(8 * t.size) if t is not None and t.kind != "f" and t.size < 8 else None
         self._count = 0  # samples so far
         self._seq0: float | None = None
@@ -246,8 +282,13 @@ class FrameDecoder(StreamDecoderBase):
 
     # -- framing -------------------------------------------------------------------------------
 
-    def _valid_run(self, pos: int) -> tuple[np.ndarray, int]:
-        """Records of the longest run of valid frames at ``pos`` (a copy: the buffer may then shrink)."""
+    def _validity(self, pos: int) -> np.ndarray:
+        """Whether each frame of the lattice from ``pos`` is valid: sync and checksum, up to ``_WINDOW``
+        frames; kept for the feed, so after a damaged frame the frames beyond it are not checked again."""
+        at = self._checked_at
+        if at is not None and pos >= at and (pos - at) % self._len == 0 and (pos - at) // self._len < len(
+                self._checked):
+            return self._checked[(pos - at) // self._len :]
         buf = self._buf
         count = min((len(buf) - pos) // self._len, _WINDOW)
         records = np.frombuffer(buf, dtype=self._dtype, count=count, offset=pos)
@@ -260,8 +301,15 @@ class FrameDecoder(StreamDecoderBase):
             rows = np.frombuffer(buf, dtype=np.uint8, count=count * self._len, offset=pos)
             rows = rows.reshape(count, self._len)[:, cs.start : cs.end]
             ok &= checksum_rows(cs.type, rows) == records["check"]
-        n_ok = count if ok.all() else int(ok.argmin())
-        return records[:n_ok].copy(), n_ok
+        self._checked_at, self._checked = pos, ok
+        return ok
+
+    def _valid_run(self, pos: int) -> tuple[np.ndarray, int]:
+        """Records of the longest run of valid frames at ``pos`` (a copy: the buffer may then shrink)."""
+        ok = self._validity(pos)
+        n_ok = len(ok) if ok.all() else int(ok.argmin())
+        # A copy of the bytes (copying records field by field is slower), so the buffer may then shrink.
+        return np.frombuffer(self._buf[pos : pos + n_ok * self._len], dtype=self._dtype), n_ok
 
     def _partial_sync_start(self, pos: int) -> int:
         """Where a sync cut by the end of the buffer starts (its first bytes are kept), else the end."""
@@ -300,6 +348,7 @@ class FrameDecoder(StreamDecoderBase):
         """Decode ``data`` after what is buffered (``StreamDecoderBase.feed``)."""
         buf = self._buf
         buf += data
+        self._checked_at = None
         runs: list[np.ndarray] = []
         pos = 0
         while True:
@@ -350,7 +399,7 @@ class FrameDecoder(StreamDecoderBase):
         n = len(records)
         out = np.empty(n, dtype=SAMPLE_DTYPE)
         floats = out.view(np.uint8).reshape(n, SAMPLE_DTYPE.itemsize)[:, 12:40].view(np.float32)
-        with np.errstate(over="ignore", invalid="ignore"):
+        with _quiet(self._imu.wild):
             floats[:, : self._imu.width] = self._imu(records)
         if self._imu.width == 6:
             floats[:, 6] = np.nan
@@ -364,7 +413,7 @@ class FrameDecoder(StreamDecoderBase):
 
     def _counter(self, records: np.ndarray) -> np.ndarray | None:
         """The board's counter, unwrapped, or None when it has none."""
-        spec = self.description.field("seq")
+        spec = self._seq_spec
         if spec is None:
             return None
         raw = _raw_values(records, spec)
@@ -374,8 +423,8 @@ class FrameDecoder(StreamDecoderBase):
 
     def _time_us(self, records: np.ndarray, seq: np.ndarray | None) -> np.ndarray:
         """Microseconds of each sample: the clock (unwrapped), else the counter or the count at the rate."""
-        spec = self.description.field("t")
-        with np.errstate(invalid="ignore", over="ignore"):
+        spec = self._t_spec
+        with _quiet(spec is not None and (spec.kind == "f" or spec.size == 8)):
             if spec is None:
                 rate = self.description.rate_hz or 1.0
                 if seq is not None:
