@@ -173,3 +173,41 @@ def test_replacing_a_noise_section_from_the_allan_screen_asks_first(tmp_path):
     asyncio.run(run())
     noise = ParamsFile.load(out).noise
     assert noise != old_noise and len(noise["gyro"]["N"]) == 3
+
+
+def _other_units_file(path):
+    ParamsFile(device={"serial": "OTHER-7", "model": "imu-sim"}, noise={"note": "unit 7's noise"}).save(path)
+    return path.read_text()
+
+
+@pytest.mark.parametrize("answer", ["another file", "replace"])
+def test_a_file_of_another_unit_is_refused_on_the_screen_then_replaced_or_left(tmp_path, answer):
+    out = tmp_path / "unit.yaml"
+    before = _other_units_file(out)
+    other = tmp_path / "ideal.yaml"
+    app = StationApp(TuiConfig(out=out))
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            results = await results_ready(pilot, app, ideal_run())
+            await pilot.press("enter")  # save to --out: refused, asked
+            await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question")
+            text = screen_text(app).replace("\n", " ")
+            assert "OTHER-7" in text and "SIM-IDEAL" in text and "r: replace that file" in text
+            if answer == "replace":
+                await pilot.press("r")
+            else:
+                await pilot.press("e")
+                app.screen.query_one("#path").value = str(other)
+                await pilot.press("enter")
+            await wait_for(pilot, lambda: results.saved, 5, "the save")
+            await pilot.press("enter")  # quit
+            await wait_for(pilot, lambda: app.return_value is not None, 10, "the app to exit")
+
+    asyncio.run(run())
+    if answer == "replace":
+        params = ParamsFile.load(out)
+        assert params.device["serial"] == "SIM-IDEAL" and params.noise is None  # started afresh
+    else:
+        assert out.read_text() == before  # untouched
+        assert ParamsFile.load(other).device["serial"] == "SIM-IDEAL"

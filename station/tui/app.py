@@ -14,9 +14,10 @@ from textual.screen import Screen
 
 from station.acquisition.runner import RunResult
 from station.errors import ExitCode, StationError
+from station.export.params_file import UnitMismatchError
 from station.tui.config import TuiConfig
 from station.tui.limits import limits_name
-from station.tui.saving import recovery_path
+from station.tui.saving import REPLACE_KEY, recovery_path
 from station.tui.screens.ask import AskScreen
 from station.tui.screens.connect import ConnectScreen
 from station.tui.screens.help import HelpScreen
@@ -146,7 +147,7 @@ class StationApp(App[int]):
         self.ask_to_save(results, then, f"The calibration is not saved ({where}).", str(out or "params.yaml"))
 
     def ask_to_save(self, results: ResultsScreen, then: Callable[[], object], question: str,
-                    path: str) -> None:
+                    path: str, other_unit: bool = False) -> None:
         """Ask to save ``results`` (to an editable file name), discard them, or go back.
 
         Parameters
@@ -159,24 +160,33 @@ class StationApp(App[int]):
             Why it asks.
         path : str
             The file name offered.
+        other_unit : bool
+            ``path`` holds another unit's results: offer to replace it too.
         """
         def answered(reply: tuple[str, str] | None) -> None:
             key, chosen = reply if reply is not None else ("back", "")
             if key == "d":
                 self.pending = None
                 then()
-            elif key == "s":
+            elif key in ("s", REPLACE_KEY):
                 if not chosen:
                     self.ask_to_save(results, then, "Give a file name to save to.", path)
                     return
                 try:
-                    results.save_to(Path(chosen))
+                    results.save_to(Path(chosen), replace=key == REPLACE_KEY)
+                except UnitMismatchError as exc:
+                    self.ask_to_save(results, then, str(exc), chosen, other_unit=True)
+                    return
                 except (StationError, OSError) as exc:  # OSError: a folder that cannot be made
                     self.ask_to_save(results, then, f"Could not save: {exc}", chosen)
                     return
                 then()
 
-        self.push_screen(AskScreen(question, [("s", "save"), ("d", "discard the results")], path), answered)
+        answers = [("s", "save" if not other_unit else "save to the file named here (e: edit)")]
+        if other_unit:
+            answers.append((REPLACE_KEY, "replace that file: its sections are dropped"))
+        answers.append(("d", "discard the results"))
+        self.push_screen(AskScreen(question, answers, path), answered)
 
     def exit_code_for_run(self) -> int:
         """2 (aborted) when the last run did not complete, is cut short by quitting or its data

@@ -6,13 +6,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-from station.export.params_file import ParamsFile
+from station.export.params_file import ParamsFile, merge_sections
+
+REPLACE_KEY = "r"
+"""The key that starts a parameter file of another unit afresh, in the TUI's question."""
 
 
-def save_sections(path: Path, device: dict[str, Any], **sections: Any) -> None:
-    """Merge ``sections`` (``accel=``, ``gyro=``, ``noise=``, ``thermal=``) into the file at ``path``.
-
-    The file's other sections are kept; a section given as None is left as it is.
+def save_sections(path: Path, device: dict[str, Any], sections: dict[str, Any], *,
+                  capture: Path | None = None, replace: bool = False) -> None:
+    """Merge ``sections`` (``accel``, ``gyro``, ``noise``, ``thermal``) into the file at ``path``, as
+    the commands do (:func:`~station.export.params_file.merge_sections`): the file's other sections
+    are kept, a section given as None is left as it is, each written section records its source.
 
     Parameters
     ----------
@@ -20,20 +24,22 @@ def save_sections(path: Path, device: dict[str, Any], **sections: Any) -> None:
         The parameter file (created when missing).
     device : dict
         What is known of the unit (serial, model, firmware).
-    **sections
+    sections : dict
         The sections to write, by name.
+    capture : Path, optional
+        The capture file the sections were computed from.
+    replace : bool
+        Start the file afresh (the operator answered :data:`REPLACE_KEY`).
 
     Raises
     ------
+    UnitMismatchError
+        The file holds another unit's results; it is left untouched.
     StationError
         The existing file cannot be read, or the new one cannot be written.
     """
-    params = ParamsFile.load_or_new(path)
-    params.update_device(device)
-    for name, value in sections.items():
-        if value is not None:
-            setattr(params, name, value)
-    params.save(path)
+    merge_sections(path, device, sections, capture=capture, replace=replace,
+                   option=f"{REPLACE_KEY} (replace) in the question")
 
 
 def existing_section(path: Path | None, name: str) -> bool:

@@ -13,9 +13,10 @@ from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
 from station.errors import StationError
+from station.export.params_file import UnitMismatchError
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.recording import open_recording
-from station.tui.saving import existing_section, save_sections
+from station.tui.saving import REPLACE_KEY, existing_section, save_sections
 from station.tui.screens.ask import AskScreen
 from station.tui.screens.station_screen import StationScreen
 
@@ -104,13 +105,32 @@ class LongRecordingScreen(StationScreen):
         self.app.push_screen(AskScreen(f"{out} already holds a {name} section. Replace it with this fit?",
                                        [("k", "keep the file's"), ("r", "replace it")]), answered)
 
-    def _write(self, out: Path, value: Any) -> None:
+    def _write(self, out: Path, value: Any, replace: bool = False) -> None:
         try:
-            save_sections(out, self.session.info, **{self.SECTION: value})
+            save_sections(out, self.session.info, {self.SECTION: value}, capture=self.recording.path,
+                          replace=replace)
+        except UnitMismatchError as exc:
+            self.ask_other_unit(str(exc), out, value)
+            return
         except (StationError, OSError) as exc:  # OSError: a folder that cannot be made
             self.say_saved(f"{self.SECTION} section not saved: {exc}")
             return
         self.say_saved(f"{self.SECTION} section saved to {out}")
+
+    def ask_other_unit(self, refusal: str, out: Path, value: Any) -> None:
+        """``out`` holds another unit's results: save to another file, replace it, or keep the fit unsaved."""
+        def answered(reply: tuple[str, str] | None) -> None:
+            key, chosen = reply if reply is not None else ("back", "")
+            if key == "s" and chosen:
+                self._write(Path(chosen), value)
+            elif key == REPLACE_KEY:
+                self._write(Path(chosen or out), value, replace=True)
+            else:
+                self.say_saved(f"{self.SECTION} section not saved: {out} holds another unit")
+
+        self.app.push_screen(AskScreen(refusal, [("s", "save to the file named here (e: edit)"),
+                                                 (REPLACE_KEY, "replace that file: its sections are dropped"),
+                                                 ("k", "do not save")], str(out)), answered)
 
     def on_link_failed(self, message: LinkFailed) -> None:
         self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))

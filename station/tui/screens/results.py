@@ -19,7 +19,7 @@ from station.acquisition.runner import RunResult
 from station.engines.calibration_common import CalibrationReport
 from station.engines.sensor_model import SensorCalibration
 from station.errors import StationError
-from station.export.params_file import ParamsFile
+from station.export.params_file import ParamsFile, UnitMismatchError
 from station.export.writers import write_export
 from station.tui.calibrate import calibrate_run
 from station.tui.limits import (
@@ -295,7 +295,8 @@ class ResultsScreen(StationScreen):
 
     def action_save(self) -> None:
         """Save the sections to --out and write the exports (or quit once saved, or without --out:
-        the app then asks where to save, or whether to discard)."""
+        the app then asks where to save, or whether to discard). A file of another unit is not
+        touched: the app asks to replace it or to choose another file."""
         if self.report is None:
             return
         out = self.station.config.out
@@ -304,16 +305,20 @@ class ResultsScreen(StationScreen):
             return
         try:
             self.save_to(out)
+        except UnitMismatchError as exc:
+            self.station.ask_to_save(self, lambda: None, str(exc), str(out), other_unit=True)
         except (StationError, OSError) as exc:  # OSError: a folder that cannot be made
             self.show_status(f"[could not save: {exc}]")
 
-    def save_to(self, path: Path) -> list[str]:
+    def save_to(self, path: Path, replace: bool = False) -> list[str]:
         """Merge the accel and gyro sections into ``path`` and write the --export formats beside it.
 
         Parameters
         ----------
         path : Path
             The parameter file.
+        replace : bool
+            Start the file afresh (it holds another unit's results and the operator said so).
 
         Returns
         -------
@@ -322,6 +327,8 @@ class ResultsScreen(StationScreen):
 
         Raises
         ------
+        UnitMismatchError
+            ``path`` holds another unit's results (and ``replace`` is False); it is left untouched.
         StationError
             The file could not be read, merged or written.
         """
@@ -329,7 +336,8 @@ class ResultsScreen(StationScreen):
             raise StationError("there is no calibration to save")
         session = self.station.session
         save_sections(path, session.info if session is not None else self.run.capture.device,
-                      accel=self.report.accel, gyro=self.report.gyro)
+                      {"accel": self.report.accel, "gyro": self.report.gyro},
+                      capture=self.station.config.capture_path(), replace=replace)
         written = [str(path)] + self.write_exports(path)
         self.saved = True
         self.station.saved = written
