@@ -273,6 +273,11 @@ class FrameDecoder(StreamDecoderBase):
         # A counter of 32 bits or more is read as it is: the sample's seq wraps at 2^32 anyway.
         self._seq = _Unwrapper(8 * seq.size) if seq is not None and seq.size < 4 else None
         t = self._t_spec = desc.field("t")
+        self._clock_ticks_us: int | None = None
+        if t is not None and t.kind != "f" and t.size < 8 and t.offset == 0:
+            ticks = t.scale * 1e6
+            if ticks == round(ticks) and 1 <= ticks <= 1e6:
+                self._clock_ticks_us = int(round(ticks))
         self._clock = _Unwrapper(8 * t.size) if t is not None and t.kind != "f" and t.size < 8 else None
         self._count = 0  # samples so far
         self._seq0: float | None = None
@@ -438,6 +443,10 @@ class FrameDecoder(StreamDecoderBase):
                 raw = _raw_values(records, spec)
                 if self._clock is not None:
                     raw = self._clock(raw)
+                if self._clock_ticks_us is not None:
+                    # Whole microseconds a tick (a clock in us or ms): integers, no rounding.
+                    t_us = raw * self._clock_ticks_us if self._clock_ticks_us != 1 else raw
+                    return np.maximum(t_us, 0)
                 t_us = np.rint(raw * (spec.scale * 1e6) + spec.offset * 1e6)
                 if spec.kind == "f" or spec.size == 8:
                     t_us[~np.isfinite(t_us)] = 0.0

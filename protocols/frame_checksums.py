@@ -107,7 +107,7 @@ def _affine_tables(name: str, width: int) -> tuple[int, np.ndarray, np.ndarray]:
     for col in range(width):
         unit[col, :, col] = np.arange(256)
     tables = _crc_columns(name, unit.reshape(-1, width)) ^ base
-    offsets = np.arange(width, dtype=np.uint32) * 256
+    offsets = np.arange(width, dtype=np.uint16 if width <= 256 else np.uint32) * 256
     return int(base), tables, offsets
 
 
@@ -130,7 +130,7 @@ def crc_rows(name: str, rows: np.ndarray) -> np.ndarray:
     if width == 0 or width > _MAX_TABLE_WIDTH:
         return _crc_columns(name, rows)
     base, tables, offsets = _affine_tables(name, width)
-    looked_up = tables[rows.astype(np.uint32) + offsets]
+    looked_up = tables.take(rows + offsets)  # uint8 + uint16 offsets: uint16 indices, no cast
     return np.bitwise_xor.reduce(looked_up, axis=1) ^ tables.dtype.type(base)
 
 
