@@ -29,7 +29,7 @@ import numpy as np
 
 from protocols.base import SAMPLE_DTYPE, Decoded, StreamDecoderBase
 from protocols.errors import StationError
-from protocols.frame_checksums import checksum, checksum_rows
+from protocols.frame_checksums import checksum_rows
 from protocols.frame_description import FieldSpec, FrameDescription
 
 # Frames checked per vectorised run. After a damaged frame the next run re-checks at most this many,
@@ -516,18 +516,3 @@ def encode_frames(desc: FrameDescription, values: dict[str, np.ndarray]) -> byte
         cs = desc.checksum
         records["check"] = checksum_rows(cs.type, rows[:, cs.start : cs.end])
     return records.tobytes()
-
-
-def frame_checksum(desc: FrameDescription, frame: bytes) -> int | None:
-    """The checksum ``desc`` expects in ``frame`` (None without one): for tools that patch a frame.
-
-    Parameters
-    ----------
-    desc : FrameDescription
-        The frame.
-    frame : bytes
-        One frame's bytes.
-    """
-    if desc.checksum is None:
-        return None
-    return checksum(desc.checksum.type, frame[desc.checksum.start : desc.checksum.end])
