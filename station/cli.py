@@ -9,7 +9,9 @@ Nothing but this module imports a command module.
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
+import re
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -32,6 +34,7 @@ COMMANDS = [
     "run",
     "run_many",
     "records",
+    "ports",
 ]
 
 
@@ -41,7 +44,19 @@ class _Parser(argparse.ArgumentParser):
     on the factory line)."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(ExitCode.USAGE, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        self.exit(ExitCode.USAGE, f"{self.prog}: error: {message}{_did_you_mean(message)} "
+                                  f"(see '{self.prog} --help')\n")
+
+
+def _did_you_mean(message: str) -> str:
+    """``; did you mean 'calibrate'?`` after argparse's "invalid choice: 'calibrat' (choose from ...)"."""
+    found = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)$", message)
+    if found is None:
+        return ""
+    # Python 3.11 quotes the choices, later versions do not
+    choices = [c.strip().strip("'") for c in found.group(2).split(",")]
+    close = difflib.get_close_matches(found.group(1), choices, n=3, cutoff=0.6)
+    return f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
 
 
 def _load_commands(names: Sequence[str] = COMMANDS) -> list:
@@ -85,7 +100,32 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         )
         module.add_arguments(cmd)
         cmd.set_defaults(_run=module.run)
+    if not only:
+        _add_completion(sub, parser)
     return parser
+
+
+COMPLETION_HELP = "print the shell completion script for bash or zsh (see the epilog to install it)"
+COMPLETION_EPILOG = """\
+install (once; a new shell then completes commands, options and their choices):
+  bash:  imu-station completion bash > ~/.local/share/bash-completion/completions/imu-station
+  zsh:   mkdir -p ~/.zfunc && imu-station completion zsh > ~/.zfunc/_imu-station
+         and in ~/.zshrc, before compinit: fpath=(~/.zfunc $fpath)"""
+
+
+def _add_completion(sub: argparse._SubParsersAction, parser: argparse.ArgumentParser) -> None:
+    """``imu-station completion bash|zsh``: shtab's script for the whole parser, commands included."""
+    cmd = sub.add_parser("completion", help=COMPLETION_HELP, description=COMPLETION_HELP,
+                         epilog=COMPLETION_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    cmd.add_argument("shell", choices=("bash", "zsh"), help="the shell to complete in")
+
+    def print_script(args: argparse.Namespace) -> int:
+        import shtab
+
+        print(shtab.complete(parser, shell=args.shell))
+        return ExitCode.OK
+
+    cmd.set_defaults(_run=print_script)
 
 
 def _chosen_command(argv: Sequence[str]) -> str | None:

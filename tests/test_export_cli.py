@@ -47,7 +47,7 @@ def test_source_date_epoch_makes_exports_reproducible(unit_file: Path, tmp_path:
 
 @pytest.mark.parametrize("fmt", ["json", "yaml"])
 def test_document_formats_read_back_as_the_parameter_file(fmt: str, unit_file: Path, tmp_path: Path) -> None:
-    out = tmp_path / f"unit.{fmt}"
+    out = tmp_path / f"exported.{fmt}"  # not onto unit.yaml itself: export refuses that
     assert main(["export", str(unit_file), "-f", fmt, "-o", str(out), "--station-id", "s"]) == 0
     text = out.read_text()
     doc = json.loads(text) if fmt == "json" else yaml.safe_load(text)

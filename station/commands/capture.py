@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 from station.cli_options import DEFAULT_BAUDRATE, DURATION_S, add_output_option, add_port_options, number
@@ -64,8 +65,11 @@ def report(result: CaptureResult, out: IO[str]) -> None:
         Where the summary is printed.
     """
     link = result.link
-    print(f"wrote {result.rows} samples ({result.device_time_s:.3f} s of device clock) to {result.path}",
-          file=out)
+    if result.rows or Path(result.path).exists():
+        print(f"wrote {result.rows} samples ({result.device_time_s:.3f} s of device clock) to {result.path}",
+              file=out)
+    else:
+        print(f"captured no sample: {result.path} was not written", file=out)
     print(f"link: {link.summary()}, {link.bytes} bytes", file=out)
     if result.non_increasing:
         print(f"left out {result.non_increasing} samples whose device time did not increase", file=out)

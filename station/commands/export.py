@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from station.cli_options import EXPORT_FORMATS, EXPORT_MAX_INSTANCE, add_output_option, describe_range, number
 from station.errors import ExitCode, StationError
@@ -57,6 +58,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
 
 
+def _refuse_own_input(params: str, output: str, fmt: str) -> None:
+    """Refuse an output that would replace the parameter file it is made from."""
+    from station.export.writers import DEFAULT_NAMES
+
+    source, out = Path(params), Path(output)
+    targets = [out / name for name in (*DEFAULT_NAMES.values(), "imu_calib.h", "imu_calib.c")] \
+        if out.is_dir() else [out]
+    if source.exists() and any(t.exists() and t.samefile(source) for t in targets):
+        raise StationError(f"-o {output} would overwrite the parameter file {params} it exports; "
+                           "give another output path")
+
+
 def run(args: argparse.Namespace) -> int:
     """Export the parameter file and print the report (text, or JSON with ``--json``)."""
     from station.export.params_file import ParamsFile
@@ -68,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         raise StationError(f"--instance {args.instance} is outside the allowed range, "
                            f"{describe_range(0, high)}"
                            + (f" for {args.format}" if args.format in AUTOPILOTS else ""))
+    _refuse_own_input(args.params, args.output, args.format)
     params = ParamsFile.load(args.params)
     result = write_export(params, args.format, args.output, source=args.params, station_id=args.station_id,
                           instance=args.instance, device_id=args.device_id,

@@ -5,18 +5,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-
-from rich.console import Console, Group
-from rich.live import Live
-from rich.table import Table
-from rich.text import Text
+from typing import TYPE_CHECKING
 
 from station.cli_options import BAUD, DURATION_S, port
 from station.errors import ExitCode, StationError
-from station.frame_check import CheckReport, check_bytes, watch_port
-from station.frame_file import load_decoder, load_description
-from station.frame_guess import MIN_FRAMES, guess, to_yaml
-from station.yaml_file import read_bytes
+
+if TYPE_CHECKING:
+    from rich.console import Group
+
+    from station.frame_check import CheckReport
 
 NAME = "frame"
 HELP = "check a frame description (frame:FILE.yaml) against a unit, or guess one from raw bytes"
@@ -83,6 +80,10 @@ def render(report: CheckReport, title: str) -> Group:
     -------
     rich.console.Group
     """
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
     head = Text(f"{title}\n{report.frames} frames, {report.frame_rate:.1f}/s; {report.errors} damaged "
                 f"({report.error_rate:.2f}/s); {report.garbage_bytes} garbage bytes; {report.seconds:.1f} s")
     table = Table("value", "last", "mean", "std", "min", "max")
@@ -97,6 +98,13 @@ def render(report: CheckReport, title: str) -> Group:
 
 
 def _check(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.live import Live
+
+    from station.frame_check import check_bytes, watch_port
+    from station.frame_file import load_decoder, load_description
+    from station.yaml_file import read_bytes
+
     desc = load_description(args.description)
     console = Console()
     title = f"{desc.name}: {args.file or args.port}"
@@ -112,6 +120,9 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _guess(args: argparse.Namespace) -> int:
+    from station.frame_guess import MIN_FRAMES, guess, to_yaml
+    from station.yaml_file import read_bytes
+
     raw = read_bytes(args.raw, "does not exist; give the raw capture's path", MAX_RAW_BYTES)
     found = guess(raw)
     if found.length is None or not found.sync or found.frames < MIN_FRAMES:

@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     """Query, print, export, plot and verify the records; exit 1 when --verify finds a problem."""
     from rich.console import Console
 
-    from station.factory.trend_plot import write_trend_plot
+    from station.factory.trend_plot import left_out, write_trend_plot
 
     url = db_url(args)
     if "://" not in url and not Path(url).exists():
@@ -109,6 +109,10 @@ def run(args: argparse.Namespace) -> int:
             console.print(f"{args.export}: {len(records)} record(s) written")
         if args.plot:
             console.print(f"{args.plot}: {len(plotted)} measurement(s) plotted")
+            skipped = left_out(records, args.measurement)
+            if skipped:
+                shown = "; ".join(f"{printable(name)} ({why})" for name, why in skipped.items())
+                console.print(f"left out: {shown} (--measurement NAME plots one by name)", highlight=False)
         if args.verify:
             console.print(f"verified {sum(len(r.attachments()) for r in records)} attachment(s): "
                           + ("all intact" if not problems else f"{len(problems)} problem(s)"))

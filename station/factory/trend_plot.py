@@ -41,6 +41,41 @@ def trend_series(records: list[RunRecord], names: list[str] | None = None) -> di
     return series
 
 
+def left_out(records: list[RunRecord], names: list[str] | None = None) -> dict[str, str]:
+    """The measurements :func:`write_trend_plot` leaves out of the PNG, each with why.
+
+    Parameters
+    ----------
+    records : list of RunRecord
+        The records plotted.
+    names : list of str, optional
+        The measurements asked for (``--measurement``); None: every one with limits.
+
+    Returns
+    -------
+    dict of str to str
+        Measurement name to the reason: not a number, no limits, in no record, or beyond the
+        :data:`MAX_PANELS` panels.
+    """
+    seen: dict[str, list] = {}
+    for r in records:
+        for m in r.measurements().values():
+            seen.setdefault(m.name, []).append(m)
+    out = {}
+    for name in (list(seen) if names is None else names):
+        found = seen.get(name, [])
+        numeric = [m for m in found if isinstance(m.value, int | float) and not isinstance(m.value, bool)]
+        if not found:
+            out[name] = "in no record"
+        elif not numeric:
+            out[name] = "not a number"
+        elif names is None and not any(m.low is not None or m.high is not None for m in numeric):
+            out[name] = "no limits"
+    for name in list(trend_series(records, names))[MAX_PANELS:]:
+        out[name] = f"beyond the {MAX_PANELS} panels"
+    return out
+
+
 def write_trend_plot(path: str | Path, records: list[RunRecord], names: list[str] | None = None) -> list[str]:
     """Write the PNG; returns the measurement names plotted (at most :data:`MAX_PANELS`)."""
     import matplotlib
