@@ -215,6 +215,8 @@ def protocol(text: str) -> str:
     if name not in DECODERS and name not in DECODER_OPTIONS:
         raise argparse.ArgumentTypeError(f"unknown protocol {name!r}; known: {', '.join(sorted(DECODERS))}, "
                                          "frame:FILE.yaml")
+    if name not in DECODERS and text == name:
+        raise argparse.ArgumentTypeError(f"{name} needs its description file: {name}:FILE.yaml")
     try:
         make_decoder(text)
     except (ValueError, StationError) as exc:

@@ -134,3 +134,17 @@ def test_a_shipped_example_decodes_its_recording(name: str) -> None:
         assert (np.abs(got["gyro"]).max(axis=1) > 0.5).sum() == 1
         assert np.all(np.diff(got["t_us"].astype(int)) == 1e6 / rate_hz)
     assert np.abs(np.median(got["temp"]) - 31.5) < 0.05
+
+
+@pytest.mark.parametrize(("protocol", "words"), [
+    ("frame", "frame needs its description file: frame:FILE.yaml"),
+    ("frame:", "frame needs its description file"),
+    ("frame:nope.yaml", "nope.yaml: does not exist; give a frame description file (schema "
+                        "imu-station/frame/1) or a shipped one: mpu6050_dump, witmotion"),
+])
+def test_a_frame_protocol_without_a_readable_file_is_a_usage_error(tmp_path: Path, capsys, protocol: str,
+                                                                  words: str) -> None:
+    with pytest.raises(SystemExit) as stop:
+        main(["capture", "--port", "/dev/null-no-such-port", "--protocol", protocol,
+              "-o", str(tmp_path / "x.csv")])
+    assert stop.value.code == 4 and words in capsys.readouterr().err
