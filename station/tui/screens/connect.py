@@ -13,10 +13,11 @@ from textual.widgets.option_list import Option
 
 from drivers.errors import DriverError
 from protocols.registry import DECODERS
+from station.ports import SerialPort, list_serial_ports
 from station.text import printable
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.screens.station_screen import StationScreen
-from station.tui.session import SIMULATED, PortEntry, Session, available_ports, open_session
+from station.tui.session import SIMULATED, Session, open_session
 
 
 class ConnectScreen(StationScreen):
@@ -42,9 +43,9 @@ class ConnectScreen(StationScreen):
     def on_mount(self) -> None:
         self.title = "imu-station · connect"
         ports = self.query_one("#ports", OptionList)
-        simulator = PortEntry(SIMULATED, "the station's simulator (no hardware)")
+        simulator = SerialPort(SIMULATED, "the station's simulator (no hardware)")
         ports.add_option(Option(simulator.line(), id=SIMULATED))
-        for p in available_ports():
+        for p in list_serial_ports():
             ports.add_option(Option(Text(p.line()), id=p.device))
         ports.highlighted = 0
         ports.focus()
