@@ -369,17 +369,16 @@ class AsciiDecoder(StreamDecoderBase):
         wire), or 0. A VectorNav sentence carries its own checksum, so it is read from its '$'; a
         MotionCal line from its tag, when what follows it is a whole sample (so a banner that
         mentions ``Raw:`` stays text)."""
-        sentence = line.rfind(b"$VN")
-        if sentence > 0:
-            return sentence
+        sentence = max(line.rfind(b"$VN"), 0)
         tag = max(line.rfind(b"Raw:"), line.rfind(b"Uni:"))
-        if tag <= 0:
-            return 0
-        try:
-            self._motioncal(line[tag:].decode("ascii").strip())
-        except (_Reject, UnicodeDecodeError):
-            return 0
-        return tag
+        # The later of the two starts the line: '$VN' in the noise before a MotionCal tag is noise.
+        if tag > sentence:
+            try:
+                self._motioncal(line[tag:].decode("ascii").strip())
+            except (_Reject, UnicodeDecodeError):
+                return sentence
+            return tag
+        return sentence
 
     def _seen(self, kind: str) -> None:
         self.kinds_seen[kind] = self.kinds_seen.get(kind, 0) + 1
