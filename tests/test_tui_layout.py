@@ -73,6 +73,7 @@ def test_connect():
 
     def check(text, width):
         assert "/dev/ttyUSB0         CP2102 USB to UART Bridge" in text and "SIM-000001" in text
+        assert "200 Hz" in text and "rate_hz" not in text  # labels, not the unit's info keys
         _footer(text, "⏎ continue", "c other port", "? help", "q quit")
 
     _run(TuiConfig(simulate=True, seed=1), show, check, "connect")

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -211,3 +214,13 @@ def test_a_file_of_another_unit_is_refused_on_the_screen_then_replaced_or_left(t
     else:
         assert out.read_text() == before  # untouched
         assert ParamsFile.load(other).device["serial"] == "SIM-IDEAL"
+
+
+def test_tui_help_states_the_exit_codes_the_app_returns():
+    done = subprocess.run([sys.executable, "-m", "station.cli", "tui", "--help"], capture_output=True,
+                          text=True, timeout=60)
+    text = " ".join(done.stdout.split()).split("exit codes:")[1].split("examples:")[0]
+    codes = {int(n): what for n, what in re.findall(r"(\d) ([a-z][^;.]*)", text)}
+    assert "outside its limits" in codes[ExitCode.OUT_OF_LIMITS]
+    assert "aborted" in codes[ExitCode.ABORTED] and codes[ExitCode.OK].startswith("done")
+    assert "usage" in codes[ExitCode.USAGE]

@@ -19,6 +19,10 @@ from station.tui.messages import LinkFailed, Snapshot
 from station.tui.screens.station_screen import StationScreen
 from station.tui.session import SIMULATED, Session, open_session
 
+# What the unit says of itself (its info keys), as the operator reads it.
+INFO = (("serial", "serial", ""), ("model", "model", ""), ("firmware", "firmware", ""),
+        ("rate_hz", "rate", " Hz"))
+
 
 class ConnectScreen(StationScreen):
     BINDINGS = [
@@ -96,8 +100,9 @@ class ConnectScreen(StationScreen):
         table.add_column()
         table.add_row("port", session.name)
         table.add_row("protocol", session.device.protocol)
-        for key in ("serial", "model", "firmware", "rate_hz"):
-            table.add_row(key, Text(printable(session.info.get(key, "?"))))
+        for key, label, unit in INFO:
+            value = session.info.get(key)
+            table.add_row(label, Text(printable("?" if value is None else f"{value}{unit}")))
         health = "[green]good[/green]" if stats.errors == 0 and stats.lost == 0 else "[yellow]errors[/yellow]"
         table.add_row("link", f"{health}  {stats.rate_hz:.0f} Hz, {stats.samples} samples, "
                       f"{stats.errors} errors, {stats.lost} lost, {stats.overflow_drops} dropped")
