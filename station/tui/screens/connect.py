@@ -25,6 +25,8 @@ INFO = (("serial", "serial", ""), ("model", "model", ""), ("firmware", "firmware
 
 
 class ConnectScreen(StationScreen):
+    """The ports to choose from, the unit once connected (its info and link health), the protocol."""
+
     BINDINGS = [
         Binding("enter", "continue", "continue", show=True),
         Binding("c", "choose", "other port"),
@@ -37,6 +39,7 @@ class ConnectScreen(StationScreen):
     """
 
     def compose(self) -> ComposeResult:
+        """The hint, the ports, the unit's info, the keys."""
         yield Header()
         with Vertical():
             yield Static("", id="hint")
@@ -45,6 +48,7 @@ class ConnectScreen(StationScreen):
         yield Footer()
 
     def on_mount(self) -> None:
+        """List the ports; connect at once to --port or the simulated unit when given."""
         self.title = "imu-station · connect"
         ports = self.query_one("#ports", OptionList)
         simulator = SerialPort(SIMULATED, "the station's simulator (no hardware)")
@@ -60,9 +64,11 @@ class ConnectScreen(StationScreen):
         self.set_interval(0.5, self.show_link)
 
     def on_option_list_option_selected(self, event: OptionList.OptionSelected) -> None:
+        """Enter on a port: connect to it."""
         self.connect(event.option.id)
 
     def connect(self, port: str | None) -> None:
+        """Close any open session and open ``port`` in a worker."""
         if self.station.session is not None:
             self.station.close_session()
         self.query_one("#info", Static).update(f"connecting to {port} ...")
@@ -79,18 +85,21 @@ class ConnectScreen(StationScreen):
         self.post_message(Snapshot({"session": session}))
 
     def on_snapshot(self, message: Snapshot) -> None:
+        """The port opened: keep its session and show the unit."""
         session: Session = message.data["session"]
         self.station.session = session
         self.show_hint()
         self.show_link()
 
     def on_link_failed(self, message: LinkFailed) -> None:
+        """The port could not be opened: say why, and let another be chosen."""
         self.query_one("#info", Static).update(f"[red]{message.error}[/red]\nChoose a port and press Enter.")
         ports = self.query_one("#ports", OptionList)
         ports.disabled = False
         ports.focus()
 
     def show_link(self) -> None:
+        """The unit's info and the link's health (redrawn twice a second)."""
         session = self.station.session
         if session is None:
             return
@@ -109,15 +118,18 @@ class ConnectScreen(StationScreen):
         self.query_one("#info", Static).update(table)
 
     def action_continue(self) -> None:
+        """Enter once connected: the live view."""
         if self.station.session is not None:
             self.station.show("live")
 
     def action_choose(self) -> None:
+        """``c``: choose another port."""
         ports = self.query_one("#ports", OptionList)
         ports.disabled = False
         ports.focus()
 
     def action_protocol(self) -> None:
+        """``p``: the next protocol of the registry."""
         names = sorted(DECODERS)
         config = self.station.config
         config.protocol = names[(names.index(config.protocol) + 1) % len(names)] if config.protocol in names \
@@ -125,6 +137,7 @@ class ConnectScreen(StationScreen):
         self.show_hint()
 
     def show_hint(self) -> None:
+        """What Enter does now, and the protocol."""
         protocol = self.station.config.protocol
         if self.station.session is None:
             text = f"Choose the unit's port and press Enter.   protocol: {protocol} (p: change)"

@@ -44,6 +44,7 @@ class LongRecordingScreen(StationScreen):
     SECTION = ""
 
     def compose(self) -> ComposeResult:
+        """The two plots, the side panel under them, the keys."""
         yield Header()
         with Horizontal(id="plots"):
             yield PlotextPlot(id="plot-0")
@@ -54,6 +55,7 @@ class LongRecordingScreen(StationScreen):
         yield Footer()
 
     def on_mount(self) -> None:
+        """Open the recording (beside --out) and start reading the unit."""
         self.title = f"imu-station · {self.HEADING}"
         self.recording = open_recording(self.session, self.station.config.out, self.KIND)
         self.stopped = False
@@ -68,6 +70,7 @@ class LongRecordingScreen(StationScreen):
         self.recording.close()
 
     def on_snapshot(self, message: Snapshot) -> None:
+        """A progress snapshot, or the fit (shown, then its section saved)."""
         d = message.data
         if "fit" in d:
             self.show_fit(d["fit"])
@@ -133,9 +136,11 @@ class LongRecordingScreen(StationScreen):
                                                  ("k", "do not save")], str(out)), answered)
 
     def on_link_failed(self, message: LinkFailed) -> None:
+        """The link or the fit failed: say why."""
         self.query_one("#side", Static).update(Text(f"{message.error}", style="red"))
 
     def action_stop(self) -> None:
+        """Enter: stop reading, close the recording and fit it."""
         if self.stopped:
             return
         self.stopped = True
@@ -145,6 +150,7 @@ class LongRecordingScreen(StationScreen):
         self._fit()
 
     def action_back(self) -> None:
+        """Escape: back to the live view."""
         self.station.show("live")
 
     # ---- what a subclass supplies -----------------------------------------------------------------
