@@ -60,6 +60,19 @@ def test_force_keeps_what_it_shows_and_fewer_terms_pass(short_csv, tmp_path, cap
     assert "give terms among Q,N,B,K,R" in capsys.readouterr().err
 
 
+def test_default_needs_a_term_on_one_axis_of_each_sensor_terms_on_every_axis(tmp_path, capsys) -> None:
+    # 20 min: K shows on every axis but gx, where a spurious correlated bias hides it
+    truth = UnitTruth(accel=SensorTruth(noise=ACCEL), gyro=SensorTruth(noise=GYRO), serial="SIM-ALLAN")
+    path = tmp_path / "still.csv"
+    write_csv(path, simulate(truth, [Static("+z", 1200.0)], rate_hz=100.0, seed=21).to_capture())
+    assert cli.main(["allan", str(path)]) == 0
+    assert "K of gx: hidden by the correlated (Gauss-Markov) bias" in capsys.readouterr().out
+    assert cli.main(["allan", str(path), "--terms", "N,K"]) == 4
+    err = capsys.readouterr().err
+    assert "K (rate random walk) is not resolved on gx (gx: hidden by the correlated" in err
+    assert "it needs a longer record (this one shows no sign of it)" in err
+
+
 def test_every_printed_term_names_its_axis(short_csv, capsys) -> None:
     assert cli.main(["allan", str(short_csv), "--force"]) == 0
     out = capsys.readouterr().out

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
@@ -62,9 +63,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="refuse records whose gaps miss more than this fraction of samples (0.001)")
     parser.add_argument("--per-decade", type=number(int, 1, MAX_PER_DECADE), default=10, metavar="N",
                         help=f"cluster sizes per decade of tau, 10 to {MAX_PER_DECADE} (default 10)")
-    parser.add_argument("--terms", type=_terms, default=("N", "K"), metavar="T,T",
-                        help="noise terms the record must resolve on every axis, among "
-                             f"{','.join(TERMS)} (default N,K); a record too short for them is refused")
+    parser.add_argument("--terms", type=_terms, default=None, metavar="T,T",
+                        help=f"noise terms the record must resolve on every axis, among {','.join(TERMS)}; "
+                             "a record too short for them is refused (default: N and K on at least one axis "
+                             "of each sensor, what Kalibr, VINS and ORB-SLAM3 take)")
     parser.add_argument("--force", action="store_true",
                         help="keep what a record too short for --terms shows (its missing terms null)")
     parser.add_argument("--workdir", type=Path, metavar="DIR",
@@ -99,8 +101,15 @@ def _length(seconds: float) -> str:
     return f"{seconds / 3600:.3g} h"
 
 
-def refuse_short_record(noise: list, terms: tuple[str, ...], duration_s: float, source: str) -> None:
-    """Refuse a record that leaves a term asked for null on some axis, with the length it needs.
+DEFAULT_TERMS = ("N", "K")
+
+
+def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: float, source: str) -> None:
+    """Refuse a record too short for the terms asked for, with the length it needs.
+
+    ``terms`` (``--terms``) must be resolved on every axis; without it N and K on at least one axis
+    of each sensor (the filters' files take the largest axis; a correlated bias often hides K on
+    one axis for far longer than a bench records).
 
     Raises
     ------
@@ -110,7 +119,11 @@ def refuse_short_record(noise: list, terms: tuple[str, ...], duration_s: float, 
     from station.engines.allan_fit import missing_terms
     from station.export import allan_report
 
-    missing = missing_terms(noise, terms, duration_s)
+    missing = missing_terms(noise, terms or DEFAULT_TERMS, duration_s)
+    if terms is None:
+        axes_of = Counter(a.axis[0] for a in noise)  # the sensor is the axis name's first letter: g.., a..
+        missing_of = Counter((m.axis[0], m.term) for m in missing)
+        missing = [m for m in missing if missing_of[m.axis[0], m.term] == axes_of[m.axis[0]]]
     if not missing:
         return
     parts = []
@@ -124,8 +137,8 @@ def refuse_short_record(noise: list, terms: tuple[str, ...], duration_s: float, 
                      f"({of_term[0].axis}: {of_term[0].reason}); it needs {length}")
     raise EngineInputError(
         f"{source}: the record ({_length(duration_s)}) is too short for the terms asked for "
-        f"({','.join(terms)}): {'; '.join(parts)}. Record longer, ask for fewer terms (--terms), "
-        "or keep what it shows with --force")
+        f"({','.join(terms or DEFAULT_TERMS)}): {'; '.join(parts)}. Record longer, ask for fewer terms "
+        "(--terms), or keep what it shows with --force")
 
 
 def _progress(err: IO[str]) -> Progress:
