@@ -22,7 +22,7 @@ class Device(abc.ABC):
 
     #: the port path or URL it was opened with
     port: str
-    #: the protocol name (``protocols.registry``)
+    #: the protocol name (``protocols.registry``); ``frame:<name>`` for a frame description (its ``name``)
     protocol: str
 
     @abc.abstractmethod

@@ -84,7 +84,8 @@ class SerialDevice(Device):
     port:
         Device path (``/dev/ttyUSB0``, a pty such as ``/dev/pts/5``) or pyserial URL (``sim://``).
     protocol:
-        Decoder name from ``protocols.registry``. Commands exist for ``native`` only.
+        Decoder name from ``protocols.registry``. Commands exist for ``native`` only. The device's
+        ``protocol`` is this name, but ``frame:<name>`` (the description's) for ``frame:FILE.yaml``.
     baudrate:
         Line speed; ignored by pseudo-terminals and most URLs.
     max_buffered_samples:
@@ -97,8 +98,9 @@ class SerialDevice(Device):
     def __init__(self, port: str, protocol: str = "native", baudrate: int = DEFAULT_BAUDRATE,
                  max_buffered_samples: int = DEFAULT_MAX_BUFFERED, exclusive: bool = True):
         self.port = port
-        self.protocol = protocol
         self._decoder = make_decoder(protocol)
+        # What captures record: ``frame:<description name>`` for a frame description, else as given.
+        self.protocol = self._decoder.label or protocol
         self._max_buffered = max_buffered_samples
         self._serial = open_serial(port, baudrate, exclusive)
         self._cond = threading.Condition()

@@ -76,6 +76,9 @@ class StreamDecoderBase:
     """Base of the incremental decoders: keeps the buffer and the counters."""
 
     name = "base"
+    #: How the protocol is named in capture files and status lines when the option naming it is not
+    #: what identifies it (a frame description: its ``name``, not its file); None: the option itself.
+    label: str | None = None
 
     def __init__(self) -> None:
         self.stats = DecoderStats()

@@ -258,6 +258,7 @@ class FrameDecoder(StreamDecoderBase):
     def __init__(self, desc: FrameDescription):
         super().__init__()
         self.description = desc
+        self.label = f"frame:{desc.name}"  # the spec: the name goes into capture files, not the file's path
         self._dtype = frame_dtype(desc)
         self._sync = desc.sync
         self._len = desc.length

@@ -51,3 +51,21 @@ def test_a_shipped_description_by_name_and_the_python_api(tmp_path: Path) -> Non
     assert len(samples) >= 590
     assert np.allclose(np.linalg.norm(samples["acc"], axis=1), 9.81, atol=0.2)
     assert stats.lost == 2  # the counter's gaps (frames 10 and 20 of the recording)
+
+
+def test_a_capture_file_names_the_description_not_its_file(tmp_path: Path, capsys) -> None:
+    import h5py
+
+    desc_file = tmp_path / "board-file.yaml"
+    desc_file.write_text(yaml.safe_dump(SPEC_EXAMPLE), encoding="utf-8")
+    desc = describe(SPEC_EXAMPLE)
+    out = tmp_path / "acme.h5"
+    with BytePty(plain_frames(desc, still_samples(600, 200.0, seed=6)), chunk=4 * desc.length,
+                 period_s=0.02) as pty:
+        code = main(["capture", "--port", pty.path, "--protocol", f"frame:{desc_file}", "--duration", "0.5",
+                     "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    with h5py.File(out, "r") as f:
+        assert f.attrs["protocol"] == f"frame:{SPEC_EXAMPLE['name']}"
+        assert f.attrs["port"] == pty.path
+    assert len(read_capture(out)) >= 90
