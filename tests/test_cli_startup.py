@@ -32,7 +32,7 @@ def _loaded(argv: list[str]) -> tuple[set[str], str]:
     return set(json.loads(modules)), "\n".join(shown)
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["--version"]]
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["completion", "--help"]]
                          + [[name.replace("_", "-"), "--help"] for name in cli.COMMANDS])
 def test_help_loads_no_heavy_library(argv: list[str]) -> None:
     modules, shown = _loaded(argv)
