@@ -29,7 +29,7 @@ import numpy as np
 
 from protocols.base import SAMPLE_DTYPE, Decoded, StreamDecoderBase
 from protocols.errors import StationError
-from protocols.frame_checksums import checksum_rows
+from protocols.frame_checksums import RowChecksum, checksum_rows
 from protocols.frame_description import FieldSpec, FrameDescription
 
 # Frames checked per vectorised run. After a damaged frame the next run re-checks at most this many,
@@ -156,21 +156,33 @@ class _Extractor:
         self.width = len(specs)
         self.scales = np.array([f.scale for f in specs])
         self.offsets = np.array([f.offset for f in specs])
-        self.identity = bool((self.scales == 1).all() and (self.offsets == 0).all())
+        self.no_offset = bool((self.offsets == 0).all())
+        self.identity = self.no_offset and bool((self.scales == 1).all())
+        self._scaled = np.empty((0, self.width))
         # Whether a value can overflow float32 (or is a float, which may be inf or NaN): only then are
         # numpy's overflow warnings silenced, which costs a little on every batch.
         self.wild = any(f.kind == "f" or 2.0 ** (8 * f.size) * abs(f.scale) + abs(f.offset) > 1e38
                         for f in specs)
 
-    def __call__(self, records: np.ndarray) -> np.ndarray:
+    def __call__(self, records: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         if self.strided_at is not None:
             dtype = self.groups[0][0]
             raw = np.ndarray((len(records), self.width), dtype=dtype, buffer=records, offset=self.strided_at,
                              strides=(self.length, dtype.itemsize))
-            if self.identity:
-                return raw.astype(np.float64)
+            if out is None:
+                out = np.empty((len(records), self.width))
             with _quiet(self.wild):
-                return raw * self.scales + self.offsets
+                if self.no_offset:
+                    np.multiply(raw, self.scales, out=out)
+                else:
+                    # Scaled and offset in float64, rounded once into ``out`` (float32 in a sample).
+                    scaled = np.multiply(raw, self.scales, out=self._scratch(len(records)))
+                    np.add(scaled, self.offsets, out=out)
+            return out
+        if out is not None:
+            with _quiet(self.wild):
+                out[...] = self(records)
+            return out
         rows = records.view(np.uint8).reshape(len(records), self.length)
         with np.errstate(over="ignore", invalid="ignore"):
             if self.single:
@@ -186,6 +198,13 @@ class _Extractor:
                 out *= self.scales
                 out += self.offsets
         return out
+
+
+    def _scratch(self, n: int) -> np.ndarray:
+        """A float64 ``(n, width)`` work array, kept between calls (one extractor serves one decoder)."""
+        if len(self._scaled) < n:
+            self._scaled = np.empty((n, self.width))
+        return self._scaled[:n]
 
 
 def field_values(desc: FrameDescription, records: np.ndarray) -> dict[str, np.ndarray]:
@@ -267,6 +286,8 @@ class FrameDecoder(StreamDecoderBase):
         self._last_records = np.zeros(0, dtype=self._dtype)
         self._checked_at: int | None = None  # where the validity of frames in this feed was computed
         self._checked = np.zeros(0, dtype=bool)
+        cs = desc.checksum
+        self._check_rows = RowChecksum(cs.type, cs.end - cs.start) if cs is not None else None
         # acc, gyro and temp lie side by side in a sample record: 7 float32 from byte 12.
         imu = [desc.field(n) for n in ("ax", "ay", "az", "gx", "gy", "gz", "temp")]
         self._imu = _Extractor(desc, [f for f in imu if f is not None])
@@ -306,7 +327,8 @@ class FrameDecoder(StreamDecoderBase):
         if cs is not None:
             rows = np.frombuffer(buf, dtype=np.uint8, count=count * self._len, offset=pos)
             rows = rows.reshape(count, self._len)[:, cs.start : cs.end]
-            ok &= checksum_rows(cs.type, rows) == records["check"]
+            assert self._check_rows is not None  # made with the checksum
+            ok &= self._check_rows(rows) == records["check"]
         self._checked_at, self._checked = pos, ok
         return ok
 
@@ -405,8 +427,7 @@ class FrameDecoder(StreamDecoderBase):
         n = len(records)
         out = np.empty(n, dtype=SAMPLE_DTYPE)
         floats = out.view(np.uint8).reshape(n, SAMPLE_DTYPE.itemsize)[:, 12:40].view(np.float32)
-        with _quiet(self._imu.wild):
-            floats[:, : self._imu.width] = self._imu(records)
+        self._imu(records, out=floats[:, : self._imu.width])
         if self._imu.width == 6:
             floats[:, 6] = np.nan
         seq = self._counter(records)

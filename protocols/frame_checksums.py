@@ -169,6 +169,57 @@ def checksum_rows(name: str, rows: np.ndarray) -> np.ndarray:
     return crc_rows(name, rows)
 
 
+class RowChecksum:
+    """:func:`checksum_rows` of one checksum over rows of one width, its work arrays kept between calls.
+
+    A decoder fed by a serial port checks a hundred or so frames a call, where allocating the index and
+    lookup arrays costs as much as the arithmetic: a decoder keeps one of these (they are not shared
+    between threads). Values are those of :func:`checksum_rows`.
+
+    Parameters
+    ----------
+    name : str
+        The checksum type (any of :data:`CHECKSUM_TYPES` but ``none``).
+    width : int
+        The number of bytes each row covers.
+    """
+
+    def __init__(self, name: str, width: int):
+        self.name = name
+        self.tabled = name not in _FUNCTIONS and 0 < width <= _MAX_TABLE_WIDTH
+        if self.tabled:
+            base, self.tables, self.offsets = _affine_tables(name, width)
+            self.base = self.tables.dtype.type(base)
+            self._index = np.empty((0, width), dtype=self.offsets.dtype)
+            self._looked_up = np.empty((0, width), dtype=self.tables.dtype)
+
+    def __call__(self, rows: np.ndarray) -> np.ndarray:
+        """The checksum of every row of ``rows`` (``(frames, width)`` of ``uint8``).
+
+        Parameters
+        ----------
+        rows : numpy.ndarray
+            The covered bytes of each frame.
+
+        Returns
+        -------
+        numpy.ndarray
+            One unsigned value per row, of the checksum's width (a new array).
+        """
+        if not self.tabled:
+            return checksum_rows(self.name, rows)
+        n = len(rows)
+        if len(self._index) < n:
+            self._index = np.empty((n, rows.shape[1]), dtype=self._index.dtype)
+            self._looked_up = np.empty((n, rows.shape[1]), dtype=self._looked_up.dtype)
+        index = np.add(rows, self.offsets, out=self._index[:n])
+        # The indices are in range by construction (a byte plus its column's offset): no bounds check.
+        looked_up = self.tables.take(index, out=self._looked_up[:n], mode="clip")
+        out = np.bitwise_xor.reduce(looked_up, axis=1)
+        out ^= self.base
+        return out
+
+
 def checksum(name: str, data: bytes) -> int:
     """The checksum ``name`` of one run of bytes (for encoders and tests).
 

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from protocols.frame import FrameDecoder, encode_frames
-from protocols.frame_checksums import CHECKSUM_TYPES, checksum
+from protocols.frame_checksums import CHECKSUM_TYPES, RowChecksum, checksum, checksum_rows
 from protocols.frame_description import describe
 
 CHECK = b"123456789"
@@ -212,3 +212,19 @@ def test_any_chunking_and_garbage_give_exactly_the_good_frames(pieces, cuts) -> 
     assert got.tobytes() == alone.tobytes()
     s = decoder.stats
     assert s.frames == 12 and s.garbage_bytes == len(data) - len(_GOOD)
+
+
+@pytest.mark.parametrize("kind", [k for k in CHECKSUM_TYPES if k != "none"])
+def test_a_kept_checksum_kernel_gives_fresh_values_of_any_batch_size(kind: str) -> None:
+    # The decoder keeps one kernel and its work arrays; batches grow and shrink from call to call.
+    rng = np.random.default_rng(7)
+    kernel = RowChecksum(kind, 28)
+    results = []
+    for n in (128, 5, 300, 1, 128):
+        rows = rng.integers(0, 256, (n, 32), dtype=np.uint8)[:, 2:30]
+        got = kernel(rows)
+        results.append((got, got.copy()))
+        np.testing.assert_array_equal(got, checksum_rows(kind, rows))
+        assert int(got[0]) == checksum(kind, rows[0].tobytes())
+    for got, copy in results:  # a later call does not overwrite what an earlier one returned
+        np.testing.assert_array_equal(got, copy)
