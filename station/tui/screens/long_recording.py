@@ -36,6 +36,7 @@ class LongRecordingScreen(StationScreen):
     LongRecordingScreen #plots { height: 2fr; min-height: 10; }
     LongRecordingScreen PlotextPlot { width: 1fr; height: 1fr; }
     LongRecordingScreen #side-box { height: 1fr; min-height: 7; border: round $secondary; padding: 0 1; }
+    LongRecordingScreen #saved { display: none; }
     """
     HEADING = ""
     KIND = ""
@@ -80,7 +81,9 @@ class LongRecordingScreen(StationScreen):
 
     def say_saved(self, text: str) -> None:
         """What became of the fit, above it, with the keys."""
-        self.query_one("#saved", Static).update(Text(f"{text}\nEscape: back · q: quit", style="bold"))
+        saved = self.query_one("#saved", Static)
+        saved.update(Text(f"{text}\nEscape: back · q: quit", style="bold"))
+        saved.display = True
 
     def save_section(self, value: Any) -> None:
         """Merge the fitted ``SECTION`` into ``--out``; a section already there is replaced only if the

@@ -265,5 +265,6 @@ class WizardScreen(StationScreen):
         else:
             action = Action(which)
         if not self.operator.answer(action) and prompt is None:
-            self.notify(f"{NAMES[action]} requested")
+            self.notify(f"{NAMES[action]} requested", timeout=STEP_NOTICE_S)
+            self.step_notices = True
 
