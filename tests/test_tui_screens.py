@@ -286,3 +286,31 @@ def test_a_capture_file_that_cannot_be_written_is_reported_on_the_screen(tmp_pat
             await pilot.press("q")
 
     asyncio.run(run())
+
+
+def test_thermal_screen_on_the_simulated_chamber_fits_and_saves(tmp_path):
+    from mocks import register_sim_url
+
+    register_sim_url()
+    out = tmp_path / "chamber.yaml"
+    app = StationApp(TuiConfig(port="sim://?scenario=chamber&speed=400", out=out))
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated chamber")
+            await pilot.press("t")
+            screen = await wait_for(pilot, lambda: isinstance(app.screen, ThermalScreen) and app.screen, 5,
+                                    "thermal")
+            await wait_for(pilot, lambda: recorded(screen) >= 200 * 60 * 40, 120, "40 min of the sweep")
+            await pilot.pause(0.6)
+            rows = "\n".join(svg_rows(app.export_screenshot()))
+            assert "degC/min" in rows and "temperature (degC)" in rows
+            await pilot.press("enter")
+            await wait_for(pilot, lambda: out.exists(), 120, "the thermal section")
+            await pilot.pause(0.3)
+            assert "thermal section saved" in "\n".join(svg_rows(app.export_screenshot()))
+            await pilot.press("q")
+
+    asyncio.run(run())
+    params = ParamsFile.load(out)
+    assert params.thermal is not None and params.device["serial"].startswith("SIM-")
