@@ -137,7 +137,17 @@ class UnitTemperature:
         return self.chamber(t) + self.rise * (1.0 - np.exp(-np.maximum(t, 0.0) / self.tau))
 
     def rate(self, t: np.ndarray) -> np.ndarray:
-        """dT/dt of eq. (1), degC/s."""
+        """dT/dt of eq. (1), degC/s.
+
+        Parameters
+        ----------
+        t : ndarray, (N,)
+            s.
+
+        Returns
+        -------
+        ndarray, (N,)
+        """
         t = np.asarray(t, float)
         heating = self.rise / self.tau * np.exp(-np.maximum(t, 0.0) / self.tau)
         return self.chamber.rate(t) + np.where(t >= 0, heating, 0.0)
@@ -200,6 +210,27 @@ def chamber_sweep(
     temperature and rate, added to the truth's own thermal polynomial. ``*_hysteresis``: the
     amplitude a (3,) of eq. (2). ``accel_scale_per_degc``: s (3,), relative to ``scale_t_ref``.
     Same arguments, same arrays.
+
+    Parameters
+    ----------
+    truth : UnitTruth
+    sweep : ChamberSweep, optional
+        Default ``ChamberSweep()``.
+    rate_hz : float
+    seed : int
+    accel_bias, gyro_bias : callable, optional
+    accel_scale_per_degc : sequence of float, optional
+    accel_hysteresis, gyro_hysteresis : sequence of float, optional
+    scale_t_ref : float
+        degC.
+    temp_noise_degc : float
+        Noise of the temperature reading.
+    temp_resolution_degc : float, optional
+        Resolution of the temperature reading.
+
+    Returns
+    -------
+    ChamberRun
     """
     sweep = sweep or ChamberSweep()
     # Quantization is applied once at the end, after the chamber's own terms.
@@ -249,6 +280,19 @@ def cubic_rate_unit(seed: int, accel_per_degc: float = 0.3e-3 * STANDARD_GRAVITY
     with c1 ~ N(0, per_degc), c2 ~ N(0, per_degc / 20 degC), c3 ~ N(0, per_degc / 400 degC^2)
     (curvature comparable to the slope over a 40 degC span), f ~ N(0, per_degc * rate_lag_s)
     (a bias that follows the temperature some tens of seconds late) and h ~ N(0, 5 per_degc).
+
+    Parameters
+    ----------
+    seed : int
+    accel_per_degc, gyro_per_degc : float
+        Scale of the coefficients, m/s^2/degC and rad/s/degC.
+    rate_lag_s : float
+    t_ref : float
+        degC.
+
+    Returns
+    -------
+    UnitTruth
     """
     truth = UnitTruth.random(seed)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xC4A3]))
@@ -308,6 +352,14 @@ def sweep_from_options(options: Mapping[str, str]) -> ChamberSweep:
     ------
     ValueError
         Naming an unknown option, a value that is not a number, or one out of range.
+
+    Parameters
+    ----------
+    options : mapping of str to str
+
+    Returns
+    -------
+    ChamberSweep
     """
     values = dict(SCENARIO_DEFAULTS)
     for key, text in options.items():
@@ -329,6 +381,14 @@ def parse_chamber_spec(spec: str) -> ChamberSweep:
     ------
     ValueError
         Naming the part that is not ``key=value`` or the option at fault.
+
+    Parameters
+    ----------
+    spec : str
+
+    Returns
+    -------
+    ChamberSweep
     """
     options: dict[str, str] = {}
     for part in filter(None, (p.strip() for p in spec.split(","))):
@@ -340,7 +400,16 @@ def parse_chamber_spec(spec: str) -> ChamberSweep:
 
 
 def describe_scenario(sweep: ChamberSweep) -> str:
-    """One line for a person: range, speed, soaks and length of a :func:`scenario_sweep` programme."""
+    """One line for a person: range, speed, soaks and length of a :func:`scenario_sweep` programme.
+
+    Parameters
+    ----------
+    sweep : ChamberSweep
+
+    Returns
+    -------
+    str
+    """
     rate = sweep.rates_degc_per_min()[0]
     return (f"{sweep.low_degc:g} -> {sweep.high_degc:g} -> {sweep.low_degc:g} degC at {rate:g} degC/min, "
             f"soaks of {sweep.soak_s:g} s, {sweep.duration_s:g} s of device clock, then held at "

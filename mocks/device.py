@@ -68,7 +68,25 @@ HELD_STILL = ("still", "chamber")
 
 
 def scenario_timeline(scenario: str | Sequence[Segment], seed: int = 0, loop: bool | None = None) -> Timeline:
-    """The motion of a named scenario (``SCENARIOS``) or of a list of segments."""
+    """The motion of a named scenario (``SCENARIOS``) or of a list of segments.
+
+    Parameters
+    ----------
+    scenario : str or sequence of Segment
+    seed : int
+        Seed of the random attitudes (hand-held scenarios).
+    loop : bool, optional
+        Repeat the motion; default the scenario's own choice.
+
+    Returns
+    -------
+    Timeline
+
+    Raises
+    ------
+    ValueError
+        An unknown scenario name.
+    """
     if isinstance(scenario, str):
         if scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
@@ -140,7 +158,18 @@ class SimDevice:
     # --- host commands -----------------------------------------------------------------
 
     def feed(self, data: bytes) -> bytes:
-        """Bytes from the host in; the device's answers out (frames, in command order)."""
+        """Bytes from the host in; the device's answers out (frames, in command order).
+
+        Parameters
+        ----------
+        data : bytes
+            Bytes from the host (native-protocol commands, possibly split anywhere).
+
+        Returns
+        -------
+        bytes
+            The encoded answers.
+        """
         with self._lock:
             decoded = self._decoder.feed(data)
             return b"".join(self._answer(m.msg_id, m.payload) for m in decoded.messages)
@@ -170,7 +199,17 @@ class SimDevice:
 
     def produce(self, t_s: float) -> np.ndarray:
         """Every sample due at or before ``t_s`` (``SAMPLE_DTYPE``). While streaming is stopped the
-        unit still runs (time, motion and noise go on) but nothing is returned and seq holds."""
+        unit still runs (time, motion and noise go on) but nothing is returned and seq holds.
+
+        Parameters
+        ----------
+        t_s : float
+            Device time, s.
+
+        Returns
+        -------
+        ndarray of SAMPLE_DTYPE
+        """
         with self._lock:
             n = self.sampler.due_count(t_s)
             if n == 0:
@@ -185,7 +224,16 @@ class SimDevice:
             return samples
 
     def encode_frames(self, samples: np.ndarray) -> list[bytes]:
-        """One encoded frame per sample (for fault injection, which works frame by frame)."""
+        """One encoded frame per sample (for fault injection, which works frame by frame).
+
+        Parameters
+        ----------
+        samples : ndarray of SAMPLE_DTYPE
+
+        Returns
+        -------
+        list of bytes
+        """
         size = FRAME_SIZES.get(self.encoder_name)
         if size is None:
             return [self.encode_samples(samples[i : i + 1]) for i in range(len(samples))]
@@ -196,15 +244,53 @@ class SimDevice:
 
     def command(self, segments: Sequence[Segment]) -> float:
         """Drive the unit with ``segments`` from the next sample on, then hold; returns the device
-        time at which they end."""
+        time at which they end.
+
+        Parameters
+        ----------
+        segments : sequence of Segment
+
+        Returns
+        -------
+        float
+            Device time, s.
+        """
         with self._lock:
             return self.timeline.command(segments, self.sampler.time_of(self.sampler.count))
 
     def set_pose(self, pose: str, move_s: float = 2.0, label: str | None = None) -> float:
-        """Move the unit smoothly to ``pose`` ("+x", "-z", "+x+y") and hold it there."""
+        """Move the unit smoothly to ``pose`` ("+x", "-z", "+x+y") and hold it there.
+
+        Parameters
+        ----------
+        pose : str
+        move_s : float
+            Seconds of the move.
+        label : str, optional
+            Step label of the held samples.
+
+        Returns
+        -------
+        float
+            Device time (s) at which the move and a one-second hold end.
+        """
         return self.command([Move(move_s), Static(pose, 1.0, label=label)])
 
     def rotate(self, axis: str, angle_deg: float = 360.0, rate_dps: float = 90.0,
                settle_s: float = 1.0) -> float:
-        """Turn about the body ``axis`` held vertical (a move first puts the axis up)."""
+        """Turn about the body ``axis`` held vertical (a move first puts the axis up).
+
+        Parameters
+        ----------
+        axis : str
+            ``+x``, ``-z``, ...
+        angle_deg, rate_dps : float
+        settle_s : float
+            Seconds still after the turn.
+
+        Returns
+        -------
+        float
+            Device time (s) at which the turn and settling end.
+        """
         return self.command([Rotation(axis, angle_deg, rate_dps, settle_s)])

@@ -69,7 +69,16 @@ MAX_SEED = 2**32 - 1  # numpy's generators take seeds of 0..2^32-1
 
 
 def parse_sim_url(url: str) -> SimOptions:
-    """Options of a ``sim://`` URL; raises ValueError naming the bad option."""
+    """Options of a ``sim://`` URL; raises ValueError naming the bad option.
+
+    Parameters
+    ----------
+    url : str
+
+    Returns
+    -------
+    SimOptions
+    """
     parts = urllib.parse.urlsplit(url)
     if parts.scheme != "sim":
         raise ValueError(f"expected a URL of the form sim://?seed=N&rate=HZ..., got {url!r}")
@@ -146,6 +155,7 @@ class Serial(SerialBase):
     # --- SerialBase interface --------------------------------------------------------------
 
     def open(self) -> None:
+        """Open the ``sim://`` URL: start the simulated unit of its options (pyserial's ``open``)."""
         if self.is_open:
             raise SerialException("Port is already open.")
         if self._port is None:
@@ -171,17 +181,35 @@ class Serial(SerialBase):
             raise ValueError(f"invalid baudrate: {self._baudrate!r}")
 
     def close(self) -> None:
+        """Close the port and wake a blocked :meth:`read`."""
         self.is_open = False
         self._cancel.set()
 
     @property
     def in_waiting(self) -> int:
+        """Bytes the simulated unit has sent and the host has not read (none during a stall)."""
         self._check_open()
         with self._lock:
             self._pump()
             return len(self._rx) if time.monotonic() >= self._hold_until else 0
 
     def read(self, size: int = 1) -> bytes:
+        """Up to ``size`` bytes, waiting at most the port's timeout (pyserial's ``read``).
+
+        Parameters
+        ----------
+        size : int
+
+        Returns
+        -------
+        bytes
+            Fewer than ``size`` on a timeout.
+
+        Raises
+        ------
+        serial.SerialException
+            The port is closed or the simulated unit disconnected (a ``sim://`` fault).
+        """
         self._check_open()
         deadline = None if self._timeout is None else time.monotonic() + self._timeout
         self._cancel.clear()
@@ -211,6 +239,21 @@ class Serial(SerialBase):
         return bytes(out)
 
     def write(self, data: bytes) -> int:
+        """Hand ``data`` (commands) to the simulated unit; returns the bytes written.
+
+        Parameters
+        ----------
+        data : bytes
+
+        Returns
+        -------
+        int
+
+        Raises
+        ------
+        serial.SerialException
+            The simulated unit disconnected (a ``sim://`` fault).
+        """
         self._check_open()
         data = to_bytes(data)
         with self._lock:
@@ -221,20 +264,24 @@ class Serial(SerialBase):
         return len(data)
 
     def reset_input_buffer(self) -> None:
+        """Drop the bytes received and not read yet."""
         self._check_open()
         with self._lock:
             self._pump()
             self._rx.clear()
 
     def reset_output_buffer(self) -> None:
+        """Nothing to drop: writes reach the simulated unit at once."""
         self._check_open()
 
     @property
     def out_waiting(self) -> int:
+        """Always 0: writes reach the simulated unit at once."""
         self._check_open()
         return 0
 
     def cancel_read(self) -> None:
+        """Wake a :meth:`read` blocked in another thread."""
         self._cancel.set()
 
     def _update_break_state(self) -> None:
@@ -248,27 +295,32 @@ class Serial(SerialBase):
 
     @property
     def cts(self) -> bool:
+        """Clear To Send: always asserted."""
         self._check_open()
         return True
 
     @property
     def dsr(self) -> bool:
+        """Data Set Ready: always asserted."""
         self._check_open()
         return True
 
     @property
     def ri(self) -> bool:
+        """Ring Indicator: never asserted."""
         self._check_open()
         return False
 
     @property
     def cd(self) -> bool:
+        """Carrier Detect: always asserted."""
         self._check_open()
         return True
 
     # --- the simulation -----------------------------------------------------------------------
 
     def device_time_s(self) -> float:
+        """The simulated unit's clock: wall time since open times the speed, s."""
         return (time.monotonic() - self._t0) * self.speed
 
     def sent(self) -> np.ndarray:
