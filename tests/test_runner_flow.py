@@ -116,6 +116,8 @@ def test_redo_and_skip_requests_and_abort_keeps_what_was_captured(unit):
     labels = [label for label, _ in result.capture.segments()]
     assert labels == ["+z", "-z"]
     assert len(result.capture) > 2 * 120  # the steps and the time between them are all kept
+    assert result.skipped == ["+x"]
+    assert result.summary().startswith("Run aborted: 2 of 5 steps captured, 1 skipped, ")
 
 
 def test_failed_check_is_reviewed_redo_then_skip(unit):

@@ -133,6 +133,17 @@ class RunResult:
         """The labels of the accepted steps, in order."""
         return [s.label for s in self.steps if s.status == "accepted"]
 
+    @property
+    def skipped(self) -> list[str]:
+        """The labels of the steps the operator (or a review) skipped, in order."""
+        return [s.label for s in self.steps if s.status == "skipped"]
+
+    def summary(self) -> str:
+        """One line for the operator: the outcome, steps captured of the sequence, steps skipped
+        (a completed run may still lack some) and samples recorded."""
+        return (f"Run {self.outcome}: {len(self.accepted)} of {len(self.sequence)} steps captured, "
+                f"{len(self.skipped)} skipped, {len(self.capture)} samples.")
+
 
 class SampleSink(Protocol):
     """Where samples go once their label is final (in memory, or streamed to a capture file)."""

@@ -213,8 +213,7 @@ class WizardScreen(StationScreen):
         result: RunResult = event.payload
         self.result = result
         self.station.last_run = result
-        text = Text(f"Run {result.outcome}: {len(result.accepted)} of {len(self.sequence)} steps captured, "
-                    f"{len(result.capture)} samples.", style="bold")
+        text = Text(result.summary(), style="bold")
         if result.reason:
             text.append(f"\n{result.reason}")
         path = self.station.config.capture_path()
