@@ -69,6 +69,7 @@ class CsvColumns:
     delimiter: str = ","
 
     def describe(self) -> str:
+        """The columns as one line, each field's factor to SI after ``*`` where it is not 1."""
         return self.delimiter.join(n if s == 1.0 else f"{n}*{s:g}" for n, s in zip(self.names, self.scales,
                                                                                       strict=True))
 
@@ -203,6 +204,8 @@ class AsciiDecoder(StreamDecoderBase):
         return cls(**kwargs)
 
     def feed(self, data: bytes) -> Decoded:
+        """Decode ``data`` after what is buffered: one sample per complete line
+        (``StreamDecoderBase.feed``)."""
         buf = self._buf
         buf += data
         rows: list[tuple] = []

@@ -212,6 +212,7 @@ class Detector:
         self._candidates = [_Candidate(name, dec, max_messages) for name, dec in _candidates()]
 
     def feed(self, data: bytes) -> None:
+        """Give ``data`` to every candidate decoder, which keeps what it returns."""
         self.nbytes += len(data)
         if len(self._head) < LOOK_BYTES:
             self._head += data[: LOOK_BYTES - len(self._head)]
@@ -305,6 +306,8 @@ class AutoDecoder(StreamDecoderBase):
         self._inner: StreamDecoderBase | None = None
 
     def feed(self, data: bytes) -> Decoded:
+        """Decode ``data``: nothing until a protocol is recognised, then everything the recognised
+        decoder read so far, then its output (``StreamDecoderBase.feed``)."""
         if self._inner is not None:
             return self._inner.feed(data)
         assert self._detector is not None
@@ -326,6 +329,7 @@ class AutoDecoder(StreamDecoderBase):
         return found.decoded
 
     def flush(self) -> Decoded:
+        """End of stream: decide on what was seen if nothing was recognised yet, then flush."""
         if self._inner is not None:
             return self._inner.flush()
         return self._take(final=True)
@@ -339,4 +343,5 @@ class AutoDecoder(StreamDecoderBase):
 
     @property
     def protocol(self) -> str | None:
+        """The recognised protocol's name, None until one is."""
         return None if self.detection is None else self.detection.protocol

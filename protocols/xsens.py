@@ -174,6 +174,7 @@ def encode_frame(msg_id: int, payload: bytes = b"", bus_id: int = BUS_ID) -> byt
 
 
 def encode_item(data_id: int, data: bytes) -> bytes:
+    """One MTData2 item: ``data_id`` (u16, big-endian), its size (u8) and ``data`` (at most 255 bytes)."""
     if len(data) > 255:
         raise ValueError(f"MTData2 item 0x{data_id:04X} of {len(data)} bytes exceeds 255")
     return struct.pack(">HB", data_id, len(data)) + data
@@ -357,6 +358,7 @@ class XsensDecoder(StreamDecoderBase):
         self._pending: list[tuple[int, int, MTData2Packet]] = []  # delta packets waiting for an interval
 
     def feed(self, data: bytes) -> Decoded:
+        """Decode ``data`` after what is buffered (``StreamDecoderBase.feed``)."""
         return self._decode(data, final=False)
 
     def _decode(self, data: bytes, final: bool) -> Decoded:
