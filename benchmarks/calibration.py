@@ -44,7 +44,7 @@ from station.engines.calibration_turntable import (  # noqa: E402
 )
 from station.engines.static_detect import moving_variance_norm, static_intervals, variance_norm  # noqa: E402
 
-XSENS = REPO.parent / "shared" / "data" / "xsens-imu_tk"
+XSENS = REPO / "tests" / "data" / "xsens-imu_tk"  # copied into the project with its licence
 IMUCAL_REGIONS = (("+x", "x_p"), ("-x", "x_a"), ("+y", "y_p"), ("-y", "y_a"), ("+z", "z_p"), ("-z", "z_a"),
                   ("rot-x", "x_rot"), ("rot-y", "y_rot"), ("rot-z", "z_rot"))
 GROUPS = ("accel matrix", "accel bias (m/s^2)", "gyro matrix", "gyro bias (rad/s)")
