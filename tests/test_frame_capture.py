@@ -69,3 +69,36 @@ def test_a_capture_file_names_the_description_not_its_file(tmp_path: Path, capsy
         assert f.attrs["protocol"] == f"frame:{SPEC_EXAMPLE['name']}"
         assert f.attrs["port"] == pty.path
     assert len(read_capture(out)) >= 90
+
+
+def test_the_tui_connect_screen_offers_and_shows_the_frame_protocol(tmp_path: Path) -> None:
+    import asyncio
+
+    from tui_helpers import screen_text, wait_for
+
+    import station.frame_file  # noqa: F401  (installs the reader of frame: descriptions, as the CLI does)
+    from station.tui.app import StationApp
+    from station.tui.config import TuiConfig
+
+    desc_file = tmp_path / "acme.yaml"
+    desc_file.write_text(yaml.safe_dump(SPEC_EXAMPLE), encoding="utf-8")
+    desc = describe(SPEC_EXAMPLE)
+    given = f"frame:{desc_file}"
+
+    async def run(app: StationApp) -> None:
+        async with app.run_test(size=(160, 40)) as pilot:
+            await wait_for(pilot, lambda: "frame:acme-imu-v2" in screen_text(app), 10, "the board's frames")
+            seen = []
+            for _ in range(6):  # the registry's five protocols and the description given
+                await pilot.press("p")
+                seen.append(app.config.protocol)
+            assert seen[-1] == given and given not in seen[:-1] and "native" in seen
+            assert given in screen_text(app)
+            # The whole stream read before the port closes (the test's writer would block on a full pty).
+            await wait_for(pilot, lambda: not pty._thread.is_alive(), 15, "the end of the stream")
+            app.exit(0)
+
+    with BytePty(plain_frames(desc, still_samples(400, 200.0, seed=7)), chunk=4 * desc.length,
+                 period_s=0.02) as pty:
+        app = StationApp(TuiConfig(port=pty.path, protocol=given))
+        asyncio.run(run(app))

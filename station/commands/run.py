@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from station.cli_options import DURATION_S, SEED, add_db_arguments, check_range, db_url, files_root, port
+from station.cli_options import protocol as protocol_name
 from station.errors import StationError
 from station.text import printable
 
@@ -41,7 +42,9 @@ environment: IMU_STATION_DB (default --db), IMU_STATION_ID (default --station)
 
 examples:
   imu-station run --plan plan.yaml --port /dev/ttyUSB0 --table-port /dev/ttyUSB1 --serial A1234 --json
-  imu-station run --plan plan.yaml --simulate --seed 3 --serial SIM-3 --db postgresql://line@db/imu"""
+  imu-station run --plan plan.yaml --simulate --seed 3 --serial SIM-3 --db postgresql://line@db/imu
+  imu-station run --plan plan.yaml --protocol frame:myboard.yaml --port /dev/ttyUSB0 \
+                  --table-port /dev/ttyUSB1 --serial B-0042"""
 
 # The simulated units' clock may run this much faster than the wall clock (rehearsals).
 MIN_SPEED, MAX_SPEED = 0.1, 20.0
@@ -53,6 +56,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=port, metavar="PORT",
                         help="the unit's serial port (device path or pyserial URL)")
     parser.add_argument("--table-port", type=port, metavar="PORT", help="the turntable's serial port")
+    parser.add_argument("--protocol", type=protocol_name, default=None, metavar="frame:FILE.yaml",
+                        help="the unit streams a board's own frames described in YAML (or native); default: "
+                             "the plan's device.protocol, else native. A frame-described unit is asked "
+                             "nothing: give its --serial")
     parser.add_argument("--simulate", action="store_true",
                         help="a simulated unit on a simulated turntable, both on pseudo-terminals")
     parser.add_argument("--seed", type=SEED, default=0, metavar="N",
@@ -105,13 +112,15 @@ def summary(record: RunRecord) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the plan on the unit, store the record, print it; exit with the run's outcome."""
-    from station.factory.plan import load_plan
+    from station.factory.plan import load_plan, with_protocol
     from station.factory.records import RecordStore
-    from station.factory.run import RunRequest, configure_logging, run_unit
+    from station.factory.run import RunRequest, check_serial, configure_logging, run_unit
     from station.factory.simrig import SimulatedUnit
 
     _check(args)
     plan = load_plan(args.plan)
+    if args.protocol is not None:
+        plan = with_protocol(plan, args.protocol)
     station = args.station or os.environ.get("IMU_STATION_ID") or socket.gethostname()
     url = db_url(args)
     handler = configure_logging(args.serial)
@@ -126,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
                          simulate=SimulatedUnit(args.seed, unplug_after_s=args.unplug_after,
                                                 speed=args.speed)
                          if args.simulate else None)
+    check_serial(request)  # before the record database is opened
     try:
         with RecordStore.open(url) as store:
             record = run_unit(request, store)

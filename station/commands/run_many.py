@@ -18,6 +18,7 @@ from station.cli_options import (
     number,
     port,
 )
+from station.cli_options import protocol as protocol_name
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
@@ -52,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a unit's serial port (repeat for each unit)")
     parser.add_argument("--table-port", action="append", default=[], type=port, metavar="PORT",
                         help="the turntable port of the unit given by the --port in the same position")
+    parser.add_argument("--protocol", type=protocol_name, default=None, metavar="frame:FILE.yaml",
+                        help="the units stream a board's own frames described in YAML (or native); default: "
+                             "the plan's device.protocol, else native (then give each unit's --serial)")
     parser.add_argument("--serial", action="append", default=[], metavar="SN",
                         help="serial numbers in --port order (default: each unit's own, as it reports it)")
     parser.add_argument("--simulate", type=int, default=None, metavar="N",
@@ -126,13 +130,20 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from station.factory.many import RunMany, summary_table, worst_exit_code
-    from station.factory.plan import load_plan
+    from station.factory.plan import load_plan, with_protocol
 
     units = units_of(args)
     plan = load_plan(args.plan)  # refused here, once, rather than by every child
+    if args.protocol is not None:
+        plan = with_protocol(plan, args.protocol)
+    if not plan.asks_serial and args.simulate is None and not args.serial:
+        raise StationError(f"units read through {plan.protocol} cannot be asked their serial numbers: give "
+                           "one --serial per --port")
     url = db_url(args)
     root = files_root(args, url)
     common = ["--db", url, "--files", str(root)]
+    if args.protocol is not None:
+        common += ["--protocol", plan.protocol]  # with its file found once, here (made absolute)
     if args.station:
         common += ["--station", args.station]
     console = Console(stderr=True)

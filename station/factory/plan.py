@@ -12,7 +12,7 @@ units, the run's time limits and the export formats::
       hold_s: 2
       rotation_rate_dps: 90
       settle_s: 1
-    device: {rate_hz: 200}
+    device: {rate_hz: 200}          # protocol: frame:board.yaml (a board's own frames; relative to the plan)
     engine: {method: turntable, gravity: 9.80665}   # or latitude: 45.07 (and height: 240)
     run: {timeout_s: 300, step_timeout_s: 20, max_attempts: 2}
     limits:
@@ -25,10 +25,17 @@ units, the run's time limits and the export formats::
 Every limit applies to each component of its quantity (the three axes of a bias, the six
 off-diagonal terms of a misalignment) and is written in the unit it names. Every mistake is
 refused with the file, the line and what to write instead.
+
+The unit speaks the native protocol (the run asks it its serial and sets its rate), or streams a
+board's own frames (``protocol: frame:FILE.yaml``, ``shared/specs/frame-description.md``): the run
+then sends it nothing, the serial is given to the run, and the rate is the description's
+``rate_hz`` when it states one, else ``device.rate_hz``. The description is read and checked with
+the plan, before any port is opened.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 from dataclasses import dataclass
@@ -40,7 +47,7 @@ import yaml
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition import sequences
 from station.acquisition.sequences import Sequence
-from station.errors import InputFileError
+from station.errors import InputFileError, StationError
 from station.yaml_file import read_yaml
 
 SCHEMA = "imu-station/plan/1"
@@ -117,6 +124,11 @@ class Plan:
     max_attempts: int = 2
     limits: tuple[LimitSpec, ...] = ()
     export: tuple[str, ...] = ()
+
+    @property
+    def asks_serial(self) -> bool:
+        """Whether the unit is asked its serial (native protocol); a frame-described board is not."""
+        return self.protocol == "native"
 
     def limit(self, quantity: str) -> LimitSpec | None:
         for spec in self.limits:
@@ -207,10 +219,15 @@ def load_plan(path: str | Path) -> Plan:
                 raise r.fail(dev["rate_hz"], "'rate_hz' above 4000 Hz is beyond the native protocol's range",
                              column="rate_hz")
         if "protocol" in dev:
-            protocol = r.scalar(dev["protocol"], "'protocol'")
-            if protocol != "native":
-                raise r.fail(dev["protocol"], f"protocol {protocol!r}: an unattended run sets the rate and "
-                             "asks the unit who it is, which only the native protocol can", column="protocol")
+            try:
+                fields["protocol"], rate = run_protocol(r.scalar(dev["protocol"], "'protocol'"), path.parent)
+            except StationError as exc:
+                raise r.fail(dev["protocol"], str(exc), column="protocol") from None
+            if rate is not None and "rate_hz" in dev and fields["rate_hz"] != rate:
+                raise r.fail(dev["rate_hz"], f"'rate_hz' is {fields['rate_hz']} but the frame description "
+                             f"gives rate_hz {rate}; leave it out or make them agree", column="rate_hz")
+            if rate is not None:
+                fields["rate_hz"] = rate
     if "engine" in top:
         fields.update(_engine(r, top["engine"]))
     if "run" in top:
@@ -225,6 +242,70 @@ def load_plan(path: str | Path) -> Plan:
     if "export" in top:
         fields["export"] = _export(r, top["export"])
     return Plan(path=path, sha256=hashlib.sha256(raw).hexdigest(), **fields)
+
+
+def run_protocol(protocol: str, relative_to: Path | None = None) -> tuple[str, int | None]:
+    """The protocol an unattended run reads a unit with, checked, and the rate it fixes.
+
+    Parameters
+    ----------
+    protocol : str
+        ``native`` or ``frame:FILE.yaml`` (a board's own frames; a shipped description by name).
+    relative_to : Path, optional
+        Where a relative description file is looked for first (the plan's folder).
+
+    Returns
+    -------
+    tuple
+        The protocol with the description's file made absolute, and the description's
+        ``rate_hz`` rounded to whole Hz (None for the native protocol or a description without one).
+
+    Raises
+    ------
+    StationError
+        Another protocol, or a description file that is missing or breaks the schema (an
+        ``InputFileError`` naming its file, line and key).
+    """
+    if protocol == "native":
+        return protocol, None
+    name, _, option = protocol.partition(":")
+    if name != "frame" or not option:
+        raise StationError(f"protocol {protocol!r}: an unattended run reads the native protocol (it asks the "
+                           "unit its serial and sets its rate) or a board's own frames described in YAML, "
+                           "frame:FILE.yaml")
+    from station.frame_file import load_description, resolve
+
+    file = Path(option)
+    if relative_to is not None and not file.is_absolute() and (relative_to / file).is_file():
+        file = relative_to / file
+    else:
+        file = resolve(option)
+    desc = load_description(file)
+    return f"frame:{file.resolve()}", None if desc.rate_hz is None else max(1, round(desc.rate_hz))
+
+
+def with_protocol(plan: Plan, protocol: str) -> Plan:
+    """``plan`` read with another protocol (``run --protocol``): the description's rate, when it gives one.
+
+    Parameters
+    ----------
+    plan : Plan
+        The plan as loaded.
+    protocol : str
+        ``native`` or ``frame:FILE.yaml`` (relative to the working folder, or a shipped name).
+
+    Returns
+    -------
+    Plan
+        A copy with the protocol (its file absolute) and the rate.
+
+    Raises
+    ------
+    StationError
+        As :func:`run_protocol`.
+    """
+    chosen, rate = run_protocol(protocol)
+    return dataclasses.replace(plan, protocol=chosen, rate_hz=rate or plan.rate_hz)
 
 
 def _sequence(r: _Reader, node: yaml.Node) -> Sequence:

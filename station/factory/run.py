@@ -2,7 +2,9 @@
 
 Phases, in order (each a phase of the record, OpenHTF style)::
 
-    connect    open the unit's port, ask who it is, set the plan's rate; open the table, home it
+    connect    open the unit's port, ask who it is, set the plan's rate (a board streaming its own
+               frames, protocol frame:FILE.yaml, is asked nothing: its serial is given); open the
+               table, home it
     sequence   the plan's sequence through the sequence runner, the table placing and turning
                the unit; the labelled raw capture is streamed to capture.csv beside the record
     calibrate  the engine on the capture; parameters measured against the plan's limits
@@ -255,10 +257,15 @@ class UnitRun:
             raise StationError("give the unit's --port and the turntable's --table-port, or --simulate "
                                "(a manual fixture is driven from a factory script: the Python API with a "
                                "ScriptedOperator)")
+        check_serial(self.req)
         try:
             if self.req.simulate is not None:
                 serial = self.req.serial if self.req.serial != "auto" else f"SIM-{self.req.simulate.seed:06d}"
-                with simulated_rig(self.req.simulate, serial, self.req.plan.rate_hz) as ports:
+                if not self.req.plan.asks_serial:  # a board that cannot be asked: the simulation names it
+                    self.record.serial = serial
+                    _log_serial(printable(serial))
+                with simulated_rig(self.req.simulate, serial, self.req.plan.rate_hz,
+                                   self.req.plan.protocol) as ports:
                     if self.req.operator is not None:
                         # A manual fixture in simulation: a simulated hand does what the script asks.
                         self.req.operator = SimulatedOperator(ports.rig, self.req.operator)
@@ -346,6 +353,28 @@ class UnitRun:
     def _connect(self, phase: Phase, port: str, table_port: str | None) -> None:
         plan = self.req.plan
         self.device = open_device(port, protocol=plan.protocol)
+        if plan.asks_serial:
+            self._connect_native(phase, port)
+        else:
+            self._connect_streaming(phase, port)
+        day = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        self.files = (self.req.files_root / _dir_name(self.record.serial) /
+                      f"{day}-{self.record.run_id[:8]}").resolve()
+        self.files.mkdir(parents=True, exist_ok=True)
+        self.record.files_dir = str(self.files)
+        if self.req.operator is None:
+            assert table_port is not None  # execute() refused a request with neither
+            self.table = Turntable(table_port)
+            table_info = self.table.identify()
+            self.table.home()
+            phase.measurements.append(Measurement("table.serial", table_info.get("serial", "")))
+            log.info("turntable %s %s on %s", printable(table_info.get("model")),
+                     printable(table_info.get("serial")), table_port)
+
+    def _connect_native(self, phase: Phase, port: str) -> None:
+        """A unit of the native protocol: asked who it is, set to the plan's rate, started."""
+        plan = self.req.plan
+        assert self.device is not None
         info = self.device.get_info()
         self.device.set_rate(plan.rate_hz)
         self.device.start()
@@ -362,21 +391,20 @@ class UnitRun:
             "device.serial", reported, outcome="PASS" if reported == expected else "FAIL",
             doc=f"serial the unit reports; expected {expected}"))
         phase.measurements.append(Measurement("device.firmware", str(info.get("firmware", ""))))
-        day = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-        self.files = (self.req.files_root / _dir_name(self.record.serial) /
-                      f"{day}-{self.record.run_id[:8]}").resolve()
-        self.files.mkdir(parents=True, exist_ok=True)
-        self.record.files_dir = str(self.files)
         log.info("unit %s (%s, firmware %s) on %s at %d Hz", printable(reported),
                  printable(info.get("model")), printable(info.get("firmware")), port, plan.rate_hz)
-        if self.req.operator is None:
-            assert table_port is not None  # execute() refused a request with neither
-            self.table = Turntable(table_port)
-            table_info = self.table.identify()
-            self.table.home()
-            phase.measurements.append(Measurement("table.serial", table_info.get("serial", "")))
-            log.info("turntable %s %s on %s", printable(table_info.get("model")),
-                     printable(table_info.get("serial")), table_port)
+
+    def _connect_streaming(self, phase: Phase, port: str) -> None:
+        """A board that streams its own frames: nothing to ask it; the serial is the one given."""
+        plan = self.req.plan
+        assert self.device is not None
+        self.record.device = {"port": port, "serial": self.record.serial, "protocol": self.device.protocol,
+                              "rate_hz": plan.rate_hz}
+        phase.measurements.append(Measurement(
+            "device.serial", self.record.serial,
+            doc=f"given to the run: the {self.device.protocol} protocol has no command to ask the unit"))
+        log.info("unit %s (%s) on %s at %d Hz", printable(self.record.serial),
+                 printable(self.device.protocol), port, plan.rate_hz)
 
     def _sequence(self, phase: Phase) -> RunResult:
         plan = self.req.plan
@@ -465,6 +493,24 @@ class UnitRun:
             result = write_export(params, fmt, target, source=params_path, station_id=self.record.station)
             for path in sorted(result.files):
                 self._attach(phase, path, f"export {fmt}: {path.name}")
+
+
+def check_serial(request: RunRequest) -> None:
+    """Refuse, before any port is opened, a run that cannot learn the unit's serial.
+
+    Parameters
+    ----------
+    request : RunRequest
+        The run.
+
+    Raises
+    ------
+    StationError
+        ``serial`` is ``auto`` but the plan's protocol (a board's own frames) cannot ask the unit.
+    """
+    if request.serial == "auto" and not request.plan.asks_serial and request.simulate is None:
+        raise StationError(f"a unit read through {request.plan.protocol} cannot be asked its serial number: "
+                           "give --serial SN")
 
 
 def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord:

@@ -2,7 +2,9 @@
 
 The unit (``mocks.device.SimDevice`` served by ``mocks.pty_server.PtyServer``) is mounted on the
 table (``mocks.turntable_sim.TurntableSim``): the station opens both ports like real ones, so a
-simulated run goes through the same drivers, runner and records as a run on the line.
+simulated run goes through the same drivers, runner and records as a run on the line. With a
+frame description as the plan's protocol, the unit streams that description's frames instead of
+native ones (``mocks.frame_unit``).
 """
 
 from __future__ import annotations
@@ -42,8 +44,26 @@ class SimulatedPorts:
 
 
 @contextlib.contextmanager
-def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float) -> Iterator[SimulatedPorts]:
-    """Serve the unit (reporting ``serial``) and its table on ptys for the duration of the block."""
+def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float,
+                  protocol: str = "native") -> Iterator[SimulatedPorts]:
+    """Serve the unit (reporting ``serial``) and its table on ptys for the duration of the block.
+
+    Parameters
+    ----------
+    unit : SimulatedUnit
+        What to simulate.
+    serial : str
+        The serial number the unit reports.
+    rate_hz : float
+        Its sample rate.
+    protocol : str
+        ``native``, or ``frame:FILE`` (a plan's protocol): the unit streams that description's frames.
+
+    Yields
+    ------
+    SimulatedPorts
+        The unit's and the table's ports.
+    """
     from mocks.device import SimDevice
     from mocks.faults import FaultSpec
     from mocks.pty_server import PtyServer
@@ -54,7 +74,12 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float) -> Iterator[
     faults = FaultSpec(disconnect_after_s=unit.unplug_after_s) if unit.unplug_after_s is not None else None
     # 50 ms blocks (the server default is 20 ms): each block is one batch the runner checks, and the
     # station runs several simulated units at once.
-    server = PtyServer(SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still"), faults=faults,
-                       block_s=0.05, speed=unit.speed)
+    device = SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still")
+    if protocol != "native":
+        from mocks.frame_unit import speak_frames
+        from station.frame_file import load_description
+
+        speak_frames(device, load_description(protocol.partition(":")[2]))
+    server = PtyServer(device, faults=faults, block_s=0.05, speed=unit.speed)
     with server, TurntableSim(server.device, turn_error=unit.table_turn_error) as table:
         yield SimulatedPorts(server.port_path, table.port_path, server.device)

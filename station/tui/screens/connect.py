@@ -59,6 +59,7 @@ class ConnectScreen(StationScreen):
         ports.focus()
         self.show_hint()
         config = self.station.config
+        self.given_protocol = config.protocol  # frame:FILE.yaml (--protocol) stays among those p offers
         if config.simulate or config.port:
             self.connect(SIMULATED if config.simulate else config.port)
         self.set_interval(0.5, self.show_link)
@@ -129,8 +130,8 @@ class ConnectScreen(StationScreen):
         ports.focus()
 
     def action_protocol(self) -> None:
-        """``p``: the next protocol of the registry."""
-        names = sorted(DECODERS)
+        """``p``: the next protocol of the registry, or the one ``--protocol`` gave (``frame:FILE.yaml``)."""
+        names = sorted(set(DECODERS) | {self.given_protocol})
         config = self.station.config
         config.protocol = names[(names.index(config.protocol) + 1) % len(names)] if config.protocol in names \
             else names[0]
