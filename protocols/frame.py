@@ -172,11 +172,12 @@ class _Extractor:
             if out is None:
                 out = np.empty((len(records), self.width))
             with _quiet(self.wild):
+                # Scaled and offset in a contiguous float64 work array (a ufunc that casts into a strided
+                # float32 ``out`` is buffered, slower than the arithmetic), rounded once into ``out``.
+                scaled = np.multiply(raw, self.scales, out=self._scratch(len(records)))
                 if self.no_offset:
-                    np.multiply(raw, self.scales, out=out)
+                    out[...] = scaled
                 else:
-                    # Scaled and offset in float64, rounded once into ``out`` (float32 in a sample).
-                    scaled = np.multiply(raw, self.scales, out=self._scratch(len(records)))
                     np.add(scaled, self.offsets, out=out)
             return out
         if out is not None:
@@ -246,8 +247,8 @@ class _Unwrapper:
             self.last, self.total = int(r[0]), int(r[0])
         half = self.modulus // 2
         first, end = int(r[0]), int(r[-1])
-        if 0 <= first - self.last < half and 0 <= end - first < half and bool((r[1:] >= r[:-1]).all()):
-            # No wrap and no step back in the batch (the usual case): one shift.
+        if 0 <= first - self.last < half and int(np.maximum.reduce(r)) - int(np.minimum.reduce(r)) < half:
+            # No wrap in the batch (the usual case): every step is a raw difference, so one shift.
             r += self.total - self.last
             self.last, self.total = end, int(r[-1])
             return r
@@ -335,7 +336,7 @@ class FrameDecoder(StreamDecoderBase):
     def _valid_run(self, pos: int) -> tuple[np.ndarray, int]:
         """Records of the longest run of valid frames at ``pos`` (a copy: the buffer may then shrink)."""
         ok = self._validity(pos)
-        n_ok = len(ok) if ok.all() else int(ok.argmin())
+        n_ok = len(ok) if np.logical_and.reduce(ok) else int(ok.argmin())
         # A copy of the bytes (copying records field by field is slower), so the buffer may then shrink.
         return np.frombuffer(self._buf[pos : pos + n_ok * self._len], dtype=self._dtype), n_ok
 
