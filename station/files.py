@@ -44,11 +44,13 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w",
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` atomically (:func:`atomic_open`): the file is whole or untouched."""
     with atomic_open(path, "w") as fh:
         fh.write(text)
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_open`): the file is whole or untouched."""
     with atomic_open(path, "wb") as fh:
         fh.write(data)
 

@@ -169,6 +169,7 @@ class CsvWriter:
 
     def write(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, temp: np.ndarray | None = None,
               dtemp: np.ndarray | None = None, step: np.ndarray | list[str] | None = None) -> None:
+        """Append rows: times (s), acc and gyro (N, 3), and the temperature, dT and step columns it has."""
         numeric = [np.asarray(t, float)[:, None], np.asarray(acc), np.asarray(gyro)]
         if "temp" in self.columns:
             numeric.append(np.full((len(t), 1), np.nan) if temp is None else np.asarray(temp, float)[:, None])
@@ -218,6 +219,7 @@ class CsvCaptureWriter:
         self._commit()
 
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
+        """Append a batch of ``SAMPLE_DTYPE`` samples (and their step labels) and commit them to disk."""
         if len(samples) == 0:
             return
         t = samples["t_us"] * 1e-6

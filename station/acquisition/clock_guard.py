@@ -54,6 +54,7 @@ class ClockJump:
     step_s: float  # how far the clock jumped, beyond the one period expected
 
     def describe(self) -> str:
+        """One sentence for the user: which way the device clock jumped, by how much, at which row."""
         kind = "went back" if self.step_s < 0 else "jumped ahead"
         return f"the device clock {kind} {abs(self.step_s):.6g} s at row {self.row}"
 

@@ -40,19 +40,26 @@ MIN_FREE_BYTES = 4 * 1024 * 1024
 
 
 class CaptureWriter(Protocol):
+    """A streaming capture writer (CSV or HDF5): rows in, the file kept valid as it grows."""
+
     path: Path
 
     @property
-    def rows(self) -> int: ...
+    def rows(self) -> int:
+        """Rows written so far."""
 
-    def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None: ...
+    def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
+        """Append a batch of ``SAMPLE_DTYPE`` samples, and their step labels if the file has them."""
 
-    def flush(self, link: dict[str, Any] | None = None) -> None: ...
+    def flush(self, link: dict[str, Any] | None = None) -> None:
+        """Make what was written durable, with the link statistics ``link`` so far."""
 
-    def close(self, link: dict[str, Any] | None = None) -> None: ...
+    def close(self, link: dict[str, Any] | None = None) -> None:
+        """Flush with the final link statistics and close the file."""
 
 
 def is_h5_path(path: str | Path) -> bool:
+    """True when ``path`` names a station capture file (.h5, .hdf5), else it is a capture CSV."""
     return str(path).lower().endswith(H5_SUFFIXES)
 
 
@@ -120,18 +127,22 @@ class Recorder:
 
     @property
     def rows(self) -> int:
+        """Rows written to the capture so far."""
         return self.writer.rows
 
     @property
     def non_increasing(self) -> int:
+        """Samples on the clock's line whose time did not increase (a replayed frame), left out."""
         return self.clock.non_increasing
 
     @property
     def clock_outliers(self) -> int:
+        """Samples whose timestamp was off the clock's line and not confirmed by the next ones, left out."""
         return self.clock.outliers
 
     @property
     def clock_jumps(self) -> list[ClockJump]:
+        """Jumps of the device clock that later samples confirmed (the capture runs on across them)."""
         return self.clock.jumps
 
     @property
@@ -211,6 +222,8 @@ class Recorder:
 
 @dataclass
 class CaptureResult:
+    """What a capture produced: its file, rows, device time, link statistics and why it ended."""
+
     path: Path
     rows: int
     device_time_s: float

@@ -86,4 +86,5 @@ def render_png(curve: AllanCurve, noise: list[AxisNoise], title: str = "") -> by
 
 
 def write_png(path: str | Path, curve: AllanCurve, noise: list[AxisNoise], title: str = "") -> None:
+    """Write the Allan plot of ``curve`` and its fitted ``noise`` to ``path`` as a PNG (atomically)."""
     atomic_write_bytes(path, render_png(curve, noise, title))

@@ -122,6 +122,7 @@ def curve_csv(curve: AllanCurve) -> str:
 
 
 def write_curve_csv(path: str | Path, curve: AllanCurve) -> None:
+    """Write the Allan curve as CSV (:func:`curve_csv`) to ``path`` (atomically)."""
     atomic_write_text(path, curve_csv(curve))
 
 

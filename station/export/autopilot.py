@@ -45,6 +45,7 @@ class Param:
     kind: str  # "float" or "int"
 
     def text(self) -> str:
+        """The value as the autopilot's parameter file writes it: an integer, or the shortest float32 text."""
         if self.kind == "int":
             return str(int(self.value))
         return np.format_float_positional(np.float32(self.value), unique=True, trim="-")
@@ -61,12 +62,15 @@ class Limitation:
     detail: str
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain data for ``--json``."""
         return {"triad": self.triad, "what": self.what, "size": self.size, "unit": self.unit,
                 "detail": self.detail}
 
 
 @dataclass
 class AutopilotExport:
+    """The parameters for one autopilot, what it cannot hold, the pose errors left, and notes."""
+
     target: str
     params: list[Param]
     limitations: list[Limitation] = field(default_factory=list)
@@ -76,9 +80,11 @@ class AutopilotExport:
     offsets: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
 
     def values(self) -> dict[str, float]:
+        """Each parameter's value as the autopilot will read it back."""
         return {p.name: float(p.text()) for p in self.params}
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain data for ``--json``: target, parameters, limitations, pose errors, notes."""
         return {
             "target": self.target,
             "parameters": {p.name: int(p.value) if p.kind == "int" else float(p.text()) for p in self.params},
@@ -137,6 +143,7 @@ def thermal_range(params: ParamsFile) -> tuple[float, float] | None:
 
 
 def reference_temp(params: ParamsFile) -> float:
+    """T_ref of the thermal section, or the nominal temperature without one."""
     return params.thermal.reference_temp if params.thermal is not None else NOMINAL_TEMP
 
 
@@ -212,6 +219,7 @@ def assess(params: ParamsFile, values: dict[str, float],
 
 
 def misalignment_size(cal: SensorCalibration | None) -> float:
+    """The largest |S_ij| of a triad's misalignment (0 without a calibration)."""
     return 0.0 if cal is None else float(np.max(np.abs(cal.misalignment)))
 
 
@@ -264,6 +272,7 @@ def finish_export(target: str, params: ParamsFile, out: list[Param], notes: list
 
 
 def vector_params(prefix: str, suffixes: tuple[str, ...], values: np.ndarray) -> list[Param]:
+    """One float parameter per axis: ``prefix`` + each of ``suffixes``."""
     values = np.asarray(values, float)
     return [Param(f"{prefix}{s}", float(v), "float") for s, v in zip(suffixes, values, strict=True)]
 

@@ -200,6 +200,7 @@ def _thermal_bytes(triad: ThermalBias | None) -> bytes:
 
 
 def flags_of(params: ParamsFile) -> int:
+    """The blob's flags: which sections (accel, gyro, and their thermal models) it carries."""
     triads = thermal_triads(params)
     return ((FLAG_ACCEL if params.accel is not None else 0)
             | (FLAG_GYRO if params.gyro is not None else 0)

@@ -34,6 +34,7 @@ REPLACE_OPTION = "--replace"
 
 
 def utc_now() -> str:
+    """The current UTC time as ``YYYY-MM-DDTHH:MM:SSZ``."""
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
@@ -53,6 +54,7 @@ def to_plain(value: Any) -> Any:
 
 
 def sensor_to_dict(cal: SensorCalibration) -> dict[str, Any]:
+    """The ``accel``/``gyro`` section of one triad (``shared/specs/params-file.md``)."""
     out = {
         "matrix": cal.matrix,
         "bias": cal.bias,
@@ -91,6 +93,7 @@ class ParamsFile:
     other: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """The whole parameter file as plain data, sections in the spec's order."""
         out: dict[str, Any] = {
             "schema": SCHEMA,
             "device": self.device,
@@ -111,9 +114,11 @@ class ParamsFile:
         return to_plain(out)
 
     def dump(self) -> str:
+        """The parameter file as YAML text."""
         return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None, width=120)
 
     def save(self, path: str | Path) -> None:
+        """Write the parameter file to ``path`` atomically."""
         atomic_write_text(path, self.dump())
 
     @classmethod

@@ -77,6 +77,7 @@ class FactoryStation:
         return self.store.query(serial, since, until)
 
     def close(self) -> None:
+        """Close the record store."""
         self.store.close()
 
     def __enter__(self) -> FactoryStation:

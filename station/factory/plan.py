@@ -98,6 +98,7 @@ class LimitSpec:
 
     @property
     def si_factor(self) -> float:
+        """Factor from this limit's unit to SI (``UNITS``)."""
         return UNITS[self.unit][1]
 
     def check(self, value: float) -> bool:
@@ -109,6 +110,8 @@ class LimitSpec:
 
 @dataclass(frozen=True)
 class Plan:
+    """A station plan as read from its YAML file: sequence, link, engine, timeouts, limits and exports."""
+
     path: Path
     name: str
     sha256: str
@@ -131,6 +134,7 @@ class Plan:
         return self.protocol == "native"
 
     def limit(self, quantity: str) -> LimitSpec | None:
+        """The limit of ``quantity``, or None when the plan sets none."""
         for spec in self.limits:
             if spec.quantity == quantity:
                 return spec

@@ -62,6 +62,8 @@ class Attachment:
 
 @dataclass
 class Phase:
+    """One phase of a unit's run (OpenHTF's sense): its times, outcome, measurements and files."""
+
     name: str
     start: str = field(default_factory=utc_now)
     end: str = ""
@@ -90,6 +92,7 @@ class RunRecord:
     schema: str = SCHEMA
 
     def finish(self, outcome: str, reason: str = "") -> None:
+        """Close the record with ``outcome`` (one of ``OUTCOMES``), its exit code, ``reason`` and end time."""
         if outcome not in OUTCOMES:
             raise ValueError(f"outcome {outcome!r} is not one of {OUTCOMES}")
         self.outcome = outcome
@@ -98,16 +101,20 @@ class RunRecord:
         self.end = utc_now()
 
     def measurements(self) -> dict[str, Measurement]:
+        """Every measurement of every phase, by name."""
         return {m.name: m for p in self.phases for m in p.measurements}
 
     def attachments(self) -> list[Attachment]:
+        """Every file attached in every phase, in order."""
         return [a for p in self.phases for a in p.attachments]
 
     def to_dict(self) -> dict[str, Any]:
+        """The record as plain data (the JSON written beside the files)."""
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RunRecord:
+        """Read a record written by :meth:`to_dict`; refuses another schema (StationError)."""
         if d.get("schema") != SCHEMA:
             raise StationError(f"a stored record has schema {d.get('schema')!r}, this station reads "
                                f"{SCHEMA!r}")
@@ -189,6 +196,7 @@ class RecordStore:
 
     @classmethod
     def open(cls, url: str | Path) -> RecordStore:
+        """The store at ``url``: ``postgresql://...``, ``sqlite:///path`` or a path of a SQLite file."""
         url = str(url)
         if url.startswith(("postgresql://", "postgres://")):
             return cls._open_postgres(url)
@@ -226,6 +234,7 @@ class RecordStore:
 
     @property
     def is_postgres(self) -> bool:
+        """True for a PostgreSQL store (its SQL placeholders differ)."""
         return self.ph == "%s"
 
     def _sql(self, text: str) -> str:
@@ -350,6 +359,7 @@ class RecordStore:
             cur.close()
 
     def close(self) -> None:
+        """Close the database connection."""
         self.conn.close()
 
     def __enter__(self) -> RecordStore:
