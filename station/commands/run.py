@@ -43,7 +43,7 @@ environment: IMU_STATION_DB (default --db), IMU_STATION_ID (default --station)
 examples:
   imu-station run --plan plan.yaml --port /dev/ttyUSB0 --table-port /dev/ttyUSB1 --serial A1234 --json
   imu-station run --plan plan.yaml --simulate --seed 3 --serial SIM-3 --db postgresql://line@db/imu
-  imu-station run --plan plan.yaml --protocol frame:myboard.yaml --port /dev/ttyUSB0 \
+  imu-station run --plan plan.yaml --protocol frame:myboard.yaml --port /dev/ttyUSB0 \\
                   --table-port /dev/ttyUSB1 --serial B-0042"""
 
 # The simulated units' clock may run this much faster than the wall clock (rehearsals).
