@@ -47,8 +47,12 @@ def _restarting_clock(samples: np.ndarray) -> bytes:
     return native.encode_samples(s)
 
 
-ENCODERS["native-wild-clock"] = _wild_clock
-ENCODERS["native-restart"] = _restarting_clock
+@pytest.fixture(autouse=True)
+def _faulty_clock_encoders(monkeypatch) -> None:
+    """The two faulty clocks, registered only while a test of this file runs: the encoder table is
+    global, and the CLI's help lists what it holds."""
+    monkeypatch.setitem(ENCODERS, "native-wild-clock", _wild_clock)
+    monkeypatch.setitem(ENCODERS, "native-restart", _restarting_clock)
 
 
 def stream(n: int, rate_hz: float = 200.0, seed: int = 0) -> np.ndarray:

@@ -247,8 +247,10 @@ def test_simulate_speed_option(capsys) -> None:
     wall, device, samples, rate = (float(x) for x in re.match(pattern, ran).groups())
     assert device == pytest.approx(10 * wall, abs=0.11) and samples == pytest.approx(200 * device, rel=0.02)
     assert rate == pytest.approx(200.0, rel=0.02)
-    assert main(["simulate", "--speed", "0"]) == 4
-    assert "--speed 0: give a factor above 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # refused while the options are read
+        main(["simulate", "--speed", "0"])
+    assert refused.value.code == 4
+    assert "--speed: 0 is outside the allowed range, above 0 up to 100" in capsys.readouterr().err
     with pytest.raises(ValueError, match="speed"):
         PtyServer(speed=-1.0)
 
