@@ -15,8 +15,17 @@ automatically, and reviews the captured samples (saturation, dropouts, pose, tur
 Samples of an accepted step carry its label in the capture; samples of redone attempts and
 of the time between steps carry "". Abort (or a lost link) ends the run keeping everything
 captured so far. Samples reach the sink only once their label is final, so a sink may stream
-them to disk. The runner is blocking: the TUI runs it in a thread worker, a factory script
-calls it directly.
+them to disk.
+
+Every sample read passes the same :class:`~station.acquisition.clock_guard.ClockGuard` as a
+capture's before anything uses its time (the stillness window, the hold and settle timing, the
+turn integration, the sinks): a sample whose device time departs alone from the line is left
+out and counted, a jump the samples after it confirm (a unit restart) is kept and reported, and
+a clock that went back is re-based to run on. The guard's counts join the link statistics
+(:meth:`SequenceRunner.link_stats`). A step's review does not count the samples the guard left
+out, nor the restart of ``seq`` at a confirmed jump, as samples lost on the link.
+
+The runner is blocking: the TUI runs it in a thread worker, a factory script calls it directly.
 """
 
 from __future__ import annotations
@@ -32,10 +41,12 @@ import numpy as np
 
 from drivers.errors import DriverError
 from drivers.interface import Device
+from drivers.link_stats import LinkStats
 from protocols.base import SAMPLE_DTYPE
 from station.acquisition import checks
 from station.acquisition.capture import Capture
 from station.acquisition.checks import Limits
+from station.acquisition.clock_guard import ClockGuard
 from station.acquisition.operator import Action, Operator, Prompt
 from station.acquisition.recorder import Recorder
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
@@ -148,8 +159,9 @@ class RunResult:
 class SampleSink(Protocol):
     """Where samples go once their label is final (in memory, or streamed to a capture file)."""
 
-    def write(self, samples: np.ndarray, label: str) -> None:
-        """Take a batch of samples recorded during ``label`` ("" between steps)."""
+    def write(self, samples: np.ndarray, label: str, link: dict[str, Any] | None = None) -> None:
+        """Take a batch of samples recorded during ``label`` ("" between steps), with the link
+        statistics at that time."""
 
 
 class MemorySink:
@@ -158,8 +170,8 @@ class MemorySink:
     def __init__(self) -> None:
         self._chunks: list[tuple[np.ndarray, str]] = []
 
-    def write(self, samples: np.ndarray, label: str) -> None:
-        """Keep the batch and its label in memory."""
+    def write(self, samples: np.ndarray, label: str, link: dict[str, Any] | None = None) -> None:
+        """Keep the batch and its label in memory (``link`` is not kept: :meth:`capture` takes it)."""
         if len(samples):
             self._chunks.append((samples, label))
 
@@ -197,10 +209,13 @@ class RecorderSink:
         self.recorder = recorder
         self.device = device
 
-    def write(self, samples: np.ndarray, label: str) -> None:
-        """Write the batch, labelled, to the recorder's capture file."""
+    def write(self, samples: np.ndarray, label: str, link: dict[str, Any] | None = None) -> None:
+        """Write the batch, labelled, to the recorder's capture file, with ``link`` (by default the
+        device's statistics) for the file's next flush."""
         self.recorder.step = label
-        self.recorder.write(samples, self.device.stats.as_dict() if self.device is not None else None)
+        if link is None and self.device is not None:
+            link = self.device.stats.as_dict()
+        self.recorder.write(samples, link)
 
 
 def samples_to_capture(samples: np.ndarray, labels: np.ndarray | None = None, device: dict | None = None,
@@ -297,7 +312,10 @@ class SequenceRunner:
         self.clock = clock
         self.window = _Window(self.options.limits.still_window_s)
         self.records: list[StepRecord] = []
+        self.guard = ClockGuard()
         self._pending: list[np.ndarray] = []  # samples of the current attempt, label not yet final
+        self._pending_row = 0  # the guard's row of the attempt's first sample
+        self._pending_outliers = 0  # the guard's outlier count when the attempt's first sample came
         self._last_status = -math.inf
         self._index = 0
         self._attempt = 1
@@ -305,19 +323,40 @@ class SequenceRunner:
 
     # ---- reading -------------------------------------------------------------------------------
 
+    def link_stats(self) -> LinkStats:
+        """The device's link statistics with the clock guard's counts (outliers left out, jumps).
+
+        Returns
+        -------
+        LinkStats
+        """
+        stats = self.device.stats
+        stats.clock_outliers = self.guard.outliers
+        stats.clock_jumps = len(self.guard.jumps)
+        return stats
+
     def _emit(self, samples: np.ndarray, label: str) -> None:
+        link = self.link_stats().as_dict() if len(self.sinks) > 1 else None
         for sink in self.sinks:
-            sink.write(samples, label)
+            sink.write(samples, label, link)
 
     def _read(self) -> np.ndarray:
-        """One batch from the device; samples outside an attempt go straight to the sinks, unlabelled."""
+        """One batch from the device through the clock guard (which may hold a few samples back
+        for the ones after them)."""
         try:
-            batch = self.device.read(self.options.read_timeout_s)
+            batch = self.guard.push(self.device.read(self.options.read_timeout_s)).samples
         except DriverError as exc:
             raise _Abort("link-error", str(exc), exc) from None
         if len(batch):
             self.window.add(batch)
         return batch
+
+    def _keep(self, batch: np.ndarray) -> None:
+        """Add a batch (just read) to the attempt's samples."""
+        if not self._pending:
+            self._pending_row = self.guard.released_rows - len(batch)
+            self._pending_outliers = self.guard.outliers
+        self._pending.append(batch)
 
     def _poll(self) -> None:
         action = self.operator.poll()
@@ -371,19 +410,20 @@ class SequenceRunner:
                                                problems=[reason]))
         self._state = State.DONE
         self._drain_received()
-        result = RunResult(outcome, self.memory.capture(self.device.info, self.device.stats.as_dict(),
+        result = RunResult(outcome, self.memory.capture(self.device.info, self.link_stats().as_dict(),
                                                         source=getattr(self.device, "port", "")),
                            self.records, self.sequence, error=error, reason=reason)
         op.end(result)
         return result
 
     def _drain_received(self) -> None:
-        """Keep what already arrived (unlabelled) without waiting for more."""
+        """Keep what already arrived (unlabelled) without waiting for more, and what the clock
+        guard still holds that it can place."""
         try:
-            batch = self.device.read(0)
+            self._emit(self.guard.push(self.device.read(0)).samples, "")
         except DriverError:
-            return
-        self._emit(batch, "")
+            pass
+        self._emit(self.guard.finish().samples, "")
 
     def _flush_pending(self, label: str) -> None:
         if self._pending:
@@ -511,7 +551,7 @@ class SequenceRunner:
             batch = self._read()
             if not len(batch):
                 continue
-            self._pending.append(batch)
+            self._keep(batch)
             if start_us is None:
                 start_us = int(batch["t_us"][0])
             w = self.window.samples
@@ -537,9 +577,20 @@ class SequenceRunner:
         if not record.saturation.ok:
             record.problems.append(f"saturated: {record.saturation.acc_samples} accelerometer and "
                                    f"{record.saturation.gyro_samples} gyroscope samples at the limit")
-        record.dropouts = checks.dropouts(s["seq"])
+        record.dropouts = self._dropouts(s["seq"])
         if record.dropouts.lost_fraction > limits.max_lost_fraction:
             record.problems.append(f"{record.dropouts.lost} samples lost in {record.dropouts.gaps} gaps")
+
+    def _dropouts(self, seq: np.ndarray) -> checks.Dropouts:
+        """Samples lost on the link during the attempt: ``seq`` gaps, less the samples the clock
+        guard left out (they arrived, with a wild time) and the restart of ``seq`` at a jump."""
+        rows = [j.row - self._pending_row for j in self.guard.jumps]
+        cuts = [row for row in rows if 0 < row < len(seq)]
+        pieces = [checks.dropouts(piece) for piece in np.split(seq, cuts)]
+        lost = sum(p.lost for p in pieces)
+        gaps = sum(p.gaps for p in pieces)
+        left_out = min(self.guard.outliers - self._pending_outliers, lost)
+        return checks.Dropouts(len(seq), lost - left_out, gaps - min(left_out, gaps))
 
     def _check_pose_step(self, step: PoseStep) -> StepRecord:
         s = self._attempt_samples()
@@ -569,7 +620,7 @@ class SequenceRunner:
             self._poll()
             batch = self._read()
             if len(batch):
-                self._pending.append(batch)
+                self._keep(batch)
                 t = np.concatenate([[last_t_us], batch["t_us"].astype(np.int64)]) * 1e-6
                 rate = np.concatenate([[last_rate], batch["gyro"][:, step.axis].astype(float) - bias])
                 angle += math.degrees(float(np.sum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))))
