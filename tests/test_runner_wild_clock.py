@@ -50,7 +50,7 @@ def _faulty_clock_encoders(monkeypatch) -> None:
 
 
 def sequence() -> Sequence:
-    """+z, -z and one turn of +90 deg about +x, as tests/test_runner_flow.py builds them."""
+    """+z, -z and one full turn about +x (rot+x), as tests/test_runner_flow.py builds them."""
     full = builtin("six-position", hold_s=1.0, rotation_rate_dps=360.0, settle_s=0.4)
     return Sequence("wild", (PoseStep("+z", 1.0), PoseStep("-z", 1.0), full.steps[6]))
 
