@@ -66,7 +66,7 @@ def run(encoder: str, path) -> tuple[RunResult, SimDevice, SequenceRunner]:
         try:
             result = runner.run()
         finally:
-            recorder.close()
+            recorder.close(runner.link_stats().as_dict())  # as the TUI, the factory run and the demo do
     return result, sim, runner
 
 
@@ -113,9 +113,10 @@ def test_samples_an_hour_ahead_are_left_out_counted_and_every_step_accepted(tmp_
 def test_a_unit_restarting_its_clock_mid_run_is_a_reported_jump_and_the_run_completes(tmp_path):
     """Before: the clock went back 7 s, the window and the timing saw negative time, and the
     reset ``seq`` counted four billion samples lost."""
-    result, sim, runner = run("native-restart-runner", tmp_path / "run.csv")
+    result, sim, runner = run("native-restart-runner", tmp_path / "run.h5")
     assert_every_step_right(result, sim)
     assert result.capture.link["clock_jumps"] == 1 and result.capture.link["clock_outliers"] == 0
+    assert read_capture(tmp_path / "run.h5").link["clock_jumps"] == 1  # the file keeps the count
     jump = runner.guard.jumps[0]
     assert jump.step_s == pytest.approx(-(RESTART_SEQ * 0.005 - 0.001), abs=0.006)
     assert "went back" in jump.describe()

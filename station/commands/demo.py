@@ -202,12 +202,14 @@ def run_sequence(ctx: DemoContext) -> None:
         operator = SimulatedOperator(ctx.server.device, inner, move_s=1.0)
         recorder = Recorder(ctx.sequence_path, device=device.info, with_step=True, port=device.port,
                             protocol=device.protocol)
+        runner = SequenceRunner(device, sequence, operator, RunOptions(step_timeout_s=STEP_TIMEOUT_S),
+                                sink=RecorderSink(recorder, device))
         try:
-            result = SequenceRunner(device, sequence, operator, RunOptions(step_timeout_s=STEP_TIMEOUT_S),
-                                    sink=RecorderSink(recorder, device)).run()
+            result = runner.run()
         finally:
-            recorder.close(device.stats.as_dict())
-        link = device.stats
+            # The link with the clock guard's counts (outliers left out, jumps), not the device's alone.
+            recorder.close(runner.link_stats().as_dict())
+        link = runner.link_stats()
         progress.update(task, completed=len(sequence), status=result.outcome)
     wall_s = time.monotonic() - started
     ctx.sequence_run = result

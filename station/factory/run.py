@@ -419,14 +419,15 @@ class UnitRun:
         capture_path = self.files / "capture.csv"
         recorder = Recorder(capture_path, device=self.device.info, with_step=True, port=self.device.port,
                             protocol=self.device.protocol)
+        runner = SequenceRunner(self.device, plan.sequence, self._factory_op, options,
+                                sink=RecorderSink(recorder, self.device))
         try:
-            runner = SequenceRunner(self.device, plan.sequence, self._factory_op, options,
-                                    sink=RecorderSink(recorder, self.device))
             result = runner.run()
         finally:
-            recorder.close(self.device.stats.as_dict())
+            # The link with the clock guard's counts (outliers left out, jumps), not the device's alone.
+            recorder.close(runner.link_stats().as_dict())
             self._attach(phase, capture_path, "raw capture")
-        link = self.device.stats.as_dict()
+        link = runner.link_stats().as_dict()
         accepted = sum(1 for s in result.steps if s.status == "accepted")
         phase.measurements.append(Measurement("sequence.steps_accepted", float(accepted), "",
                                               float(len(plan.sequence)), float(len(plan.sequence)),

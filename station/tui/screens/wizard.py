@@ -117,12 +117,14 @@ class WizardScreen(StationScreen):
             if path is not None:
                 recorder = Recorder(path, device=session.info, with_step=True, port=session.name,
                                     protocol=session.device.protocol)
+            runner = SequenceRunner(session.device, self.sequence, operator, RunOptions(),
+                                    sink=RecorderSink(recorder, session.device) if recorder else None)
             try:
-                SequenceRunner(session.device, self.sequence, operator, RunOptions(),
-                               sink=RecorderSink(recorder, session.device) if recorder else None).run()
+                runner.run()
             finally:
                 if recorder is not None:
-                    recorder.close(session.device.stats.as_dict())
+                    # The link with the clock guard's counts (outliers, jumps), not the device's alone.
+                    recorder.close(runner.link_stats().as_dict())
         except (StationError, OSError) as exc:
             # The capture file could not be written (disk full, no permission): say so on the screen.
             self.post_message(LinkFailed(exc))
