@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from clock_faults import HOUR_US, restarting_clock, wild_clock
 from test_drivers_serial import RawPty
 
 from drivers import NoSamples, open_device
@@ -25,34 +26,16 @@ from station.acquisition.clock_guard import CONFIRM, ClockGuard
 from station.acquisition.recorder import Recorder, record
 from station.cli import main
 
-HOUR_US = 3_600_000_000
 WILD_SEQ = 200  # the sample dated an hour ahead: 1.0 s into a 200 Hz stream
 WILD_EVERY = 400  # on the simulated unit, every 400th sample from WILD_SEQ on: 3 in any 6 s at 200 Hz
 RESTART_SEQ = 600  # where the unit restarts: its clock and counter start again
 
 
-def _wild_clock(samples: np.ndarray) -> bytes:
-    """The unit's frames, one in WILD_EVERY dated an hour ahead (their checksums are good)."""
-    s = samples.copy()
-    s["t_us"][s["seq"] % WILD_EVERY == WILD_SEQ] += HOUR_US
-    return native.encode_samples(s)
-
-
-def _restarting_clock(samples: np.ndarray) -> bytes:
-    """The unit's frames as if it restarted at RESTART_SEQ: clock back to 1 ms, counter back to 0."""
-    s = samples.copy()
-    after = s["seq"] >= RESTART_SEQ
-    s["t_us"][after] -= RESTART_SEQ * 5000 - 1000
-    s["seq"][after] -= RESTART_SEQ
-    return native.encode_samples(s)
-
-
 @pytest.fixture(autouse=True)
 def _faulty_clock_encoders(monkeypatch) -> None:
-    """The two faulty clocks, registered only while a test of this file runs: the encoder table is
-    global, and the CLI's help lists what it holds."""
-    monkeypatch.setitem(ENCODERS, "native-wild-clock", _wild_clock)
-    monkeypatch.setitem(ENCODERS, "native-restart", _restarting_clock)
+    """The two faulty clocks, registered only while a test of this file runs."""
+    monkeypatch.setitem(ENCODERS, "native-wild-clock", wild_clock(WILD_EVERY, WILD_SEQ))
+    monkeypatch.setitem(ENCODERS, "native-restart", restarting_clock(RESTART_SEQ))
 
 
 def stream(n: int, rate_hz: float = 200.0, seed: int = 0) -> np.ndarray:

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from clock_faults import restarting_clock, wild_clock
 
 from drivers import open_device
 from mocks.device import ENCODERS, SimDevice
 from mocks.pty_server import PtyServer
-from protocols import native
 from station.acquisition.capture import read_capture
 from station.acquisition.operator import ScriptedOperator, SimulatedOperator
 from station.acquisition.recorder import Recorder
@@ -21,32 +21,15 @@ from station.acquisition.sequences import PoseStep, Sequence, builtin
 
 pytestmark = pytest.mark.timeout(180)
 
-HOUR_US = 3_600_000_000
 WILD_EVERY = 97  # one sample in 97 (about 0.5 s at 200 Hz) dated an hour ahead: one in every hold
 RESTART_SEQ = 1400  # where the unit restarts (7 s of its clock): its clock and counter start again
 
 
-def _wild_clock(samples: np.ndarray) -> bytes:
-    """The unit's frames, one in WILD_EVERY dated an hour ahead (their checksums are good)."""
-    s = samples.copy()
-    s["t_us"][s["seq"] % WILD_EVERY == WILD_EVERY // 2] += HOUR_US
-    return native.encode_samples(s)
-
-
-def _restarting_clock(samples: np.ndarray) -> bytes:
-    """The unit's frames as if it restarted at RESTART_SEQ: clock back to 1 ms, counter back to 0."""
-    s = samples.copy()
-    after = s["seq"] >= RESTART_SEQ
-    s["t_us"][after] -= RESTART_SEQ * 5000 - 1000
-    s["seq"][after] -= RESTART_SEQ
-    return native.encode_samples(s)
-
-
 @pytest.fixture(autouse=True)
 def _faulty_clock_encoders(monkeypatch) -> None:
-    """The faulty clocks, registered only while a test of this file runs (the table is global)."""
-    monkeypatch.setitem(ENCODERS, "native-wild-clock-runner", _wild_clock)
-    monkeypatch.setitem(ENCODERS, "native-restart-runner", _restarting_clock)
+    """The faulty clocks, registered only while a test of this file runs."""
+    monkeypatch.setitem(ENCODERS, "native-wild-clock-runner", wild_clock(WILD_EVERY, WILD_EVERY // 2))
+    monkeypatch.setitem(ENCODERS, "native-restart-runner", restarting_clock(RESTART_SEQ))
 
 
 def sequence() -> Sequence:
