@@ -7,14 +7,10 @@ check that the files are what this module generates.
 
 from __future__ import annotations
 
-import os
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
-from mocks.raw_pty import open_raw_pty
 from protocols.base import SAMPLE_DTYPE
 from protocols.frame import encode_frames
 from protocols.frame_checksums import checksum_rows
@@ -136,39 +132,6 @@ def example_stream(name: str, desc: FrameDescription, n: int = 600) -> tuple[byt
     """The recording of the shipped example ``name``: ``(bytes, good frames in it)``."""
     encode, rate_hz, seed = EXAMPLES[name]
     return damaged_stream(encode(desc, still_samples(n, rate_hz, seed)), desc.length, seed)
-
-
-class BytePty:
-    """A raw pty the test writes a byte stream into from a thread, ``chunk`` bytes every ``period_s``,
-    starting after ``delay_s`` (time for the reader to open the port)."""
-
-    def __init__(self, data: bytes, chunk: int, period_s: float, delay_s: float = 0.0) -> None:
-        self.master, self.slave, self.path = open_raw_pty()
-        self._data, self._chunk, self._period, self._delay = data, chunk, period_s, delay_s
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        if self._stop.wait(self._delay):
-            return
-        for i in range(0, len(self._data), self._chunk):
-            if self._stop.is_set():
-                return
-            try:
-                os.write(self.master, self._data[i : i + self._chunk])
-            except OSError:
-                return
-            time.sleep(self._period)
-
-    def __enter__(self) -> BytePty:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        for fd in (self.master, self.slave):
-            os.close(fd)
 
 
 def main() -> None:

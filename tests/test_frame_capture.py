@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from frame_helpers import SPEC_EXAMPLE, BytePty, damaged_stream, plain_frames, still_samples
+from device_helpers import BytePty
+from frame_helpers import SPEC_EXAMPLE, damaged_stream, plain_frames, still_samples
 
 from drivers import open_device
 from protocols.frame_description import describe
@@ -24,7 +25,7 @@ def test_capture_records_a_boards_own_frames_through_a_pty(tmp_path: Path, capsy
     stream, _ = damaged_stream(plain_frames(desc, sent), desc.length, seed=5)
     out = tmp_path / "acme.csv"
     # 200 frames a second, written 10 at a time, cut anywhere by the pty.
-    with BytePty(stream, chunk=10 * desc.length + 3, period_s=0.05) as pty:
+    with BytePty.chunked(stream, chunk=10 * desc.length + 3, period_s=0.05) as pty:
         code = main(["capture", "--port", pty.path, "--protocol", f"frame:{desc_file}", "--duration", "1",
                      "-o", str(out)])
     err = capsys.readouterr().err
@@ -41,7 +42,7 @@ def test_a_shipped_description_by_name_and_the_python_api(tmp_path: Path) -> Non
     import station.frame_file  # noqa: F401  (installs the reader of frame: descriptions, as the CLI does)
 
     stream = (Path(__file__).parent / "data" / "frames" / "mpu6050_dump.bin").read_bytes()
-    with BytePty(stream, chunk=500, period_s=0.01, delay_s=0.5) as pty:
+    with BytePty.chunked(stream, chunk=500, period_s=0.01, delay_s=0.5) as pty:
         with open_device(pty.path, protocol="frame:mpu6050_dump") as device:
             got, deadline = [], time.monotonic() + 5.0
             while sum(len(g) for g in got) < 590 and time.monotonic() < deadline:
@@ -60,7 +61,7 @@ def test_a_capture_file_names_the_description_not_its_file(tmp_path: Path, capsy
     desc_file.write_text(yaml.safe_dump(SPEC_EXAMPLE), encoding="utf-8")
     desc = describe(SPEC_EXAMPLE)
     out = tmp_path / "acme.h5"
-    with BytePty(plain_frames(desc, still_samples(600, 200.0, seed=6)), chunk=4 * desc.length,
+    with BytePty.chunked(plain_frames(desc, still_samples(600, 200.0, seed=6)), chunk=4 * desc.length,
                  period_s=0.02) as pty:
         code = main(["capture", "--port", pty.path, "--protocol", f"frame:{desc_file}", "--duration", "0.5",
                      "-o", str(out)])
@@ -98,7 +99,7 @@ def test_the_tui_connect_screen_offers_and_shows_the_frame_protocol(tmp_path: Pa
             await wait_for(pilot, lambda: not pty._thread.is_alive(), 15, "the end of the stream")
             app.exit(0)
 
-    with BytePty(plain_frames(desc, still_samples(400, 200.0, seed=7)), chunk=4 * desc.length,
+    with BytePty.chunked(plain_frames(desc, still_samples(400, 200.0, seed=7)), chunk=4 * desc.length,
                  period_s=0.02) as pty:
         app = StationApp(TuiConfig(port=pty.path, protocol=given))
         asyncio.run(run(app))

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from frame_helpers import DATA, SPEC_EXAMPLE, BytePty, damaged_stream, plain_frames, still_samples
+from device_helpers import BytePty
+from frame_helpers import DATA, SPEC_EXAMPLE, damaged_stream, plain_frames, still_samples
 
 from protocols.frame_description import describe
 from station.cli import main
@@ -68,7 +69,7 @@ def test_check_a_unit_live_through_a_pty(tmp_path: Path, capsys) -> None:
     desc_path.write_text(yaml.safe_dump(SPEC_EXAMPLE), encoding="utf-8")
     desc = describe(SPEC_EXAMPLE)
     stream, _ = damaged_stream(plain_frames(desc, still_samples(1000, 200.0, seed=9)), desc.length, seed=9)
-    with BytePty(stream, chunk=10 * desc.length, period_s=0.05, delay_s=0.3) as pty:
+    with BytePty.chunked(stream, chunk=10 * desc.length, period_s=0.05, delay_s=0.3) as pty:
         code = main(["frame", "check", str(desc_path), "--port", pty.path, "--duration", "1.5"])
     out = capsys.readouterr().out
     assert code == 0, out

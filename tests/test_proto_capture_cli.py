@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import os
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from device_helpers import BytePty
 
 from mocks.device import SimDevice
 from mocks.encoders_extra import EXTRA_ENCODERS  # noqa: F401  (registers the encoders)
 from mocks.pty_server import PtyServer
-from mocks.raw_pty import open_raw_pty
 from protocols.ascii_lines import STANDARD_GRAVITY, encode_csv
 from protocols.base import SAMPLE_DTYPE
 from station.acquisition.capture import read_capture
@@ -49,38 +46,6 @@ def test_text_lines_without_a_clock_are_timed_at_the_given_rate(tmp_path: Path, 
     assert np.allclose(np.linalg.norm(cap.acc, axis=1), 9.8, atol=0.3)
 
 
-class LinePty:
-    """A raw pty the test writes text lines into from a thread, at a steady pace."""
-
-    def __init__(self, data: bytes, lines_per_write: int = 5, period_s: float = 0.01) -> None:
-        self.master, self.slave, self.path = open_raw_pty()
-        self._lines = data.splitlines(keepends=True)
-        self._n = lines_per_write
-        self._period = period_s
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        for i in range(0, len(self._lines), self._n):
-            if self._stop.is_set():
-                return
-            try:
-                os.write(self.master, b"".join(self._lines[i : i + self._n]))
-            except OSError:
-                return
-            time.sleep(self._period)
-
-    def __enter__(self) -> LinePty:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        for fd in (self.master, self.slave):
-            os.close(fd)
-
-
 def test_ascii_columns_in_device_units_become_si(tmp_path: Path, capsys) -> None:
     n = 300
     s = np.zeros(n, dtype=SAMPLE_DTYPE)
@@ -89,7 +54,7 @@ def test_ascii_columns_in_device_units_become_si(tmp_path: Path, capsys) -> None
     s["gyro"] = [np.pi / 2, 0.0, 0.0]
     spec = "t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps"
     out = tmp_path / "arduino.csv"
-    with LinePty(encode_csv(s, spec)) as pty:
+    with BytePty.lines(encode_csv(s, spec)) as pty:
         code = main(["capture", "--port", pty.path, "--protocol", "ascii", "--columns", spec,
                      "--duration", "0.5", "-o", str(out)])
     assert code == 0, capsys.readouterr().err
@@ -102,7 +67,7 @@ def test_ascii_columns_in_device_units_become_si(tmp_path: Path, capsys) -> None
 
 def test_auto_on_noise_explains_what_it_saw(tmp_path: Path, capsys) -> None:
     noise = np.random.default_rng(0).integers(0, 256, 60_000, dtype=np.uint8).tobytes()
-    with LinePty(noise, lines_per_write=50, period_s=0.005) as pty:
+    with BytePty.lines(noise, lines_per_write=50, period_s=0.005) as pty:
         code = main(["capture", "--port", pty.path, "--protocol", "auto", "--duration", "1",
                      "-o", str(tmp_path / "x.csv")])
     err = capsys.readouterr().err
