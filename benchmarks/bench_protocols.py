@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import argparse
 import io
-from collections.abc import Callable
 
 import numpy as np
-from timing import median_time
+from timing import feed_in_chunks, median_time
 
 from protocols import ascii_lines, mavlink, native, xsens
 from protocols.base import SAMPLE_DTYPE
@@ -40,16 +39,6 @@ def make_samples(n: int) -> np.ndarray:
     return s
 
 
-def feed_all(make_decoder: Callable[[], object], data: bytes) -> Callable[[], int]:
-    def run() -> int:
-        dec = make_decoder()
-        count = 0
-        for pos in range(0, len(data), CHUNK):
-            count += len(dec.feed(data[pos : pos + CHUNK]).samples)
-        return count
-    return run
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=20_000)
@@ -62,16 +51,16 @@ def main() -> None:
         return n / seconds
 
     native_bytes = native.encode_samples(s)
-    t_native = median_time(feed_all(native.NativeDecoder, native_bytes), repeats)
+    t_native = median_time(feed_in_chunks(native.NativeDecoder, native_bytes, CHUNK), repeats)
     print(f"{n} samples, {repeats} repeats, {CHUNK}-byte chunks (medians)")
     print(f"native decoder                 {rate(t_native):12,.0f} samples/s")
 
     xsens_bytes = xsens.encode_samples(s)
-    t_xsens = median_time(feed_all(xsens.XsensDecoder, xsens_bytes), repeats)
+    t_xsens = median_time(feed_in_chunks(xsens.XsensDecoder, xsens_bytes, CHUNK), repeats)
     print(f"xsens decoder (float32)        {rate(t_xsens):12,.0f} samples/s   "
           f"{rate(t_xsens) / 2000:6.1f}x an MTi-600 at 2000 Hz, {t_xsens / t_native:6.1f}x native's time")
     fp_bytes = xsens.encode_samples(s, precision="fp1632")
-    t_fp = median_time(feed_all(xsens.XsensDecoder, fp_bytes), repeats)
+    t_fp = median_time(feed_in_chunks(xsens.XsensDecoder, fp_bytes, CHUNK), repeats)
     print(f"xsens decoder (fp1632)         {rate(t_fp):12,.0f} samples/s   "
           f"{rate(t_fp) / 2000:6.1f}x an MTi-600")
 
@@ -79,7 +68,7 @@ def main() -> None:
         from pymavlink.dialects.v20 import ardupilotmega
 
         mav_bytes = mavlink.encode_samples(s, "HIGHRES_IMU")
-        t_ours = median_time(feed_all(mavlink.MavlinkDecoder, mav_bytes), repeats)
+        t_ours = median_time(feed_in_chunks(mavlink.MavlinkDecoder, mav_bytes, CHUNK), repeats)
 
         def pymavlink_parse() -> int:
             mav = ardupilotmega.MAVLink(None)
@@ -96,12 +85,12 @@ def main() -> None:
         print("mavlink: pymavlink is not installed, skipped")
 
     csv_bytes = ascii_lines.encode_csv(s)
-    t_csv = median_time(feed_all(ascii_lines.AsciiDecoder, csv_bytes), repeats)
+    t_csv = median_time(feed_in_chunks(ascii_lines.AsciiDecoder, csv_bytes, CHUNK), repeats)
     t_loadtxt = median_time(lambda: np.loadtxt(io.BytesIO(csv_bytes), delimiter=","), repeats)
     print(f"ascii decoder (CSV lines)      {rate(t_csv):12,.0f} samples/s   "
           f"numpy.loadtxt {rate(t_loadtxt):,.0f}/s: ratio {t_loadtxt / t_csv:.2f} (>1: ours faster)")
     vn_bytes = ascii_lines.encode_samples(s, "vnymr")
-    t_vn = median_time(feed_all(ascii_lines.AsciiDecoder, vn_bytes), repeats)
+    t_vn = median_time(feed_in_chunks(ascii_lines.AsciiDecoder, vn_bytes, CHUNK), repeats)
     print(f"ascii decoder ($VNYMR)         {rate(t_vn):12,.0f} samples/s")
 
     streams = {"native": native_bytes, "xsens": xsens_bytes, "ascii": csv_bytes}

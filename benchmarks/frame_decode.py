@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from timing import feed_in_chunks
 
 from protocols.base import SAMPLE_DTYPE, StreamDecoderBase
 from protocols.frame import FrameDecoder, encode_frames
@@ -65,16 +66,6 @@ def damage(data: bytes, size: int, every: int) -> bytes:
     return bytes(out)
 
 
-def decode_all(make: Callable[[], StreamDecoderBase], data: bytes, chunk: int) -> Callable[[], int]:
-    def run() -> int:
-        decoder = make()
-        count = 0
-        for pos in range(0, len(data), chunk):
-            count += len(decoder.feed(data[pos : pos + chunk]).samples)
-        return count
-    return run
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=500_000)
@@ -92,7 +83,7 @@ def main() -> None:
     for label, every in (("clean", 0), ("1 in 100 damaged", 100)):
         data = {k: damage(v, sizes[k], every) if every else v for k, v in streams.items()}
         for chunk in (4096, 65536):
-            runs = {k: decode_all(makers[k], data[k], chunk) for k in streams}
+            runs = {k: feed_in_chunks(makers[k], data[k], chunk) for k in streams}
             cpu: dict[str, list[float]] = {k: [] for k in streams}
             decoded = {}
             for _ in range(args.repeats):
