@@ -27,6 +27,26 @@ SAMPLE_DTYPE = np.dtype(
 
 EMPTY_SAMPLES = np.zeros(0, dtype=SAMPLE_DTYPE)
 
+# One sample of a nine-axis unit: SAMPLE_DTYPE, then the magnetic field in microtesla. The layout
+# equals the native IMU_MAG_SAMPLE payload (52 bytes), viewed without copying like SAMPLE_DTYPE.
+# A decoder returns batches of this dtype for a unit that reports a magnetometer; NaN where a
+# frame carries no field.
+MAG_SAMPLE_DTYPE = np.dtype(
+    [
+        ("seq", "<u4"),
+        ("t_us", "<u8"),
+        ("acc", "<f4", (3,)),
+        ("gyro", "<f4", (3,)),
+        ("temp", "<f4"),
+        ("mag", "<f4", (3,)),
+    ]
+)
+
+
+def has_mag(samples: np.ndarray) -> bool:
+    """Whether a sample batch carries magnetometer values (``MAG_SAMPLE_DTYPE``)."""
+    return samples.dtype.names is not None and "mag" in samples.dtype.names
+
 
 @dataclass(frozen=True)
 class Message:

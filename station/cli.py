@@ -28,12 +28,14 @@ COMMANDS = [
     "calibrate",
     "allan",
     "thermal",
+    "characterise",
     "apply",
     "export",
     "tui",
     "run",
     "run_many",
     "records",
+    "report",
     "ports",
 ]
 

@@ -14,7 +14,8 @@ class Capture:
     """Samples of one recording, SI units, raw (uncalibrated) as the sensor reports them.
 
     ``step`` holds the sequence-step label of each row ("" for rows between steps) or is None
-    when the capture carries no labels; ``temp``/``dtemp`` are None when unknown.
+    when the capture carries no labels; ``temp``/``dtemp`` are None when unknown; ``mag`` (n, 3),
+    the raw magnetic field in microtesla, is None for a unit without a magnetometer.
     """
 
     t: np.ndarray
@@ -26,6 +27,7 @@ class Capture:
     device: dict[str, Any] = field(default_factory=dict)
     link: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    mag: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
