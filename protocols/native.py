@@ -3,7 +3,8 @@
 Frame: sync ``A5 5A`` | id u8 | length u16 | payload | CRC-16/CCITT-FALSE over id, length
 and payload, all little-endian. The decoder takes a fast vectorised path over runs of
 well-formed sample frames and a per-frame path for everything else (other messages,
-errors and resynchronisation).
+errors and resynchronisation). IMU_MAG_SAMPLE frames (a unit with a magnetometer) take a
+vectorised path of their own.
 """
 
 from __future__ import annotations
@@ -15,8 +16,17 @@ from typing import Any
 
 import numpy as np
 
-from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+from protocols.base import (
+    EMPTY_SAMPLES,
+    MAG_SAMPLE_DTYPE,
+    SAMPLE_DTYPE,
+    Decoded,
+    Message,
+    StreamDecoderBase,
+    has_mag,
+)
 from protocols.crc import crc16_ccitt_false, crc16_rows
+from protocols.mag_batches import join_batches, with_mag
 
 SYNC = b"\xa5\x5a"
 HEADER_SIZE = 5  # sync, id, length
@@ -26,12 +36,13 @@ MAX_PAYLOAD = 1024
 IMU_SAMPLE = 0x01
 DEVICE_INFO = 0x02
 ACK = 0x03
+IMU_MAG_SAMPLE = 0x04
 GET_INFO = 0x10
 SET_RATE = 0x11
 START_STREAM = 0x12
 STOP_STREAM = 0x13
 
-KNOWN_IDS = {IMU_SAMPLE, DEVICE_INFO, ACK, GET_INFO, SET_RATE, START_STREAM, STOP_STREAM}
+KNOWN_IDS = {IMU_SAMPLE, DEVICE_INFO, ACK, IMU_MAG_SAMPLE, GET_INFO, SET_RATE, START_STREAM, STOP_STREAM}
 COMMAND_IDS = {GET_INFO, SET_RATE, START_STREAM, STOP_STREAM}
 
 ACK_OK = 0
@@ -43,7 +54,6 @@ ACK_STATUS_NAMES = {ACK_OK: "ok", ACK_UNKNOWN: "unknown command", ACK_BAD_ARGUME
 
 SAMPLE_PAYLOAD_SIZE = SAMPLE_DTYPE.itemsize  # 40
 SAMPLE_FRAME_SIZE = HEADER_SIZE + SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 47
-_SAMPLE_HEADER = SYNC + bytes([IMU_SAMPLE]) + struct.pack("<H", SAMPLE_PAYLOAD_SIZE)
 
 # A whole sample frame as one record, so a buffer of back-to-back frames is viewed, not parsed.
 SAMPLE_FRAME_DTYPE = np.dtype(
@@ -51,6 +61,14 @@ SAMPLE_FRAME_DTYPE = np.dtype(
 )
 assert SAMPLE_FRAME_DTYPE.itemsize == SAMPLE_FRAME_SIZE
 _SYNC_U16 = int.from_bytes(SYNC, "little")
+
+# IMU_MAG_SAMPLE: the 40 bytes of IMU_SAMPLE, then the field (f32 mx, my, mz in uT).
+MAG_PAYLOAD_SIZE = MAG_SAMPLE_DTYPE.itemsize  # 52
+MAG_FRAME_SIZE = HEADER_SIZE + MAG_PAYLOAD_SIZE + CRC_SIZE  # 59
+MAG_FRAME_DTYPE = np.dtype(
+    [("sync", "<u2"), ("msg_id", "u1"), ("length", "<u2"), ("payload", MAG_SAMPLE_DTYPE), ("crc", "<u2")]
+)
+assert MAG_FRAME_DTYPE.itemsize == MAG_FRAME_SIZE
 
 
 def encode_frame(msg_id: int, payload: bytes = b"") -> bytes:
@@ -64,15 +82,17 @@ def encode_frame(msg_id: int, payload: bytes = b"") -> bytes:
 
 
 def encode_samples(samples: np.ndarray) -> bytes:
-    """Sample frames for a batch of ``SAMPLE_DTYPE`` records, back to back (vectorised)."""
-    samples = np.ascontiguousarray(samples, dtype=SAMPLE_DTYPE)
-    frames = np.zeros(len(samples), dtype=SAMPLE_FRAME_DTYPE)
+    """Sample frames for a batch of records, back to back (vectorised): IMU_SAMPLE for
+    ``SAMPLE_DTYPE``, IMU_MAG_SAMPLE for ``MAG_SAMPLE_DTYPE`` (a unit with a magnetometer)."""
+    layout = _MAG if has_mag(samples) else _IMU
+    samples = np.ascontiguousarray(samples, dtype=layout.frame["payload"])
+    frames = np.zeros(len(samples), dtype=layout.frame)
     frames["sync"] = _SYNC_U16
-    frames["msg_id"] = IMU_SAMPLE
-    frames["length"] = SAMPLE_PAYLOAD_SIZE
+    frames["msg_id"] = layout.msg_id
+    frames["length"] = layout.payload_size
     frames["payload"] = samples
-    rows = frames.view(np.uint8).reshape(len(samples), SAMPLE_FRAME_SIZE)
-    frames["crc"] = crc16_rows(rows[:, 2 : HEADER_SIZE + SAMPLE_PAYLOAD_SIZE])
+    rows = frames.view(np.uint8).reshape(len(samples), layout.frame.itemsize)
+    frames["crc"] = crc16_rows(rows[:, 2 : HEADER_SIZE + layout.payload_size])
     return frames.tobytes()
 
 
@@ -126,20 +146,21 @@ def parse_device_info(payload: bytes) -> dict[str, Any]:
 _SAMPLE_WINDOW = 256
 
 
-def _sample_crc_tables() -> tuple[int, np.ndarray]:
+def _sample_crc_tables(msg_id: int = IMU_SAMPLE,
+                       payload_size: int = SAMPLE_PAYLOAD_SIZE) -> tuple[int, np.ndarray]:
     """CRC-16/CCITT-FALSE of a sample frame as a sum of per-byte tables.
 
     The CRC is affine in the message bits: crc(H + P) = crc(H + 0^40) ^ XOR_i T[i, P_i], where
     T[i, v] = crc(0^3 + e_i(v)) ^ crc(0^43) and e_i(v) puts byte v at payload position i. So a
-    frame's CRC is 40 table look-ups and XORs, done for all frames at once.
+    frame's CRC is 40 table look-ups and XORs, done for all frames at once (52 for IMU_MAG_SAMPLE).
     """
-    body = HEADER_SIZE - 2 + SAMPLE_PAYLOAD_SIZE  # id, length and payload: the bytes under the CRC
-    header = np.frombuffer(_SAMPLE_HEADER[2:], dtype=np.uint8)
+    body = HEADER_SIZE - 2 + payload_size  # id, length and payload: the bytes under the CRC
+    header = np.frombuffer(bytes([msg_id]) + struct.pack("<H", payload_size), dtype=np.uint8)
     zero = np.zeros((1, body), dtype=np.uint8)
-    rows = np.zeros((SAMPLE_PAYLOAD_SIZE, 256, body), dtype=np.uint8)
-    for i in range(SAMPLE_PAYLOAD_SIZE):
+    rows = np.zeros((payload_size, 256, body), dtype=np.uint8)
+    for i in range(payload_size):
         rows[i, :, 3 + i] = np.arange(256)
-    tables = crc16_rows(rows.reshape(-1, body)).reshape(SAMPLE_PAYLOAD_SIZE, 256) ^ crc16_rows(zero)[0]
+    tables = crc16_rows(rows.reshape(-1, body)).reshape(payload_size, 256) ^ crc16_rows(zero)[0]
     with_header = zero.copy()
     with_header[0, :3] = header
     return int(crc16_rows(with_header)[0]), tables
@@ -150,6 +171,30 @@ _SAMPLE_CRC_FLAT = _SAMPLE_CRC_TABLES.ravel()
 _TABLE_OFFSETS = (np.arange(SAMPLE_PAYLOAD_SIZE) * 256).astype(np.uint16)  # row i of the flat table
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """One sample message for the vectorised path: its id, frame record and CRC tables."""
+
+    msg_id: int
+    payload_size: int
+    frame: np.dtype
+    crc_base: int
+    crc_flat: np.ndarray
+    offsets: np.ndarray
+
+
+def _mag_layout() -> _Layout:
+    base, tables = _sample_crc_tables(IMU_MAG_SAMPLE, MAG_PAYLOAD_SIZE)
+    return _Layout(IMU_MAG_SAMPLE, MAG_PAYLOAD_SIZE, MAG_FRAME_DTYPE, base, tables.ravel(),
+                   (np.arange(MAG_PAYLOAD_SIZE) * 256).astype(np.uint16))
+
+
+_IMU = _Layout(IMU_SAMPLE, SAMPLE_PAYLOAD_SIZE, SAMPLE_FRAME_DTYPE, _SAMPLE_CRC_BASE, _SAMPLE_CRC_FLAT,
+               _TABLE_OFFSETS)
+_MAG = _mag_layout()
+_EMPTY_MAG = np.zeros(0, MAG_SAMPLE_DTYPE)
+
+
 def decode_sample_frames(buf: bytes | bytearray | memoryview) -> tuple[np.ndarray, int]:
     """Vectorised decode of back-to-back sample frames at the start of ``buf``.
 
@@ -157,22 +202,33 @@ def decode_sample_frames(buf: bytes | bytearray | memoryview) -> tuple[np.ndarra
     frames per call) and the number of bytes they span. Stops at the first frame that is not
     a valid IMU_SAMPLE (other message, bad CRC, garbage); the caller handles what follows.
     """
-    count = min(len(buf) // SAMPLE_FRAME_SIZE, _SAMPLE_WINDOW)
+    return _decode_frames(buf, _IMU)
+
+
+def decode_mag_frames(buf: bytes | bytearray | memoryview) -> tuple[np.ndarray, int]:
+    """:func:`decode_sample_frames` for IMU_MAG_SAMPLE frames: ``MAG_SAMPLE_DTYPE`` records."""
+    return _decode_frames(buf, _MAG)
+
+
+def _decode_frames(buf: bytes | bytearray | memoryview, layout: _Layout) -> tuple[np.ndarray, int]:
+    size = layout.frame.itemsize
+    empty = _EMPTY_MAG if layout is _MAG else EMPTY_SAMPLES
+    count = min(len(buf) // size, _SAMPLE_WINDOW)
     if count == 0:
-        return EMPTY_SAMPLES, 0
-    frames = np.frombuffer(buf, dtype=SAMPLE_FRAME_DTYPE, count=count)
-    ok = (frames["sync"] == _SYNC_U16) & (frames["msg_id"] == IMU_SAMPLE)
-    ok &= frames["length"] == SAMPLE_PAYLOAD_SIZE
+        return empty, 0
+    frames = np.frombuffer(buf, dtype=layout.frame, count=count)
+    ok = (frames["sync"] == _SYNC_U16) & (frames["msg_id"] == layout.msg_id)
+    ok &= frames["length"] == layout.payload_size
     n_ok = count if ok.all() else int(np.argmin(ok))
     if n_ok == 0:
-        return EMPTY_SAMPLES, 0
-    rows = np.frombuffer(buf, dtype=np.uint8, count=n_ok * SAMPLE_FRAME_SIZE).reshape(n_ok, SAMPLE_FRAME_SIZE)
-    payload = rows[:, HEADER_SIZE : HEADER_SIZE + SAMPLE_PAYLOAD_SIZE]
-    crc = np.bitwise_xor.reduce(_SAMPLE_CRC_FLAT[payload + _TABLE_OFFSETS], axis=1) ^ _SAMPLE_CRC_BASE
+        return empty, 0
+    rows = np.frombuffer(buf, dtype=np.uint8, count=n_ok * size).reshape(n_ok, size)
+    payload = rows[:, HEADER_SIZE : HEADER_SIZE + layout.payload_size]
+    crc = np.bitwise_xor.reduce(layout.crc_flat[payload + layout.offsets], axis=1) ^ layout.crc_base
     crc_ok = crc == frames["crc"][:n_ok]
     if not crc_ok.all():
         n_ok = int(np.argmin(crc_ok))
-    return frames["payload"][:n_ok].copy(), n_ok * SAMPLE_FRAME_SIZE
+    return frames["payload"][:n_ok].copy(), n_ok * size
 
 
 class NativeDecoder(StreamDecoderBase):
@@ -180,10 +236,13 @@ class NativeDecoder(StreamDecoderBase):
 
     After a bad CRC, an invalid length or a truncated frame it drops the bytes up to the next
     sync candidate after the one it tried, counts the error and goes on, so a good frame that
-    follows garbage is never lost.
+    follows garbage is never lost. From the first IMU_MAG_SAMPLE on, every batch it returns is
+    ``MAG_SAMPLE_DTYPE`` (an IMU_SAMPLE among them has a NaN field), so the batches of one stream
+    always join.
     """
 
     name = "native"
+    _mag = False  # an IMU_MAG_SAMPLE was seen: batches are MAG_SAMPLE_DTYPE from then on
 
     def feed(self, data: bytes) -> Decoded:
         """Decode ``data`` after what is buffered (``StreamDecoderBase.feed``)."""
@@ -198,6 +257,8 @@ class NativeDecoder(StreamDecoderBase):
             if not found:
                 break
             samples, used = decode_sample_frames(memoryview(buf)[pos:])
+            if not used:
+                samples, used = decode_mag_frames(memoryview(buf)[pos:])
             if used:
                 batches.append(samples)
                 pos += used
@@ -224,7 +285,7 @@ class NativeDecoder(StreamDecoderBase):
                 pos = self._skip_candidate(pos)
                 continue
             payload = body[3:]
-            if msg_id == IMU_SAMPLE:
+            if msg_id in (IMU_SAMPLE, IMU_MAG_SAMPLE):
                 # A sample frame with a good CRC but a wrong length: the vectorised path refused it.
                 stats.bad_payloads += 1
                 pos = end
@@ -236,7 +297,7 @@ class NativeDecoder(StreamDecoderBase):
             pos = end
         if pos:
             del buf[:pos]
-        samples = batches[0] if len(batches) == 1 else (np.concatenate(batches) if batches else EMPTY_SAMPLES)
+        samples = self._joined(batches)
         stats.frames += len(samples)
         stats.samples += len(samples)
         return Decoded(samples, messages)
@@ -267,5 +328,11 @@ class NativeDecoder(StreamDecoderBase):
             rest = self.feed(b"")
             batches.append(rest.samples)
             messages += rest.messages
-        samples = np.concatenate(batches) if batches else EMPTY_SAMPLES
-        return Decoded(samples, messages)
+        return Decoded(self._joined(batches), messages)
+
+    def _joined(self, batches: list[np.ndarray]) -> np.ndarray:
+        """The batches as one, widened to ``MAG_SAMPLE_DTYPE`` once the stream carried a field."""
+        samples = join_batches(batches)
+        if has_mag(samples):
+            self._mag = True
+        return with_mag(samples) if self._mag else samples

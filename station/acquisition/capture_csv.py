@@ -1,8 +1,9 @@
 """The capture CSV of ``shared/specs/capture-csv.md``: reader and streaming writer.
 
 One header row, then one row per sample; columns in any order, unknown columns ignored.
-Required: t, ax, ay, az, gx, gy, gz; optional: temp, dtemp, step. Malformed input is
-refused with a message naming the file, line and column.
+Required: t, ax, ay, az, gx, gy, gz; optional: temp, dtemp, step and the magnetometer's
+mx, my, mz (microtesla, all three or none; ``nan`` cells for a sample without a field).
+Malformed input is refused with a message naming the file, line and column.
 """
 
 from __future__ import annotations
@@ -18,12 +19,14 @@ from typing import IO
 
 import numpy as np
 
+from protocols.base import has_mag
 from station.acquisition.capture import Capture
 from station.errors import InputFileError, OutputFileError
 
 REQUIRED = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 OPTIONAL_NUMERIC = ("temp", "dtemp")
-HEADER = ("t", "ax", "ay", "az", "gx", "gy", "gz", "temp", "dtemp", "step")
+MAG_COLUMNS = ("mx", "my", "mz")
+HEADER = ("t", "ax", "ay", "az", "gx", "gy", "gz", "temp", "dtemp", "mx", "my", "mz", "step")
 CHUNK_ROWS = 200_000
 
 
@@ -77,7 +80,13 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
             if name not in header:
                 raise InputFileError(path, f"header lacks the required column; it has {header}", line=1,
                                      column=name)
-        numeric = {n: header.index(n) for n in REQUIRED + OPTIONAL_NUMERIC if n in header}
+        mag_present = [n for n in MAG_COLUMNS if n in header]
+        if mag_present and len(mag_present) < len(MAG_COLUMNS):
+            missing = [n for n in MAG_COLUMNS if n not in header]
+            raise InputFileError(path, f"header has {', '.join(mag_present)} but not {', '.join(missing)}: "
+                                 f"the magnetometer needs all three columns (microtesla) or none", line=1,
+                                 column=missing[0])
+        numeric = {n: header.index(n) for n in REQUIRED + OPTIONAL_NUMERIC + MAG_COLUMNS if n in header}
         step_idx = header.index("step") if "step" in header else None
         names = list(numeric)
         usecols = [numeric[n] for n in names]
@@ -128,6 +137,7 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
                 dtemp=cols.get("dtemp"),
                 step=step,
                 source=str(path),
+                mag=np.column_stack([cols[n] for n in MAG_COLUMNS]) if mag_present else None,
             )
 
 
@@ -149,32 +159,39 @@ def read_csv(path: str | Path) -> Capture:
         return None if getattr(chunks[0], name) is None else cat(name)
 
     return Capture(t=cat("t"), acc=cat("acc"), gyro=cat("gyro"), temp=cat_optional("temp"),
-                   dtemp=cat_optional("dtemp"), step=cat_optional("step"), source=str(path))
+                   dtemp=cat_optional("dtemp"), step=cat_optional("step"), source=str(path),
+                   mag=cat_optional("mag"))
 
 
 class CsvWriter:
     """Appends sample batches to a capture CSV; the caller owns the file handle."""
 
     def __init__(self, fh: IO[str], with_temp: bool = True, with_dtemp: bool = False,
-                 with_step: bool = False):
+                 with_step: bool = False, with_mag: bool = False):
         self.fh = fh
         self.columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
         if with_temp:
             self.columns.append("temp")
         if with_dtemp:
             self.columns.append("dtemp")
+        if with_mag:
+            self.columns.extend(MAG_COLUMNS)
         if with_step:
             self.columns.append("step")
         fh.write(",".join(self.columns) + "\n")
 
     def write(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, temp: np.ndarray | None = None,
-              dtemp: np.ndarray | None = None, step: np.ndarray | list[str] | None = None) -> None:
-        """Append rows: times (s), acc and gyro (N, 3), and the temperature, dT and step columns it has."""
+              dtemp: np.ndarray | None = None, step: np.ndarray | list[str] | None = None,
+              mag: np.ndarray | None = None) -> None:
+        """Append rows: times (s), acc and gyro (N, 3), and the temperature, dT, field (uT, N x 3; NaN
+        when None) and step columns it has."""
         numeric = [np.asarray(t, float)[:, None], np.asarray(acc), np.asarray(gyro)]
         if "temp" in self.columns:
             numeric.append(np.full((len(t), 1), np.nan) if temp is None else np.asarray(temp, float)[:, None])
         if "dtemp" in self.columns:
             numeric.append(np.zeros((len(t), 1)) if dtemp is None else np.asarray(dtemp, float)[:, None])
+        if "mx" in self.columns:
+            numeric.append(np.full((len(t), 3), np.nan) if mag is None else np.asarray(mag, float))
         block = np.hstack([np.asarray(a, dtype=float) for a in numeric])
         buf = io.StringIO()
         # 9 significant digits round-trip float32 sensor values exactly; t keeps microseconds.
@@ -192,14 +209,17 @@ def write_csv(path: str | Path, capture: Capture) -> None:
 
     with atomic_open(path, "w") as fh:
         w = CsvWriter(fh, with_temp=capture.temp is not None, with_dtemp=capture.dtemp is not None,
-                      with_step=capture.step is not None)
-        w.write(capture.t, capture.acc, capture.gyro, capture.temp, capture.dtemp, capture.step)
+                      with_step=capture.step is not None, with_mag=capture.mag is not None)
+        w.write(capture.t, capture.acc, capture.gyro, capture.temp, capture.dtemp, capture.step, capture.mag)
 
 
 class CsvCaptureWriter:
     """Streams sample batches (``protocols.base.SAMPLE_DTYPE``) into a capture CSV at ``path``.
 
     Written in place, not atomically, so a capture cut short keeps everything written so far.
+    The header waits for the first batch: a batch of ``MAG_SAMPLE_DTYPE`` (a unit with a
+    magnetometer) adds mx, my, mz; later batches without a field write NaN there, and the field
+    of a later batch is not written to a file whose header has no room for it.
     Every batch goes to the OS in whole rows; if a write fails (disk full), the file is cut back
     to the last whole batch so it stays a valid capture CSV, and :class:`OutputFileError` says how
     much was kept. ``t`` is the device clock in seconds (``t_us`` / 1e6, microsecond resolution).
@@ -209,21 +229,30 @@ class CsvCaptureWriter:
         self.path = Path(path)
         self.rows = 0
         self._text = io.StringIO()
-        self._csv = CsvWriter(self._text, with_temp=True, with_step=with_step)
+        self._with_step = with_step
+        self._csv: CsvWriter | None = None
         try:
             self._fh = open(self.path, "wb", buffering=0)
         except OSError as exc:
             raise OutputFileError(self.path, f"cannot be created: {exc.strerror}; choose another path"
                                   ) from None
         self._good_size = 0
-        self._commit()
+
+    def _writer(self, with_mag: bool) -> CsvWriter:
+        """The row writer, its header written when first asked for."""
+        if self._csv is None:
+            self._csv = CsvWriter(self._text, with_temp=True, with_step=self._with_step, with_mag=with_mag)
+        return self._csv
 
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
-        """Append a batch of ``SAMPLE_DTYPE`` samples (and their step labels) and commit them to disk."""
+        """Append a batch of ``SAMPLE_DTYPE`` or ``MAG_SAMPLE_DTYPE`` samples (and their step labels)
+        and commit them to disk."""
         if len(samples) == 0:
             return
         t = samples["t_us"] * 1e-6
-        self._csv.write(t, samples["acc"], samples["gyro"], samples["temp"], step=step)
+        mag = samples["mag"] if has_mag(samples) else None
+        self._writer(mag is not None).write(t, samples["acc"], samples["gyro"], samples["temp"], step=step,
+                                            mag=mag)
         self._commit()
         self.rows += len(samples)
 
@@ -246,9 +275,17 @@ class CsvCaptureWriter:
     def flush(self) -> None:
         """Make what was written durable (the rows already reached the OS with each batch)."""
         if not self._fh.closed:
+            self._commit_header()
             os.fsync(self._fh.fileno())
 
     def close(self, link: dict | None = None) -> None:
         """Close the file; ``link`` (link statistics) has no place in a CSV and is ignored."""
         if not self._fh.closed:
+            self._commit_header()
             self._fh.close()
+
+    def _commit_header(self) -> None:
+        """A file without rows still gets its header, so it is a valid (empty) capture CSV."""
+        if self._csv is None:
+            self._writer(False)
+            self._commit()

@@ -11,6 +11,8 @@ Layout (schema ``imu-station/capture/1``)::
     /gyro            (N, 3) float32  rad/s, raw
     /temp            (N,)   float32  degC
     /step            (N,)   uint16   index into step_labels (only when the capture has labels)
+    /mag             (N, 3) float32  uT, raw magnetic field; NaN rows carry none (only for a unit
+                                     with a magnetometer)
 
 Datasets are chunked and resizable; the writer appends batches and flushes at least once a
 second (the recorder calls :meth:`H5CaptureWriter.flush`), so a capture cut short is readable.
@@ -27,7 +29,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from protocols.base import SAMPLE_DTYPE
+from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, has_mag
 from station import __version__
 from station.acquisition.capture import Capture
 from station.errors import InputFileError, OutputFileError
@@ -42,6 +44,7 @@ _COLUMNS = {  # dataset -> (dtype, row shape, unit)
     "gyro": ("<f4", (3,), "rad/s"),
     "temp": ("<f4", (), "degC"),
 }
+_MAG_COLUMN = ("<f4", (3,), "uT")
 
 
 class H5CaptureWriter:
@@ -72,12 +75,17 @@ class H5CaptureWriter:
             columns["step"] = ("<u2", (), "")
             f.attrs["step_labels"] = json.dumps(self._labels)
         for name, (dtype, shape, unit) in columns.items():
-            ds = f.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape), dtype=dtype,
-                                  chunks=(CHUNK_ROWS, *shape))
-            if unit:
-                ds.attrs["unit"] = unit
+            self._create(name, dtype, shape, unit)
         self._datasets = {name: f[name] for name in columns}
         self._with_step = with_step
+
+    def _create(self, name: str, dtype: str, shape: tuple[int, ...], unit: str) -> h5py.Dataset:
+        ds = self._file.create_dataset(name, shape=(self.rows, *shape), maxshape=(None, *shape),
+                                       dtype=dtype, chunks=(CHUNK_ROWS, *shape),
+                                       fillvalue=np.nan if name == "mag" else None)
+        if unit:
+            ds.attrs["unit"] = unit
+        return ds
 
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
         """Append a batch of samples (and their step labels) to the capture's datasets."""
@@ -85,6 +93,11 @@ class H5CaptureWriter:
         if n == 0:
             return
         columns = {name: samples[name] for name in _COLUMNS}
+        if has_mag(samples) and "mag" not in self._datasets:
+            # The first field of the stream: rows written before it had none (NaN, the fill value).
+            self._datasets["mag"] = self._create("mag", *_MAG_COLUMN)
+        if "mag" in self._datasets:
+            columns["mag"] = samples["mag"] if has_mag(samples) else np.full((n, 3), np.nan, np.float32)
         if self._with_step:
             labels = [""] * n if step is None else step
             columns["step"] = np.array([self._code(str(lab)) for lab in labels], dtype=np.uint16)
@@ -160,7 +173,7 @@ def _open_checked(path: Path) -> h5py.File:
             if name not in f:
                 raise InputFileError(path, "lacks a required dataset", column=name)
         n = len(f["t_us"])
-        for name in (*_COLUMNS, "step"):
+        for name in (*_COLUMNS, "step", "mag"):
             if name in f and len(f[name]) != n:
                 raise InputFileError(path, f"dataset has {len(f[name])} rows, t_us has {n}", column=name)
     except BaseException:
@@ -194,13 +207,16 @@ def read_h5(path: str | Path) -> Capture:
             device=json.loads(f.attrs.get("device", "{}")),
             link=json.loads(f.attrs.get("link", "{}")),
             source=str(path),
+            mag=f["mag"][:].astype(np.float64) if "mag" in f else None,
         )
 
 
 def read_samples(path: str | Path) -> np.ndarray:
-    """The records of a capture file as ``protocols.base.SAMPLE_DTYPE``, bit-exact as received."""
+    """The records of a capture file as ``protocols.base.SAMPLE_DTYPE`` (``MAG_SAMPLE_DTYPE`` when it
+    has a ``mag`` dataset), bit-exact as received."""
     with _open_checked(Path(path)) as f:
-        out = np.zeros(len(f["t_us"]), dtype=SAMPLE_DTYPE)
-        for name in _COLUMNS:
+        names = (*_COLUMNS, "mag") if "mag" in f else tuple(_COLUMNS)
+        out = np.zeros(len(f["t_us"]), dtype=MAG_SAMPLE_DTYPE if "mag" in f else SAMPLE_DTYPE)
+        for name in names:
             out[name] = f[name][:]
     return out

@@ -225,7 +225,8 @@ class ClockGuard:
         return sample, label, written, written + self._continuous
 
     def _release(self, kept: list[_Kept], with_labels: bool) -> Released:
-        out = np.array([k[0] for k in kept], dtype=SAMPLE_DTYPE) if kept else np.zeros(0, SAMPLE_DTYPE)
+        # The samples' own dtype: a nine-axis unit's field (MAG_SAMPLE_DTYPE) goes through too.
+        out = np.array([k[0] for k in kept], dtype=kept[0][0].dtype) if kept else np.zeros(0, SAMPLE_DTYPE)
         out["t_us"] = [k[2] for k in kept]
         labels = [k[1] for k in kept] if with_labels else None
         return Released(out, labels, np.array([k[3] for k in kept], dtype=np.int64))

@@ -42,7 +42,8 @@ import numpy as np
 from drivers.errors import DriverError
 from drivers.interface import Device
 from drivers.link_stats import LinkStats
-from protocols.base import SAMPLE_DTYPE
+from protocols.base import SAMPLE_DTYPE, has_mag
+from protocols.mag_batches import join_batches
 from station.acquisition import checks
 from station.acquisition.capture import Capture
 from station.acquisition.checks import Limits
@@ -193,7 +194,7 @@ class MemorySink:
         -------
         Capture
         """
-        samples = np.concatenate([c for c, _ in self._chunks]) if self._chunks else np.zeros(0, SAMPLE_DTYPE)
+        samples = join_batches([c for c, _ in self._chunks])
         labels = np.empty(len(samples), dtype=object)
         i = 0
         for chunk, label in self._chunks:
@@ -224,7 +225,8 @@ def samples_to_capture(samples: np.ndarray, labels: np.ndarray | None = None, de
 
     Parameters
     ----------
-    samples : ndarray of SAMPLE_DTYPE
+    samples : ndarray of SAMPLE_DTYPE or MAG_SAMPLE_DTYPE
+        With ``MAG_SAMPLE_DTYPE`` the capture's ``mag`` holds the field (uT).
     labels : ndarray of str, optional
         Step label of each sample.
     device, link : dict, optional
@@ -244,6 +246,7 @@ def samples_to_capture(samples: np.ndarray, labels: np.ndarray | None = None, de
         device=dict(device or {}),
         link=dict(link or {}),
         source=source,
+        mag=samples["mag"].astype(np.float64) if has_mag(samples) else None,
     )
 
 

@@ -1,0 +1,190 @@
+"""The magnetometer on the wire and in the capture files: native IMU_MAG_SAMPLE, CSV mx/my/mz, HDF5 mag,
+the recorder over a real pty."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_drivers_serial import RawPty, make_samples
+
+from drivers import open_device
+from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, has_mag
+from protocols.crc import crc16_ccitt_false
+from protocols.mag_batches import join_batches, with_mag
+from protocols.native import (
+    IMU_MAG_SAMPLE,
+    MAG_FRAME_SIZE,
+    NativeDecoder,
+    encode_frame,
+    encode_samples,
+)
+from station.acquisition.capture import Capture, read_capture
+from station.acquisition.capture_csv import CsvCaptureWriter, write_csv
+from station.acquisition.capture_h5 import H5CaptureWriter, read_samples
+from station.acquisition.recorder import record
+from station.acquisition.runner import samples_to_capture
+from station.errors import InputFileError
+
+
+def make_mag_samples(n: int, first_seq: int = 0, seed: int = 0) -> np.ndarray:
+    """Nine-axis records: the six-axis ones of the serial tests and a field of about 50 uT."""
+    out = with_mag(make_samples(n, first_seq, seed)).copy()
+    out["mag"] = np.random.default_rng(seed + 1).normal(0, 30, (n, 3))
+    return out
+
+
+# ---------------------------------------------------------------------------------- native 0x04
+
+
+def test_mag_frame_layout_matches_spec() -> None:
+    s = make_mag_samples(1)
+    frame = encode_samples(s)
+    assert len(frame) == MAG_FRAME_SIZE == 59
+    assert frame[2] == IMU_MAG_SAMPLE and struct.unpack("<H", frame[3:5])[0] == 52
+    seq, t_us, *vals = struct.unpack("<IQ10f", frame[5:57])
+    assert seq == s["seq"][0] and t_us == s["t_us"][0]
+    assert np.allclose(vals[7:], s["mag"][0]) and np.allclose(vals[:3], s["acc"][0])
+    assert struct.unpack("<H", frame[57:])[0] == crc16_ccitt_false(frame[2:57])
+    assert encode_frame(IMU_MAG_SAMPLE, frame[5:57]) == frame
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 59, 1000])
+def test_mag_round_trip_in_any_chunking(chunk: int) -> None:
+    sent = make_mag_samples(600)
+    data = encode_samples(sent)
+    dec = NativeDecoder()
+    got = join_batches([dec.feed(data[i:i + chunk]).samples for i in range(0, len(data), chunk)])
+    assert got.dtype == MAG_SAMPLE_DTYPE and got.tobytes() == sent.tobytes()
+    assert dec.stats.samples == 600 and dec.stats.errors == 0
+
+
+def test_mag_faults_cost_only_the_damaged_frame() -> None:
+    sent = make_mag_samples(40)
+    frames = [bytearray(encode_samples(sent[i:i + 1])) for i in range(40)]
+    frames[5][20] ^= 0xFF  # bad CRC
+    frames[12] = frames[12][:30]  # cut short by the next frame
+    bad_len = bytearray(encode_frame(IMU_MAG_SAMPLE, bytes(48)))  # good CRC, wrong length
+    data = b"".join(bytes(f) for f in frames[:20]) + b"\x00garbage" + bytes(bad_len) + \
+        b"".join(bytes(f) for f in frames[20:])
+    dec = NativeDecoder()
+    got = join_batches([dec.feed(data).samples, dec.flush().samples])
+    expected = np.delete(sent, [5, 12])
+    assert got.tobytes() == expected.tobytes()
+    assert dec.stats.crc_errors == 1 and dec.stats.truncated == 1 and dec.stats.bad_payloads == 1
+
+
+def test_mixed_stream_counts_seq_alike_and_widens_six_axis_frames() -> None:
+    six = make_samples(10)
+    nine = make_mag_samples(10, first_seq=10)
+    dec = NativeDecoder()
+    first = dec.feed(encode_samples(six[:5])).samples
+    assert first.dtype == SAMPLE_DTYPE  # no field seen yet: the fast 40-byte path's records
+    rest = dec.feed(encode_samples(nine[:5]) + encode_samples(six[5:]) + encode_samples(nine[5:])).samples
+    assert rest.dtype == MAG_SAMPLE_DTYPE
+    assert list(rest["seq"]) == list(range(10, 15)) + list(range(5, 10)) + list(range(15, 20))
+    assert np.isnan(rest["mag"][5:10]).all() and np.array_equal(rest["mag"][:5], nine["mag"][:5])
+    assert dec.feed(b"").samples.dtype == MAG_SAMPLE_DTYPE  # sticky, even when empty
+
+
+def test_join_batches_widens_and_skips_empty() -> None:
+    six, nine = make_samples(3), make_mag_samples(2)
+    joined = join_batches([six, np.zeros(0, SAMPLE_DTYPE), nine])
+    assert joined.dtype == MAG_SAMPLE_DTYPE and len(joined) == 5 and np.isnan(joined["mag"][:3]).all()
+    assert join_batches([six, six]).dtype == SAMPLE_DTYPE
+    assert len(join_batches([])) == 0
+
+
+# ---------------------------------------------------------------------------------- files
+
+
+def _capture(n: int = 50) -> Capture:
+    return samples_to_capture(make_mag_samples(n), np.array(["+z"] * n, dtype=object))
+
+
+def test_csv_round_trip_keeps_the_field(tmp_path: Path) -> None:
+    cap = _capture()
+    cap.mag[3] = np.nan  # a sample without a field stays one
+    write_csv(tmp_path / "c.csv", cap)
+    header = (tmp_path / "c.csv").read_text().splitlines()[0].split(",")
+    assert header[-4:] == ["mx", "my", "mz", "step"]
+    back = read_capture(tmp_path / "c.csv")
+    assert back.mag is not None and np.allclose(back.mag, cap.mag, equal_nan=True, rtol=1e-7)
+
+
+def test_csv_without_mag_columns_has_none(tmp_path: Path) -> None:
+    cap = samples_to_capture(make_samples(20))
+    write_csv(tmp_path / "c.csv", cap)
+    assert "mx" not in (tmp_path / "c.csv").read_text().splitlines()[0]
+    assert read_capture(tmp_path / "c.csv").mag is None
+
+
+def test_csv_with_some_mag_columns_is_refused_naming_the_missing_one(tmp_path: Path) -> None:
+    path = tmp_path / "part.csv"
+    path.write_text("t,ax,ay,az,gx,gy,gz,mx,mz\n0,0,0,9.8,0,0,0,20,40\n")
+    with pytest.raises(InputFileError) as err:
+        read_capture(path)
+    message = str(err.value)
+    assert "part.csv" in message and "my" in message and "line 1" in message and "all three" in message
+
+
+def test_csv_bad_mag_value_names_line_and_column(tmp_path: Path) -> None:
+    path = tmp_path / "bad.csv"
+    path.write_text("t,ax,ay,az,gx,gy,gz,mx,my,mz\n0,0,0,9.8,0,0,0,20,1,40\n0.01,0,0,9.8,0,0,0,20,x,40\n")
+    with pytest.raises(InputFileError) as err:
+        read_capture(path)
+    assert "line 3" in str(err.value) and "my" in str(err.value)
+
+
+def test_streaming_csv_header_follows_the_first_batch(tmp_path: Path) -> None:
+    nine, six = make_mag_samples(20), make_samples(10, first_seq=20)
+    w = CsvCaptureWriter(tmp_path / "s.csv")
+    w.write(nine)
+    w.write(six)  # a batch without a field: NaN there
+    w.close()
+    back = read_capture(tmp_path / "s.csv")
+    assert back.mag is not None and np.allclose(back.mag[:20], nine["mag"], rtol=1e-7)
+    assert np.isnan(back.mag[20:]).all()
+    empty = CsvCaptureWriter(tmp_path / "e.csv")
+    empty.close()
+    assert (tmp_path / "e.csv").read_text().startswith("t,ax,ay,az,gx,gy,gz,temp\n")
+
+
+def test_h5_mag_dataset_round_trip_and_late_field(tmp_path: Path) -> None:
+    six, nine = make_samples(10), make_mag_samples(30, first_seq=10)
+    w = H5CaptureWriter(tmp_path / "c.h5")
+    w.write(six)  # before the field appears: filled with NaN when the dataset is made
+    w.write(nine)
+    w.close()
+    back = read_capture(tmp_path / "c.h5")
+    assert back.mag is not None and back.mag.shape == (40, 3)
+    assert np.isnan(back.mag[:10]).all() and np.array_equal(back.mag[10:], nine["mag"].astype(float))
+    raw = read_samples(tmp_path / "c.h5")
+    assert has_mag(raw) and raw[10:].tobytes() == nine.tobytes()
+    w6 = H5CaptureWriter(tmp_path / "six.h5")
+    w6.write(six)
+    w6.close()
+    assert read_capture(tmp_path / "six.h5").mag is None and not has_mag(read_samples(tmp_path / "six.h5"))
+
+
+# ---------------------------------------------------------------------------------- recorder over a pty
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".h5"])
+def test_recorder_over_a_pty_keeps_the_field(tmp_path: Path, suffix: str) -> None:
+    sent = make_mag_samples(1500)
+    sent["mag"][100] = np.nan
+    pty = RawPty()
+    try:
+        with open_device(pty.path) as dev:
+            pty.write(encode_samples(sent))
+            result = record(dev, tmp_path / f"cap{suffix}", duration_s=1.0, handle_sigint=False)
+    finally:
+        pty.close()
+    back = read_capture(result.path)
+    assert result.rows == len(back) >= 990
+    assert back.mag is not None
+    n = len(back)
+    assert np.allclose(back.mag, sent["mag"][:n].astype(float), equal_nan=True, rtol=1e-7)
