@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from station.engines.calibration_common import (
     CalibrationReport,
@@ -52,6 +51,7 @@ from station.engines.calibration_free_gyro import (
     gyro_blocks,
 )
 from station.engines.earth import STANDARD_GRAVITY
+from station.engines.levenberg_marquardt import LsqResult
 from station.engines.samples import as_samples, check_rate
 from station.engines.sensor_model import SensorCalibration
 from station.engines.static_detect import moving_variance_norm, static_intervals, variance_norm
@@ -570,7 +570,7 @@ def gyro_bias_sd(data: FreeCapture, settings: FreeSettings, still: StillPeriod,
 class GyroStage:
     """The gyroscope's fit of eq. (15) and its covariance."""
 
-    solution: OptimizeResult    # scipy's, ``x`` = C row-major
+    solution: LsqResult    # ``x`` = C row-major
     blocks: GyroBlocks
     correction: np.ndarray      # C (3, 3)
     bias: np.ndarray

@@ -24,7 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+
+from station.engines.levenberg_marquardt import least_squares_lm
 
 _MIS_INDEX = {
     "upper": [(0, 1, -1.0), (0, 2, 1.0), (1, 2, -1.0)],   # m_yz, m_zy, m_zx (imu_tk)
@@ -167,8 +168,8 @@ def fit_accelerometer(x: np.ndarray, g: float, convention: str, cost: str = "mea
     AccFit
     """
     p0 = acc_initial_guess(x, g) if start is None else np.asarray(start, float)
-    sol = least_squares(acc_residual, p0, jac=acc_jacobian, args=(x, g, convention), method="lm",
-                        x_scale="jac", ftol=1e-14, xtol=1e-14, gtol=1e-14, max_nfev=2000)
+    sol = least_squares_lm(acc_residual, p0, acc_jacobian, args=(x, g, convention), ftol=1e-14, xtol=1e-14,
+                           gtol=1e-14, max_nfev=2000)
     r = sol.fun
     value = float(np.mean(r**2)) if cost == "mean" else float(0.5 * r @ r)
     return AccFit(sol.x, value, r, acc_jacobian(sol.x, x, g, convention), 0)

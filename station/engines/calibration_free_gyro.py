@@ -17,10 +17,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import OptimizeResult, least_squares
 
 from station.engines import quaternion as quat
 from station.engines.calibration_free_accel import acc_correction
+from station.engines.levenberg_marquardt import LsqResult, least_squares_lm
 
 GYRO_PARAM_NAMES = [f"C_{i}{j}" for i in "xyz" for j in "xyz"]
 
@@ -348,7 +348,7 @@ def bias_covariance(model: GyroModel, cflat: np.ndarray, jac: np.ndarray,
 GYRO_CONVERGED_RMS = 0.05
 
 
-def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None) -> OptimizeResult:
+def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None) -> LsqResult:
     """Levenberg-Marquardt on eq. (15) with its analytic Jacobian.
 
     Should the data-driven start lead to a poor minimum, every sign pattern of the start's
@@ -363,15 +363,15 @@ def fit_gyroscope(blocks: GyroBlocks, start: np.ndarray | None = None) -> Optimi
 
     Returns
     -------
-    scipy.optimize.OptimizeResult
+    LsqResult
         ``x`` is C (row-major), ``fun`` the residuals of eq. (15).
     """
     c0 = gyro_initial_guess(blocks) if start is None else np.asarray(start, float).ravel()
     model = GyroModel(blocks)
 
-    def solve(c: np.ndarray) -> OptimizeResult:
-        return least_squares(model.residual, c, jac=model.jacobian, method="lm",
-                             x_scale="jac", ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=200)
+    def solve(c: np.ndarray) -> LsqResult:
+        return least_squares_lm(model.residual, c, model.jacobian, ftol=1e-9, xtol=1e-9, gtol=1e-10,
+                                max_nfev=200)
 
     best = solve(c0)
     if start is None and np.sqrt(np.mean(best.fun**2)) > GYRO_CONVERGED_RMS:
