@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from export_params import make_params
+from scipy.spatial.transform import Rotation as Rot
 
 from mocks.rig import Move, Rotation, Static, ramp, simulate
 from mocks.truth import SensorTruth, ThermalTruth, UnitTruth
+from protocols.units import STANDARD_GRAVITY
 from station import cli
+from station.acquisition.capture import Capture
 from station.acquisition.capture_csv import read_csv, write_csv
 from station.commands.apply import apply_params
 from station.engines.sensor_model import SensorCalibration
@@ -121,3 +125,60 @@ def test_apply_refuses_a_missing_or_foreign_parameter_file(recording, tmp_path, 
     assert cli.main(["apply", str(foreign), str(raw), "-o", str(tmp_path / "o.csv")]) == 4
     assert "schema is 'something/else'" in capsys.readouterr().err
     assert not (tmp_path / "o.csv").exists()
+
+
+def _nine_axis_capture(n: int, seed: int) -> tuple[Capture, dict[str, np.ndarray]]:
+    """Raw samples from the forward models of the spec: raw_a = M_a f + b_a, raw_g = M_g w + b_g + G f,
+    raw_m = M_m h + b_m, with f, w, h the true specific force, rate and field (accelerometer axes)."""
+    rng = np.random.default_rng(seed)
+    f = Rot.random(n, random_state=seed).apply([0.0, 0.0, STANDARD_GRAVITY]) + rng.normal(0, 0.5, (n, 3))
+    w = rng.normal(0.0, 1.0, (n, 3))
+    h = Rot.random(n, random_state=seed + 1).apply([0.0, 20.0, -44.0])
+    truth = {"f": f, "w": w, "h": h}
+    params = make_params(seed=seed, thermal=False, mag="accel", g_sensitivity=True)
+    g_matrix = np.asarray(params.gyro.extra["g_sensitivity"])
+    mag = params.other["mag"]
+    raw = Capture(t=np.arange(n) / 100.0, acc=params.accel.forward(f),
+                  gyro=params.gyro.forward(w) + f @ g_matrix.T,
+                  mag=h @ np.asarray(mag["matrix"]).T + np.asarray(mag["bias"]))
+    return raw, truth | {"params": params}
+
+
+def test_apply_corrects_the_field_and_removes_g_sensitivity(tmp_path, capsys) -> None:
+    raw, truth = _nine_axis_capture(2000, seed=31)
+    params_path, raw_path, out = tmp_path / "unit.yaml", tmp_path / "raw.csv", tmp_path / "corrected.csv"
+    truth["params"].save(params_path)
+    write_csv(raw_path, raw)
+    assert cli.main(["apply", str(params_path), str(raw_path), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "g-sensitivity: removed at the corrected specific force" in text
+    assert "mag: soft and hard iron, field in accel axes" in text
+    assert out.read_text().splitlines()[0].split(",")[7:10] == ["mx", "my", "mz"]
+    corrected = read_csv(out)
+    # The CSV keeps 9 significant digits: the truth comes back to that.
+    np.testing.assert_allclose(corrected.acc, truth["f"], atol=1e-6)
+    np.testing.assert_allclose(corrected.gyro, truth["w"], atol=1e-7)
+    np.testing.assert_allclose(corrected.mag, truth["h"], atol=1e-5)
+    # By hand, the spec's equations: true = correction @ (raw - bias) with the file's own correction.
+    mag = truth["params"].other["mag"]
+    written = read_csv(raw_path)
+    np.testing.assert_allclose(corrected.mag, (written.mag - mag["bias"]) @ np.asarray(mag["correction"]).T,
+                               rtol=1e-7, atol=1e-6)
+    # Without the g-sensitivity the gyro is off by G f (~1e-3 rad/s at 1 g): the term is really there.
+    plain = ParamsFile.load(params_path)
+    del plain.gyro.extra["g_sensitivity"]
+    uncompensated, how = apply_params(plain, written)
+    assert how["g-sensitivity"] == "absent"
+    assert np.abs(uncompensated.gyro - truth["w"]).max() > 1e-4
+
+
+def test_apply_without_a_field_or_without_a_mag_section(tmp_path) -> None:
+    raw, truth = _nine_axis_capture(50, seed=32)
+    params = truth["params"]
+    six_axis = Capture(t=raw.t, acc=raw.acc, gyro=raw.gyro)
+    corrected, how = apply_params(params, six_axis)
+    assert how["mag"] == "not applied: the input has no mx, my, mz columns" and corrected.mag is None
+    del params.other["mag"]
+    corrected, how = apply_params(params, raw)
+    assert how["mag"] == "absent (the input's field is copied)"
+    assert np.array_equal(corrected.mag, raw.mag)

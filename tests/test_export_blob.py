@@ -1,11 +1,13 @@
-"""The parameter blob: its documented layout byte by byte, a lossless round trip to float32, and
-refusal of damaged or impossible content with a message that says what is wrong."""
+"""The parameter blob: its documented layout byte by byte, a lossless round trip to float32, the
+version 1 blobs of tests/data/blob-v1 still read, and refusal of damaged or impossible content with
+a message that says what is wrong."""
 
 from __future__ import annotations
 
 import datetime as dt
 import struct
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,14 +17,16 @@ from station.engines.thermal_model import ThermalSegment
 from station.export import blob as blobfmt
 from station.export.params_file import ParamsFile
 
+V1_BLOBS = Path(__file__).parent / "data" / "blob-v1"
+
 
 def test_layout_matches_the_documented_table() -> None:
-    params = make_params(seed=1)
+    params = make_params(seed=1, mag="accel", g_sensitivity=True)
     data = blobfmt.build_blob(params, "bench-7", 1_795_000_123)
     assert data[0:4] == b"IMUC"
     version, header_size, total, schema, flags = struct.unpack_from("<HHIHH", data, 4)
-    assert (version, header_size, total, schema) == (1, 96, len(data), 1)
-    assert flags == 0b1111
+    assert (version, header_size, total, schema) == (2, 96, len(data), 1)
+    assert flags == 0b111111
     created, exported = struct.unpack_from("<qq", data, 16)
     assert created == int(dt.datetime(2026, 11, 22, 10, tzinfo=dt.UTC).timestamp())
     assert exported == 1_795_000_123
@@ -40,13 +44,24 @@ def test_layout_matches_the_documented_table() -> None:
     seg0 = struct.unpack_from("<23f", data, 104 + 96 + 12)
     assert seg0[:2] == (-10.0, 13.5)
     assert np.array_equal(np.array(seg0[2:]), np.float32(params.thermal.accel.segments[0].coeffs).ravel())
-    assert len(data) == 96 + 8 + 2 * 48 + 2 * (12 + 3 * 92) + 4
+    mag_at = 104 + 96 + 2 * (12 + 3 * 92)
+    mag = params.other["mag"]
+    assert np.array_equal(struct.unpack_from("<9f", data, mag_at), np.float32(mag["correction"]).ravel())
+    assert np.array_equal(struct.unpack_from("<3f", data, mag_at + 36), np.float32(mag["bias"]))
+    assert np.array_equal(struct.unpack_from("<9f", data, mag_at + 48),
+                          np.float32(params.gyro.extra["g_sensitivity"]).ravel())
+    assert len(data) == 96 + 8 + 2 * 48 + 2 * (12 + 3 * 92) + 48 + 36 + 4
 
 
 def test_round_trip_to_float32() -> None:
-    params = make_params(seed=2)
+    params = make_params(seed=2, mag="accel", g_sensitivity=True)
     back = blobfmt.parse_blob(blobfmt.build_blob(params, "st", 0))
-    assert back.serial == "SN-0042" and back.station_id == "st" and back.flags == 15
+    assert back.serial == "SN-0042" and back.station_id == "st" and back.flags == 63
+    assert back.format_version == 2
+    mag = params.other["mag"]
+    assert np.allclose(back.mag.correction, mag["correction"], rtol=1e-6, atol=1e-7)
+    assert np.allclose(back.mag.bias, mag["bias"], rtol=1e-7)
+    assert np.allclose(back.g_sensitivity, params.gyro.extra["g_sensitivity"], rtol=1e-7, atol=0)
     assert np.allclose(back.accel.correction, params.accel.correction, rtol=1e-6, atol=1e-7)
     assert np.allclose(back.gyro.bias, params.gyro.bias, rtol=1e-7)
     temp = np.linspace(-20, 70, 50)
@@ -59,9 +74,44 @@ def test_round_trip_to_float32() -> None:
 
 def test_sections_absent_become_identity_and_zero_segments() -> None:
     params = make_params(seed=3, gyro=False, thermal=False)
-    back = blobfmt.parse_blob(blobfmt.build_blob(params, "st", 0))
+    data = blobfmt.build_blob(params, "st", 0)
+    back = blobfmt.parse_blob(data)
     assert back.flags == blobfmt.FLAG_ACCEL and back.thermal is None
+    assert back.mag is None and back.g_sensitivity is None
     assert np.array_equal(back.gyro.matrix, np.eye(3)) and np.array_equal(back.gyro.bias, np.zeros(3))
+    tail = struct.unpack_from("<21f", data, len(data) - 4 - 84)
+    assert tail == (1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, *[0] * 9)  # identity mag, zero G
+
+
+def test_a_mag_section_alone_is_a_blob() -> None:
+    params = make_params(seed=4, accel=False, gyro=False, thermal=False, mag="sensor", noise=True)
+    back = blobfmt.parse_blob(blobfmt.build_blob(params, "st", 0))
+    assert back.flags == blobfmt.FLAG_MAG and back.thermal is None and back.g_sensitivity is None
+    assert np.allclose(back.mag.matrix, params.other["mag"]["matrix"], rtol=1e-6, atol=1e-7)
+    for cal in (back.accel, back.gyro):
+        assert np.array_equal(cal.matrix, np.eye(3)) and np.array_equal(cal.bias, np.zeros(3))
+
+
+@pytest.mark.parametrize(("name", "seed", "sections"), [
+    ("imu_calib_v1_seed7.bin", 7, {}),
+    ("imu_calib_v1_seed8_accel.bin", 8, {"gyro": False, "thermal": False}),
+])
+def test_version_1_blobs_still_read(name: str, seed: int, sections: dict) -> None:
+    """Blobs written by the station before format version 2 (tests/data/blob-v1/README.md)."""
+    data = (V1_BLOBS / name).read_bytes()
+    assert struct.unpack_from("<H", data, 4)[0] == 1
+    back = blobfmt.parse_blob(data)
+    params = make_params(seed=seed, **sections)
+    assert back.format_version == 1 and back.mag is None and back.g_sensitivity is None
+    assert back.flags == blobfmt.flags_of(params) and back.station_id == "v1-fixture"
+    assert np.allclose(back.accel.correction, params.accel.correction, rtol=1e-6, atol=1e-7)
+    assert np.array_equal(back.accel.bias, np.float32(params.accel.bias))
+    if params.thermal is not None:
+        temp, dtemp = np.linspace(-20, 70, 40), np.linspace(-1, 1, 40)
+        for triad in ("accel", "gyro"):
+            ours = getattr(params.thermal, triad).evaluate(temp, dtemp, 25.0)
+            assert np.allclose(getattr(back.thermal, triad).evaluate(temp, dtemp, back.reference_temp), ours,
+                               rtol=1e-6, atol=1e-9)
 
 
 def test_long_strings_cut_on_a_character_boundary() -> None:
@@ -86,6 +136,9 @@ def test_damage_refused_with_a_reason(damage, message: str) -> None:
 def test_impossible_parameter_files_refused() -> None:
     with pytest.raises(blobfmt.BlobError, match="nothing to export"):
         blobfmt.build_blob(ParamsFile(), "st", 0)
+    noise_only = make_params(seed=6, accel=False, gyro=False, thermal=False, noise=True)
+    with pytest.raises(blobfmt.BlobError, match="no accel, gyro, thermal or mag section: nothing to export"):
+        blobfmt.build_blob(noise_only, "st", 0)
     params = make_params(seed=6)
     segs = params.thermal.accel.segments
     segs[0], segs[1] = segs[1], segs[0]

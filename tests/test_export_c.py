@@ -1,9 +1,11 @@
 """The exported C, compiled with gcc and g++ and linked with an independent harness
-(tests/test_export_harness.c), against ``apply_calibration`` and ``estimate_dtemp``.
+(tests/test_export_harness.c), against ``apply_calibration``, ``apply_mag`` and ``estimate_dtemp``
+(what ``imu-station apply`` computes), on blobs of this version and on the version 1 blobs of
+tests/data/blob-v1.
 
 Tolerances: corrected samples agree with the float64 reference within 2e-6 relative to the
-sample's magnitude (max(1, |raw|, |ref|) per row): float32 parameters and arithmetic give about
-2.5e-7 (a few float32 ulps). The dT filter (float32 state) agrees within 2e-4 of the largest
+sample's magnitude (max(1, |raw|, |ref|) per row and sensor): float32 parameters and arithmetic give
+about 2.5e-7 (a few float32 ulps). The dT filter (float32 state) agrees within 2e-4 of the largest
 |dT| (measured 6e-5).
 """
 
@@ -20,12 +22,14 @@ import pytest
 from export_params import BREAKS, make_params
 
 from protocols.crc import crc32
-from station.engines.correction import apply_calibration
+from station.engines.correction import apply_calibration, apply_mag
 from station.engines.thermal_model import estimate_dtemp
 from station.export import blob as blobfmt
 from station.export.c_export import c_comment_text, c_string_literal, write_c_export
+from station.export.sections import g_sensitivity, mag_calibration
 
 HARNESS = Path(__file__).with_name("test_export_harness.c")
+V1_BLOBS = Path(__file__).parent / "data" / "blob-v1"
 EXPORTED_UTC = 1_795_000_000
 CC = ["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
 CXX = ["g++", "-std=c++11", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2", "-x", "c++"]
@@ -59,20 +63,23 @@ def build(out: Path, variant: str) -> Path:
 @pytest.fixture(scope="module")
 def unit(tmp_path_factory: pytest.TempPathFactory) -> dict:
     out = tmp_path_factory.mktemp("c_export")
-    params = make_params(seed=3)
+    params = make_params(seed=3, mag="accel", g_sensitivity=True)
     write_c_export(params, out, "bench-7", EXPORTED_UTC)
     return {"dir": out, "params": params, "exe": {v: build(out, v) for v in ("c", "cxx", "mixed")}}
 
 
 def random_inputs(n: int, seed: int) -> np.ndarray:
-    """float32 rows (temp, dtemp, acc xyz, gyro xyz): in range, outside it, on segment boundaries,
-    beyond the dT clamp, and with unknown (NaN, inf) temperature or rate."""
+    """float32 rows (temp, dtemp, acc xyz, gyro xyz, mag xyz): in range, outside it, on segment
+    boundaries, beyond the dT clamp, with unknown (NaN, inf) temperature or rate, and a few samples
+    without a field (NaN)."""
     rng = np.random.default_rng(seed)
-    rows = np.zeros((n, 8), dtype=np.float32)
+    rows = np.zeros((n, 11), dtype=np.float32)
     rows[:, 0] = rng.uniform(-30.0, 80.0, n)
     rows[:, 1] = rng.uniform(-2.0, 2.0, n)
     rows[:, 2:5] = rng.normal(0.0, 6.0, (n, 3))
     rows[:, 5:8] = rng.normal(0.0, 2.0, (n, 3))
+    rows[:, 8:11] = rng.normal(0.0, 40.0, (n, 3))
+    rows[50:53, 8:11] = np.nan
     rows[: len(BREAKS), 0] = BREAKS
     rows[10:20, 0] = np.nan
     rows[20:25, 0] = np.inf
@@ -83,22 +90,31 @@ def random_inputs(n: int, seed: int) -> np.ndarray:
 
 
 def reference(params, rows: np.ndarray) -> np.ndarray:
+    """What ``imu-station apply`` computes (``apply_params``: every section, g-sensitivity, mag)."""
     r = rows.astype(np.float64)
     acc, gyro = apply_calibration(r[:, 2:5], r[:, 5:8], r[:, 0], r[:, 1], params.accel, params.gyro,
-                                  params.thermal)
-    return np.hstack([acc, gyro])
+                                  params.thermal, g_sensitivity(params))
+    return np.hstack([acc, gyro, apply_mag(r[:, 8:11], mag_calibration(params))])
 
 
 def c_apply(exe: Path, blob: Path, rows: np.ndarray, work: Path) -> tuple[np.ndarray, str]:
     src, dst = work / "in.f32", work / "out.f32"
     rows.astype("<f4").tofile(src)
     stdout = run([str(exe), "apply", str(blob), str(src), str(dst)], work)
-    return np.fromfile(dst, dtype="<f4").reshape(-1, 6).astype(np.float64), stdout
+    return np.fromfile(dst, dtype="<f4").reshape(-1, 9).astype(np.float64), stdout
 
 
 def relative_error(got: np.ndarray, ref: np.ndarray, rows: np.ndarray) -> float:
-    scale = np.maximum(1.0, np.maximum(np.abs(ref).max(axis=1), np.abs(rows[:, 2:]).max(axis=1)))
-    return float(np.max(np.abs(got - ref).max(axis=1) / scale))
+    """The largest error per sensor relative to max(1, |raw|, |ref|) of that row and sensor; a
+    sample unknown (NaN) on one side must be unknown on the other."""
+    assert np.array_equal(np.isnan(got), np.isnan(ref))
+    worst = 0.0
+    for k in range(got.shape[1] // 3):
+        out, raw = slice(3 * k, 3 * k + 3), slice(2 + 3 * k, 5 + 3 * k)
+        scale = np.maximum(1.0, np.maximum(np.abs(ref[:, out]).max(axis=1), np.abs(rows[:, raw]).max(axis=1)))
+        err = np.abs(got[:, out] - ref[:, out]).max(axis=1) / scale
+        worst = max(worst, float(np.nanmax(err)))
+    return worst
 
 
 @pytest.mark.parametrize("variant", ["c", "cxx", "mixed"])
@@ -107,14 +123,21 @@ def test_apply_agrees_with_station_apply(unit: dict, variant: str, tmp_path: Pat
     got, stdout = c_apply(unit["exe"][variant], unit["dir"] / "imu_calib.bin", rows, tmp_path)
     assert "unit_equal 1" in stdout, "the header's const initializer differs from the blob"
     assert "unit_same_output 1" in stdout
+    assert f"flags {0b111111}" in stdout
     ref = reference(unit["params"], rows)
-    assert np.all(np.isfinite(got))
+    assert np.all(np.isfinite(got[:, :6])) and np.isnan(got[50:53, 6:]).all()
     assert relative_error(got, ref, rows) < 2e-6
-    # The thermal term really is in play: without it the answers differ far beyond the tolerance.
+    # Thermal, g-sensitivity and mag terms really are in play: without each the answers differ far
+    # beyond the tolerance.
     p = unit["params"]
     r = rows.astype(np.float64)
-    no_thermal = np.hstack(apply_calibration(r[:, 2:5], r[:, 5:8], None, None, p.accel, p.gyro, None))
+    no_thermal = np.hstack([*apply_calibration(r[:, 2:5], r[:, 5:8], None, None, p.accel, p.gyro, None,
+                                               g_sensitivity(p)), ref[:, 6:]])
     assert relative_error(no_thermal, ref, rows) > 1e-3
+    no_g = np.hstack([*apply_calibration(r[:, 2:5], r[:, 5:8], r[:, 0], r[:, 1], p.accel, p.gyro, p.thermal),
+                      ref[:, 6:]])
+    assert relative_error(no_g, ref, rows) > 2e-5
+    assert relative_error(np.hstack([ref[:, :6], r[:, 8:11]]), ref, rows) > 1e-2
 
 
 @pytest.mark.parametrize("sections", [
@@ -123,6 +146,9 @@ def test_apply_agrees_with_station_apply(unit: dict, variant: str, tmp_path: Pat
     {"accel": False, "thermal": True},
     {"breaks": (0.0, 50.0), "dtemp_terms": False},
     {"breaks": tuple(np.linspace(-20.0, 60.0, 9)), "dtemp_terms": True},
+    {"accel": False, "gyro": False, "thermal": False, "mag": "sensor"},
+    {"thermal": False, "mag": "accel", "g_sensitivity": True},
+    {"accel": False, "thermal": False, "g_sensitivity": True},
 ])
 def test_apply_with_other_sections(sections: dict, tmp_path: Path) -> None:
     params = make_params(seed=5, **sections)
@@ -131,7 +157,30 @@ def test_apply_with_other_sections(sections: dict, tmp_path: Path) -> None:
     rows = random_inputs(600, seed=12)
     got, stdout = c_apply(exe, tmp_path / "imu_calib.bin", rows, tmp_path)
     assert "unit_equal 1" in stdout
+    assert f"flags {blobfmt.flags_of(params)}" in stdout
     assert relative_error(got, reference(params, rows), rows) < 2e-6
+    if "mag" not in sections:
+        # No mag section: imu_calib_apply_mag hands the raw field back bit for bit.
+        assert np.array_equal(got[:, 6:].astype(np.float32), rows[:, 8:11], equal_nan=True)
+
+
+@pytest.mark.parametrize(("name", "seed", "sections"), [
+    ("imu_calib_v1_seed7.bin", 7, {}),
+    ("imu_calib_v1_seed8_accel.bin", 8, {"gyro": False, "thermal": False}),
+])
+def test_version_1_blobs_load_and_apply(unit: dict, name: str, seed: int, sections: dict,
+                                        tmp_path: Path) -> None:
+    """The loader of this version reads the blobs written before the mag section existed
+    (tests/data/blob-v1) and corrects as the station does with the same parameters."""
+    blob = V1_BLOBS / name
+    for variant in ("c", "cxx"):
+        assert run([str(unit["exe"][variant]), "load", str(blob)], tmp_path).split() == ["0", "0"]
+    rows = random_inputs(600, seed=13)
+    got, stdout = c_apply(unit["exe"]["c"], blob, rows, tmp_path)
+    params = make_params(seed=seed, **sections)
+    assert f"flags {blobfmt.flags_of(params)}" in stdout
+    assert relative_error(got, reference(params, rows), rows) < 2e-6
+    assert np.array_equal(got[:, 6:].astype(np.float32), rows[:, 8:11], equal_nan=True)
 
 
 def test_dtemp_filter_matches_station(unit: dict, tmp_path: Path) -> None:
@@ -169,12 +218,19 @@ def blob_with(blob: bytes, offset: int, data: bytes, fix_crc: bool) -> bytes:
 def test_damaged_blobs_rejected_with_distinct_codes(unit: dict, tmp_path: Path) -> None:
     good = (unit["dir"] / "imu_calib.bin").read_bytes()
     first_segment = blobfmt.HEADER_SIZE + 8 + 2 * blobfmt.TRIAD_SIZE + blobfmt.THERMAL_HEAD_SIZE
+    v1_accel = (V1_BLOBS / "imu_calib_v1_seed8_accel.bin").read_bytes()
     nine = blobfmt.build_blob(make_params(seed=1, breaks=tuple(np.linspace(-10.0, 60.0, 10))), "st", 0)
     cases = {
         "good": (good, 0),
         "magic": (b"IMUX" + good[4:], -1),
-        "version": (blob_with(good, 4, struct.pack("<H", 2), fix_crc=True), -2),
-        "version_crc_untouched": (blob_with(good, 4, struct.pack("<H", 2), fix_crc=False), -2),
+        "version": (blob_with(good, 4, struct.pack("<H", 3), fix_crc=True), -2),
+        "version_crc_untouched": (blob_with(good, 4, struct.pack("<H", 3), fix_crc=False), -2),
+        "version_0": (blob_with(good, 4, struct.pack("<H", 0), fix_crc=True), -2),
+        "version_2_called_1": (blob_with(good, 4, struct.pack("<H", 1), fix_crc=True), -6),
+        "singular_mag": (blob_with(good, len(good) - 4 - 84, bytes(36), fix_crc=True), -6),
+        "nan_g_sensitivity": (blob_with(good, len(good) - 8, struct.pack("<f", np.nan), fix_crc=True), -6),
+        "version_1_fixture": ((V1_BLOBS / "imu_calib_v1_seed7.bin").read_bytes(), 0),
+        "version_1_truncated": (v1_accel[:-1], -3),
         "truncated": (good[:-1], -3),
         "header_only": (good[:blobfmt.HEADER_SIZE], -3),
         "tiny": (good[:5], -3),

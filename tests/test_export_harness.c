@@ -2,10 +2,11 @@
  *
  *   harness load BLOB...          prints "<rc> <untouched>" per blob: imu_calib_load's result and
  *                                 whether *out kept its prior bytes
- *   harness apply BLOB IN OUT     IN: float32 rows (temp, dtemp, acc xyz, gyro xyz); OUT: float32
- *                                 rows (acc xyz, gyro xyz) from the blob; prints "unit_equal <0|1>"
- *                                 (the header's linked-in parameters equal the blob's) and
- *                                 "unit_same_output <0|1>"
+ *   harness apply BLOB IN OUT     IN: float32 rows (temp, dtemp, acc xyz, gyro xyz, mag xyz); OUT:
+ *                                 float32 rows (acc xyz, gyro xyz, mag xyz) from the blob
+ *                                 (imu_calib_apply, imu_calib_apply_mag); prints "unit_equal <0|1>"
+ *                                 (the header's linked-in parameters equal the blob's),
+ *                                 "unit_same_output <0|1>" and "flags <n>"
  *   harness dtemp BLOB IN OUT     IN: float32 rows (dt, temp); OUT: float32 dT per row
  *   harness stream BLOB IN OUT    IN: float32 rows (dt, temp, acc xyz, gyro xyz): dT from the
  *                                 firmware filter, then apply, as a firmware loop would; OUT as apply
@@ -69,7 +70,9 @@ static int same_params(const imu_calib_t *a, const imu_calib_t *b)
         && memcmp(&a->accel, &b->accel, sizeof a->accel) == 0
         && memcmp(&a->gyro, &b->gyro, sizeof a->gyro) == 0
         && same_thermal(&a->accel_thermal, &b->accel_thermal)
-        && same_thermal(&a->gyro_thermal, &b->gyro_thermal);
+        && same_thermal(&a->gyro_thermal, &b->gyro_thermal)
+        && memcmp(&a->mag, &b->mag, sizeof a->mag) == 0
+        && memcmp(a->g_sensitivity, b->g_sensitivity, sizeof a->g_sensitivity) == 0;
 }
 
 static void load_or_die(const char *path, imu_calib_t *p)
@@ -117,23 +120,26 @@ int main(int argc, char **argv)
         int same = 1;
         load_or_die(argv[2], &p);
         printf("unit_equal %d\n", same_params(&p, &imu_calib_unit));
+        printf("flags %u\n", (unsigned)p.flags);
         in = (float *)(void *)read_all(argv[3], &len);
-        n = len / (8u * sizeof(float));
-        out = (float *)malloc(6u * n * sizeof(float) + 1u);
-        out_unit = (float *)malloc(6u * n * sizeof(float) + 1u);
+        n = len / (11u * sizeof(float));
+        out = (float *)malloc(9u * n * sizeof(float) + 1u);
+        out_unit = (float *)malloc(9u * n * sizeof(float) + 1u);
         for (i = 0; i < n; ++i) {
-            const float *row = in + 8u * i;
-            imu_calib_apply(&p, row[0], row[1], row + 2, row + 5, out + 6u * i, out + 6u * i + 3u);
-            imu_calib_apply(&imu_calib_unit, row[0], row[1], row + 2, row + 5, out_unit + 6u * i,
-                            out_unit + 6u * i + 3u);
+            const float *row = in + 11u * i;
+            float *o = out + 9u * i, *u = out_unit + 9u * i;
+            imu_calib_apply(&p, row[0], row[1], row + 2, row + 5, o, o + 3);
+            imu_calib_apply_mag(&p, row + 8, o + 6);
+            imu_calib_apply(&imu_calib_unit, row[0], row[1], row + 2, row + 5, u, u + 3);
+            imu_calib_apply_mag(&imu_calib_unit, row + 8, u + 6);
         }
-        for (i = 0; i < 6u * n; ++i) {
+        for (i = 0; i < 9u * n; ++i) {
             if (memcmp(&out[i], &out_unit[i], sizeof(float)) != 0) {
                 same = 0;
             }
         }
         printf("unit_same_output %d\n", same);
-        write_all(argv[4], out, 6u * n);
+        write_all(argv[4], out, 9u * n);
         return 0;
     }
     if (argc == 5 && strcmp(argv[1], "dtemp") == 0) {

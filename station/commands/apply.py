@@ -15,17 +15,22 @@ if TYPE_CHECKING:
     from station.export.params_file import ParamsFile
 
 NAME = "apply"
-HELP = "apply a parameter file (matrix, bias, thermal) to every sample of a capture"
+HELP = "apply a parameter file (matrix, bias, thermal, g-sensitivity, mag) to every sample of a capture"
 DESCRIPTION = """\
 Correct every sample of INPUT with every section of PARAMS that is present, the way the firmware
 export computes it:
 
-    acc  = M_a^-1 (raw_a - b_a - B_a(T, dT))        gyro = M_g^-1 (raw_g - b_g - B_g(T, dT))
+    acc  = M_a^-1 (raw_a - b_a - B_a(T, dT))
+    gyro = M_g^-1 (raw_g - b_g - B_g(T, dT) - G acc)
+    mag  = M_m^-1 (raw_m - b_m)
 
 B is the thermal bias of the 'thermal' section (zero without one, or where the temperature is
 unknown). dT is the input's 'dtemp' column when it has one, else it is estimated from 'temp' with the
-dT filter stored in the thermal section. The output is a capture CSV with the input's columns
-(t, ax..gz, temp, dtemp, step as present), written atomically.
+dT filter stored in the thermal section. G is the gyro's g-sensitivity (rad/s per m/s^2; zero
+without one), at the corrected specific force acc. M_m and b_m are the 'mag' section's soft and
+hard iron (microtesla; the field comes out in the axes the section's 'frame' names). The output is
+a capture CSV with the input's columns (t, ax..gz, temp, dtemp, mx..mz, step as present), written
+atomically.
 
 exit codes: 0 done, 4 unusable parameter file or input."""
 EPILOG = """\
@@ -57,16 +62,20 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
     Capture
         The corrected capture, with the input's columns.
     dict of str to str
-        Per section (accel, gyro, thermal), how it was applied.
+        Per section (accel, gyro, g-sensitivity, thermal, mag), how it was applied.
     """
     from station.acquisition.capture import Capture
-    from station.engines.correction import apply_calibration
+    from station.engines.correction import apply_calibration, apply_mag
     from station.engines.thermal_model import estimate_dtemp
+    from station.export.sections import g_sensitivity, mag_calibration
 
     dtemp = capture.dtemp
+    g_matrix = g_sensitivity(params)
+    mag_cal = mag_calibration(params)
     how = {
         "accel": "matrix and bias" if params.accel else "absent (identity)",
         "gyro": "matrix and bias" if params.gyro else "absent (identity)",
+        "g-sensitivity": "removed at the corrected specific force" if g_matrix is not None else "absent",
     }
     if params.thermal is None:
         how["thermal"] = "absent"
@@ -78,10 +87,17 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
         dtemp = estimate_dtemp(capture.t, capture.temp, params.thermal.dtemp_filter)
         filt = params.thermal.dtemp_filter
         how["thermal"] = f"applied with dT estimated by the file's filter ({filt.kind}, tau {filt.tau_s:g} s)"
+    if mag_cal is None:
+        how["mag"] = "absent" + (" (the input's field is copied)" if capture.mag is not None else "")
+    elif capture.mag is None:
+        how["mag"] = "not applied: the input has no mx, my, mz columns"
+    else:
+        how["mag"] = f"soft and hard iron, field in {mag_cal.extra.get('frame', 'sensor')} axes"
     acc, gyro = apply_calibration(capture.acc, capture.gyro, capture.temp, dtemp, params.accel, params.gyro,
-                                  params.thermal)
+                                  params.thermal, g_matrix)
+    mag = None if capture.mag is None else apply_mag(capture.mag, mag_cal)
     out = Capture(t=capture.t, acc=acc, gyro=gyro, temp=capture.temp, dtemp=capture.dtemp, step=capture.step,
-                  device=capture.device, source=capture.source)
+                  device=capture.device, source=capture.source, mag=mag)
     return out, how
 
 

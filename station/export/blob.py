@@ -1,15 +1,16 @@
 """The parameter blob firmware loads: one unit's calibration, little-endian, CRC-checked.
 
-Layout, format version 1 (every offset in bytes, every number little-endian):
+Layout, format version 2 (every offset in bytes, every number little-endian):
 
     header (HEADER_SIZE = 96 bytes)
       0   4  magic "IMUC"
-      4   2  u16  format version (1)
+      4   2  u16  format version (2; 1 is still read)
       6   2  u16  header size (96); the payload starts there
       8   4  u32  total length of the blob, CRC included
      12   2  u16  parameter-file schema version (1 for imu-station/params/1)
      14   2  u16  flags: bit 0 accel section, bit 1 gyro section, bit 2 accel thermal,
-                  bit 3 gyro thermal (what the parameter file held)
+                  bit 3 gyro thermal, bit 4 mag section, bit 5 gyro g-sensitivity (what the
+                  parameter file held)
      16   8  i64  parameter file's ``created``, Unix seconds UTC (0 when unknown)
      24   8  i64  export time, Unix seconds UTC
      32  32  unit serial, UTF-8, NUL-padded (at most 31 bytes, so always NUL-terminated)
@@ -23,6 +24,10 @@ Layout, format version 1 (every offset in bytes, every number little-endian):
     +104     accel thermal block, then gyro thermal block, each:
              u32 segment count n (0: no thermal model), f32 dT clamp min, f32 dT clamp max,
              n x (f32 t_min, f32 t_max, f32[3][7] coefficients, axis-major, TERMS order)
+     then (format version 2 on; version 1 ends here)
+      48     mag triad: f32[9] correction M_m^-1 row-major, f32[3] hard iron b_m (microtesla);
+             identity and zero without a mag section
+      36     gyro g-sensitivity G: f32[9] row-major, rad/s per m/s^2; zero without one
     trailer
       4      u32  CRC-32 (IEEE 802.3) of every byte before it
 
@@ -33,12 +38,14 @@ rules that ``parse_blob`` applies exactly as the C does (same order, same error 
 
 - the header size lies between 96 and the CRC;
 - every float is finite; the dT time constant is not negative;
-- each correction matrix has a non-zero determinant (cofactor expansion in double precision,
-  the same operations on both sides);
+- each correction matrix (accel, gyro; mag from version 2) has a non-zero determinant (cofactor
+  expansion in double precision, the same operations on both sides);
 - per thermal block: at most the loader's capacity of segments (``IMU_CALIB_MAX_SEGMENTS``,
   ``ERR_CAPACITY``), dT clamp min <= max, each segment t_min < t_max and starting at or after the
   previous segment's t_max (float32 comparisons);
 - the content ends exactly at the CRC.
+
+A version 1 blob reads as one without a mag section or g-sensitivity (flags bits 4 and 5 clear).
 """
 
 from __future__ import annotations
@@ -54,9 +61,12 @@ from station.engines.sensor_model import SensorCalibration
 from station.engines.thermal_model import TERMS, DtempFilter, ThermalBias, ThermalModel, ThermalSegment
 from station.errors import StationError
 from station.export.params_file import SCHEMA, ParamsFile
+from station.export.sections import MAG, g_sensitivity, mag_calibration, present
 
 MAGIC = b"IMUC"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READ_VERSIONS = (1, 2)
+"""Every format version the loaders read: a new version never drops an older one."""
 HEADER_SIZE = 96
 SERIAL_SIZE = 32
 STATION_ID_SIZE = 16
@@ -64,13 +74,20 @@ N_TERMS = len(TERMS)
 SEGMENT_SIZE = 4 * (2 + 3 * N_TERMS)
 TRIAD_SIZE = 4 * 12
 THERMAL_HEAD_SIZE = 12
+MATRIX_SIZE = 4 * 9
 CRC_SIZE = 4
-MIN_BLOB_SIZE = HEADER_SIZE + 8 + 2 * TRIAD_SIZE + 2 * THERMAL_HEAD_SIZE + CRC_SIZE
+MIN_BLOB_SIZE_V1 = HEADER_SIZE + 8 + 2 * TRIAD_SIZE + 2 * THERMAL_HEAD_SIZE + CRC_SIZE
+MIN_BLOB_SIZE = MIN_BLOB_SIZE_V1 + TRIAD_SIZE + MATRIX_SIZE
 
 FLAG_ACCEL = 1
 FLAG_GYRO = 2
 FLAG_ACCEL_THERMAL = 4
 FLAG_GYRO_THERMAL = 8
+FLAG_MAG = 16
+FLAG_G_SENSITIVITY = 32
+
+CARRIED = ("accel", "gyro", "thermal", MAG)
+"""The sections a blob holds (the gyro's g-sensitivity rides with the gyro)."""
 
 _HEADER = struct.Struct("<4sHHIHHqq32s16s16x")
 assert _HEADER.size == HEADER_SIZE
@@ -113,6 +130,10 @@ class BlobContents:
     gyro: SensorCalibration
     thermal: ThermalModel | None
     format_version: int = FORMAT_VERSION
+    mag: SensorCalibration | None = None
+    """The mag section (None when flags bit 4 is clear, as in every version 1 blob)."""
+    g_sensitivity: np.ndarray | None = None
+    """G, (3, 3) rad/s per m/s^2 (None when flags bit 5 is clear)."""
 
 
 def schema_version(schema: str = SCHEMA) -> int:
@@ -200,18 +221,27 @@ def _thermal_bytes(triad: ThermalBias | None) -> bytes:
 
 
 def flags_of(params: ParamsFile) -> int:
-    """The blob's flags: which sections (accel, gyro, and their thermal models) it carries."""
+    """The blob's flags: which sections (accel, gyro, their thermal models, mag, the gyro's
+    g-sensitivity) it carries."""
     triads = thermal_triads(params)
     return ((FLAG_ACCEL if params.accel is not None else 0)
             | (FLAG_GYRO if params.gyro is not None else 0)
             | (FLAG_ACCEL_THERMAL if triads["accel"] is not None else 0)
-            | (FLAG_GYRO_THERMAL if triads["gyro"] is not None else 0))
+            | (FLAG_GYRO_THERMAL if triads["gyro"] is not None else 0)
+            | (FLAG_MAG if mag_calibration(params) is not None else 0)
+            | (FLAG_G_SENSITIVITY if g_sensitivity(params) is not None else 0))
+
+
+def g_sensitivity_or_zero(params: ParamsFile) -> np.ndarray:
+    """G of the file, or zeros (what the blob stores without one)."""
+    matrix = g_sensitivity(params)
+    return np.zeros((3, 3)) if matrix is None else matrix
 
 
 def build_blob(params: ParamsFile, station_id: str, exported_utc: int) -> bytes:
     """The blob of ``params`` (layout in the module docstring)."""
-    if params.accel is None and params.gyro is None and params.thermal is None:
-        raise BlobError("the parameter file has no accel, gyro or thermal section: nothing to export; "
+    if not set(present(params)) & set(CARRIED):
+        raise BlobError("the parameter file has no accel, gyro, thermal or mag section: nothing to export; "
                         "run 'imu-station calibrate' or 'imu-station thermal' first")
     triads = thermal_triads(params)
     thermal = params.thermal
@@ -223,6 +253,8 @@ def build_blob(params: ParamsFile, station_id: str, exported_utc: int) -> bytes:
         _triad_bytes(params.gyro),
         _thermal_bytes(triads["accel"]),
         _thermal_bytes(triads["gyro"]),
+        _triad_bytes(mag_calibration(params)),
+        struct.pack("<9f", *_f32(g_sensitivity_or_zero(params))),
     ])
     total = HEADER_SIZE + len(payload) + CRC_SIZE
     header = _HEADER.pack(
@@ -330,12 +362,11 @@ def parse_blob(data: bytes, max_segments: int | None = None) -> BlobContents:
     if magic != MAGIC:
         raise BlobError(f"bad magic {magic!r}, expected {MAGIC!r}: not an imu-station parameter blob",
                         ERR_MAGIC)
-    if version != FORMAT_VERSION:
-        raise BlobError(f"blob format version {version} is unknown; this station reads {FORMAT_VERSION}",
-                        ERR_VERSION)
-    if len(data) < MIN_BLOB_SIZE:
-        raise BlobError(f"blob is {len(data)} bytes, too short for format version {FORMAT_VERSION}",
-                        ERR_LENGTH)
+    if version not in READ_VERSIONS:
+        raise BlobError(f"blob format version {version} is unknown; this station reads "
+                        f"{', '.join(map(str, READ_VERSIONS))}", ERR_VERSION)
+    if len(data) < (MIN_BLOB_SIZE_V1 if version == 1 else MIN_BLOB_SIZE):
+        raise BlobError(f"blob is {len(data)} bytes, too short for format version {version}", ERR_LENGTH)
     (_, _, header_size, total, schema, flags, created, exported, serial, station) = \
         _HEADER.unpack_from(data, 0)
     if total != len(data):
@@ -355,6 +386,14 @@ def parse_blob(data: bytes, max_segments: int | None = None) -> BlobContents:
         r.refuse("a correction matrix is singular (determinant 0)")
     accel_thermal = _take_thermal(r, "accel", max_segments)
     gyro_thermal = _take_thermal(r, "gyro", max_segments)
+    mag_values, g_values = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0, 0, 0, 0], [0.0] * 9
+    if version >= 2:
+        mag_values = r.floats(12, "the mag correction or hard iron")
+        g_values = r.floats(9, "the gyro g-sensitivity")
+        if r.ok and _determinant(mag_values[:9]) == 0.0:
+            r.refuse("the mag correction matrix is singular (determinant 0)")
+        if not r.ok:
+            raise BlobError(f"blob content is inconsistent: {r.why}", ERR_CONTENT)
     if r.pos != end:
         raise BlobError(f"blob content ends at byte {r.pos}, not at the CRC (byte {end})", ERR_CONTENT)
     if tau < 0:
@@ -365,10 +404,15 @@ def parse_blob(data: bytes, max_segments: int | None = None) -> BlobContents:
     thermal = None
     if accel_thermal is not None or gyro_thermal is not None:
         thermal = ThermalModel(reference_temp, DtempFilter("ema", tau), accel_thermal, gyro_thermal)
+    mag = None
+    if flags & FLAG_MAG:
+        mag_correction = _inverse(mag_values[:9], _determinant(mag_values[:9]))
+        mag = SensorCalibration(mag_correction, np.array(mag_values[9:]))
     return BlobContents(
         flags=flags, schema_version=schema, created_utc=created, exported_utc=exported,
         serial=serial.rstrip(b"\0").decode("utf-8", errors="replace"),
         station_id=station.rstrip(b"\0").decode("utf-8", errors="replace"),
         reference_temp=reference_temp, dtemp_tau_s=tau, accel=calibrations[0], gyro=calibrations[1],
-        thermal=thermal, format_version=version,
+        thermal=thermal, format_version=version, mag=mag,
+        g_sensitivity=np.array(g_values).reshape(3, 3) if flags & FLAG_G_SENSITIVITY else None,
     )

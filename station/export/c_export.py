@@ -1,11 +1,13 @@
 """Firmware export in C (``shared/specs/firmware-api.md``): imu_calib.h, imu_calib.c, imu_calib.bin.
 
-The C computes, in float32, what ``station.engines.correction.apply_calibration`` computes:
+The C computes, in float32, what ``station.engines.correction`` computes:
 
-    acc  = M_a^-1 (raw_a - b_a - B_a(T, dT)),   gyro = M_g^-1 (raw_g - b_g - B_g(T, dT))
+    acc  = M_a^-1 (raw_a - b_a - B_a(T, dT)),   gyro = M_g^-1 (raw_g - b_g - B_g(T, dT) - G acc)
+    mag  = M_m^-1 (raw_m - b_m)                 (imu_calib_apply_mag)
 
 with B the piecewise seven-term thermal bias of ``station.engines.thermal_model`` (T clamped
-to the calibrated range, dT to its clamp, segment chosen by its t_min). The header carries the
+to the calibrated range, dT to its clamp, segment chosen by its t_min) and G the gyro's
+g-sensitivity at the corrected specific force. The header carries the
 unit's parameters as a ``const imu_calib_t`` initializer; ``imu_calib_load`` reads the same
 parameters from the blob (``station.export.blob``). Strings from the unit only ever reach the
 generated code through ``c_string_literal`` and ``c_comment_text``.
@@ -22,6 +24,7 @@ from station.engines.sensor_model import SensorCalibration
 from station.engines.thermal_model import TERMS, ThermalBias
 from station.export import blob as blobfmt
 from station.export.params_file import SCHEMA, ParamsFile
+from station.export.sections import mag_calibration
 from station.files import atomic_write_bytes, atomic_write_text
 
 HEADER_NAME = "imu_calib.h"
@@ -101,6 +104,8 @@ def unit_initializer(params: ParamsFile, station_id: str, exported_utc: int) -> 
         _triad_init(params.gyro),
         _thermal_init(triads["accel"]),
         _thermal_init(triads["gyro"]),
+        _triad_init(mag_calibration(params)),
+        _matrix(blobfmt.g_sensitivity_or_zero(params)),
     ]
     return "{ \\\n    " + ", \\\n    ".join(fields) + " \\\n}"
 
@@ -115,8 +120,7 @@ def _describe(params: ParamsFile, station_id: str, exported_utc: int, blob_size:
         f"firmware {c_comment_text(str(device.get('firmware', '')))}.",
         f"Parameter file {SCHEMA}, created {c_comment_text(params.created)}; blob {blob_size} bytes.",
     ]
-    for name in ("accel", "gyro"):
-        cal = getattr(params, name)
+    for name, cal in (("accel", params.accel), ("gyro", params.gyro), ("mag", mag_calibration(params))):
         if cal is not None:
             number = isinstance(cal.residual_rms, int | float)
             rms = f", residual rms {cal.residual_rms:.3g}" if number else ""
@@ -129,13 +133,16 @@ HEADER_TEMPLATE = """\
  * 'imu-station export PARAMS --format c -o DIR'.
 @DESCRIPTION@
  *
- * Correction (SI units: m/s^2, rad/s, degC, degC/s), the same as 'imu-station apply':
+ * Correction (SI units: m/s^2, rad/s, degC, degC/s; microtesla), the same as 'imu-station apply':
  *   acc  = M_a^-1 (raw_acc  - b_a - B_a(T, dT))
- *   gyro = M_g^-1 (raw_gyro - b_g - B_g(T, dT))
+ *   gyro = M_g^-1 (raw_gyro - b_g - B_g(T, dT) - G acc)
+ *   mag  = M_m^-1 (raw_mag  - b_m)                       (imu_calib_apply_mag)
  *   B(T, dT) = c0 t^3 + c1 t^2 + c2 t + c3 dT^2 + c4 dT + c5 t dT + c6,  t = T - T_ref,
  * per axis, with T clamped to [t_min of the first segment, t_max of the last] and dT to
  * [dt_min, dt_max]; the segment is the last whose t_min <= T. B = 0 when there is no thermal
  * model or T is not finite. dT comes from imu_calib_dtemp_update, the station's own filter.
+ * G is the gyro's g-sensitivity (rad/s per m/s^2) at the corrected specific force acc; zero
+ * without one. Without a mag section imu_calib_apply_mag copies the raw field.
  */
 #ifndef IMU_CALIB_H
 #define IMU_CALIB_H
@@ -147,7 +154,7 @@ HEADER_TEMPLATE = """\
 extern "C" {
 #endif
 
-#define IMU_CALIB_FORMAT_VERSION 1u
+#define IMU_CALIB_FORMAT_VERSION 2u       /* written; every version from 1 is read */
 #define IMU_CALIB_HEADER_SIZE 96u
 #define IMU_CALIB_TERMS 7
 #define IMU_CALIB_SERIAL_SIZE 32
@@ -164,6 +171,8 @@ extern "C" {
 #define IMU_CALIB_FLAG_GYRO 2u
 #define IMU_CALIB_FLAG_ACCEL_THERMAL 4u
 #define IMU_CALIB_FLAG_GYRO_THERMAL 8u
+#define IMU_CALIB_FLAG_MAG 16u
+#define IMU_CALIB_FLAG_G_SENSITIVITY 32u
 
 /* imu_calib_load results */
 #define IMU_CALIB_OK 0
@@ -207,6 +216,8 @@ typedef struct {
     imu_calib_triad_t gyro;
     imu_calib_thermal_t accel_thermal;
     imu_calib_thermal_t gyro_thermal;
+    imu_calib_triad_t mag;                /* M_m^-1 and hard iron, microtesla; identity and zero without */
+    float g_sensitivity[3][3];            /* G, rad/s per m/s^2, row-major; zero without */
 } imu_calib_t;
 
 /* State of the dT estimator; start it with imu_calib_dtemp_init. */
@@ -228,6 +239,10 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len);
 void imu_calib_apply(const imu_calib_t *p, float temp_c, float dtemp_c_per_s,
                      const float raw_acc[3], const float raw_gyro[3],
                      float acc[3], float gyro[3]);
+
+/* Correct one magnetometer sample (microtesla): correction @ (raw - hard iron). A blob without a
+   mag section (every format version 1 blob) copies raw to mag. mag may alias raw_mag. */
+void imu_calib_apply_mag(const imu_calib_t *p, const float raw_mag[3], float mag[3]);
 
 /* dT the way the station estimates it: a first-order low-pass of T with time constant tau,
    alpha = dt / (tau + dt) on each sample's own dt, then the difference quotient of the filtered
@@ -271,8 +286,11 @@ typedef char imu_calib_float_is_binary32[(sizeof(float) == 4u) ? 1 : -1];
 #define IMU_CALIB_CRC_SIZE 4u
 #define IMU_CALIB_TRIAD_BYTES 48u
 #define IMU_CALIB_THERMAL_HEAD_BYTES 12u
-#define IMU_CALIB_MIN_BLOB_SIZE (IMU_CALIB_HEADER_SIZE + 8u + 2u * IMU_CALIB_TRIAD_BYTES + \\
-                                 2u * IMU_CALIB_THERMAL_HEAD_BYTES + IMU_CALIB_CRC_SIZE)
+#define IMU_CALIB_MATRIX_BYTES 36u
+#define IMU_CALIB_MIN_BLOB_SIZE_V1 (IMU_CALIB_HEADER_SIZE + 8u + 2u * IMU_CALIB_TRIAD_BYTES + \\
+                                    2u * IMU_CALIB_THERMAL_HEAD_BYTES + IMU_CALIB_CRC_SIZE)
+#define IMU_CALIB_MIN_BLOB_SIZE_V2 (IMU_CALIB_MIN_BLOB_SIZE_V1 + IMU_CALIB_TRIAD_BYTES + \\
+                                    IMU_CALIB_MATRIX_BYTES)
 
 const imu_calib_t imu_calib_unit = IMU_CALIB_UNIT_INITIALIZER;
 
@@ -386,6 +404,7 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
     imu_calib_t p;
     imu_calib_reader_t r;
     size_t header_size;
+    unsigned version;
     int rc;
 
     if (out == NULL || blob == NULL) {
@@ -397,10 +416,12 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
     if (memcmp(blob, "IMUC", 4) != 0) {
         return IMU_CALIB_ERR_MAGIC;
     }
-    if (imu_calib_u16(blob + 4) != IMU_CALIB_FORMAT_VERSION) {
+    version = imu_calib_u16(blob + 4);
+    if (version != 1u && version != 2u) {
         return IMU_CALIB_ERR_VERSION;
     }
-    if (len < IMU_CALIB_MIN_BLOB_SIZE || (size_t)imu_calib_u32(blob + 8) != len) {
+    if (len < (version == 1u ? IMU_CALIB_MIN_BLOB_SIZE_V1 : IMU_CALIB_MIN_BLOB_SIZE_V2)
+        || (size_t)imu_calib_u32(blob + 8) != len) {
         return IMU_CALIB_ERR_LENGTH;
     }
     if (imu_calib_crc32(blob, len - IMU_CALIB_CRC_SIZE) != imu_calib_u32(blob + len - IMU_CALIB_CRC_SIZE)) {
@@ -412,7 +433,7 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
     }
 
     memset(&p, 0, sizeof p);
-    p.format_version = imu_calib_u16(blob + 4);
+    p.format_version = (uint16_t)version;
     p.schema_version = imu_calib_u16(blob + 12);
     p.flags = imu_calib_u16(blob + 14);
     p.created_utc = imu_calib_i64(blob + 16);
@@ -441,6 +462,17 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
     }
     if (rc != IMU_CALIB_OK) {
         return rc;
+    }
+    if (version >= 2u) {
+        imu_calib_take_floats(&r, &p.mag.correction[0][0], 9u);
+        imu_calib_take_floats(&r, p.mag.bias, 3u);
+        imu_calib_take_floats(&r, &p.g_sensitivity[0][0], 9u);
+        if (!r.ok || imu_calib_det(&p.mag) == 0.0) {
+            return IMU_CALIB_ERR_CONTENT;
+        }
+    } else {
+        /* Version 1 has neither: the identity copies the field, a zero G removes nothing. */
+        p.mag.correction[0][0] = p.mag.correction[1][1] = p.mag.correction[2][2] = 1.0f;
     }
     if (r.pos != r.end || p.dtemp_tau_s < 0.0f) {
         return IMU_CALIB_ERR_CONTENT;
@@ -513,7 +545,28 @@ void imu_calib_apply(const imu_calib_t *p, float temp_c, float dtemp_c_per_s,
     imu_calib_thermal_bias(&p->accel_thermal, p->reference_temp, temp_c, dtemp_c_per_s, bias_acc);
     imu_calib_thermal_bias(&p->gyro_thermal, p->reference_temp, temp_c, dtemp_c_per_s, bias_gyro);
     imu_calib_correct(&p->accel, raw_acc, bias_acc, acc);
+    if (p->flags & IMU_CALIB_FLAG_G_SENSITIVITY) {
+        /* The bias the specific force adds, at the corrected sample; acc may alias raw_acc, which is
+           why it is read only after the accel correction is complete. */
+        int i;
+        for (i = 0; i < 3; ++i) {
+            bias_gyro[i] += p->g_sensitivity[i][0] * acc[0] + p->g_sensitivity[i][1] * acc[1]
+                + p->g_sensitivity[i][2] * acc[2];
+        }
+    }
     imu_calib_correct(&p->gyro, raw_gyro, bias_gyro, gyro);
+}
+
+void imu_calib_apply_mag(const imu_calib_t *p, const float raw_mag[3], float mag[3])
+{
+    static const float none[3] = {0.0f, 0.0f, 0.0f};
+    if (!(p->flags & IMU_CALIB_FLAG_MAG)) {
+        float copy[3];
+        memcpy(copy, raw_mag, sizeof copy);
+        memcpy(mag, copy, sizeof copy);
+        return;
+    }
+    imu_calib_correct(&p->mag, raw_mag, none, mag);
 }
 
 void imu_calib_dtemp_init(imu_calib_dtemp_t *s)
