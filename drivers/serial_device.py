@@ -246,6 +246,13 @@ class SerialDevice(Device):
         """Stop streaming samples (STOP_STREAM)."""
         self.command(native.STOP_STREAM, b"", timeout, retries)
 
+    def restart(self, timeout: float = 1.0) -> None:
+        """Restart the unit as at power-up (RESTART): its ``seq`` and ``t_us`` start again from 0,
+        its turn-on biases are new and it streams at its power-up rate. Sent once, never resent (a
+        second RESTART would restart it again); a unit that cannot restart raises ``CommandRejected``
+        with status ``ACK_UNKNOWN`` (power-cycle it by hand instead)."""
+        self.command(native.RESTART, b"", timeout, retries=0)
+
     def command(self, command_id: int, payload: bytes = b"", timeout: float = 1.0,
                 retries: int = 2) -> Message:
         """Send any native command and wait for its answer: DEVICE_INFO for GET_INFO, else the ACK
@@ -330,7 +337,8 @@ class SerialDevice(Device):
 
 
 _COMMAND_NAMES = {native.GET_INFO: "GET_INFO", native.SET_RATE: "SET_RATE",
-                  native.START_STREAM: "START_STREAM", native.STOP_STREAM: "STOP_STREAM"}
+                  native.START_STREAM: "START_STREAM", native.STOP_STREAM: "STOP_STREAM",
+                  native.RESTART: "RESTART"}
 
 
 def _answers(message: Message, command_id: int) -> bool:

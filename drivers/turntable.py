@@ -8,6 +8,8 @@ exactly one reply line)::
     POSE <up>                -> OK                 move so sensor axes <up> point up (+z, -x, +x+y)
     ROT <axis> <deg> <dps>   -> OK                 turn <deg> (signed, up to 3600) at <dps> about the
                                                    sensor axis <axis> (+x ... -z), held vertical
+    SPIN <axis> <dps> <s>    -> OK                 turn at <dps> (signed) about the sensor axis <axis> held
+                                                   vertical for <s> seconds once the rate is steady, then stop
     STATE?                   -> STATE <IDLE|MOVING|FAULT> <up> <turned_deg>
     STOP                     -> OK                 stop at once (decelerating)
     anything refused         -> ERR <code> <text>  1 unknown command, 2 bad argument,
@@ -171,6 +173,14 @@ class Turntable:
             raise ValueError(f"axis {axis!r} is not one of +x, -x, +y, -y, +z, -z")
         self.wait_idle(timeout_s)
         self.command(f"ROT {axis} {angle_deg:g} {rate_dps:g}")
+
+    def spin(self, axis: str, rate_dps: float, duration_s: float, timeout_s: float = 30.0) -> None:
+        """Start a constant-rate step: ``rate_dps`` (signed) about sensor ``axis`` held vertical for
+        ``duration_s`` once steady (returns at once; the capture labels it ``rate+z:90``)."""
+        if not _AXIS_RE.match(axis):
+            raise ValueError(f"axis {axis!r} is not one of +x, -x, +y, -y, +z, -z")
+        self.wait_idle(timeout_s)
+        self.command(f"SPIN {axis} {rate_dps:g} {duration_s:g}")
 
     def stop(self) -> None:
         """Stop any move at once."""

@@ -1,7 +1,9 @@
 """The simulated device: a state machine fed host bytes, producing samples for elapsed time.
 
 It speaks the native protocol (``shared/specs/native-protocol.md``): it streams from power-up,
-answers GET_INFO with DEVICE_INFO, SET_RATE / START_STREAM / STOP_STREAM with ACK, and
+answers GET_INFO with DEVICE_INFO, SET_RATE / START_STREAM / STOP_STREAM with ACK, RESTART with
+ACK and a restart as at power-up (``seq`` and ``t_us`` from 0, the power-up rate, the turn-on biases
+of :meth:`mocks.truth.UnitTruth.turned_on`; ACK status 1 when built ``restartable=False``), and
 unknown commands with ACK status 1. Time is the device clock in seconds since power-up, given
 by whoever serves the device (a pty thread, the ``sim://`` port): ``produce(t)`` returns every
 sample due at or before t; sample k is due at its own timestamp (an absolute schedule).
@@ -115,12 +117,18 @@ class SimDevice:
     encoder : name in ``ENCODERS`` of the sample wire format.
     temp_noise_degc : standard deviation of the temperature sensor's noise.
     chamber : the programme of the ``chamber`` scenario (default ``mocks.chamber.scenario_sweep()``).
+    restartable : False: RESTART is answered ACK status 1, as by a unit that cannot restart itself.
+
+    Times given to :meth:`produce` and returned by :meth:`next_due_s` and the live-motion methods are
+    the server's clock since the first power-up; after a RESTART the unit's own clock (``t_us``)
+    starts again from 0 at the restart.
     """
 
     def __init__(self, truth: UnitTruth | None = None, *, seed: int = 0, rate_hz: float = 200.0,
                  scenario: str | Sequence[Segment] = "still", loop: bool | None = None,
                  temperature: Callable[[np.ndarray], np.ndarray] | None = None,
-                 encoder: str = "native", temp_noise_degc: float = 0.01, chamber: ChamberSweep | None = None):
+                 encoder: str = "native", temp_noise_degc: float = 0.01, chamber: ChamberSweep | None = None,
+                 restartable: bool = True):
         if chamber is not None and scenario != "chamber":
             raise ValueError(f"a chamber programme needs the chamber scenario, not {scenario!r}")
         if scenario == "chamber" and temperature is None:
@@ -137,6 +145,12 @@ class SimDevice:
         self.streaming = True
         self.seq = 0
         self.commands: dict[str, int] = {}
+        self.restartable = restartable
+        self.restarts = 0
+        self.base_truth = self.truth  # the unit at its first power-up; self.truth is the current turn-on's
+        self._seed = seed
+        self._power_up_rate = rate_hz
+        self._epoch_s = 0.0  # server time of the last restart: the unit's clock is the server's minus this
         self._decoder = native.NativeDecoder()
         self._lock = threading.RLock()
 
@@ -153,7 +167,7 @@ class SimDevice:
     def next_due_s(self) -> float:
         """Device time at which the next sample is due."""
         with self._lock:
-            return self.sampler.time_of(self.sampler.count)
+            return self._epoch_s + self.sampler.time_of(self.sampler.count)
 
     # --- host commands -----------------------------------------------------------------
 
@@ -176,7 +190,7 @@ class SimDevice:
 
     def _answer(self, msg_id: int, payload: bytes) -> bytes:
         name = {native.GET_INFO: "GET_INFO", native.SET_RATE: "SET_RATE", native.START_STREAM: "START_STREAM",
-                native.STOP_STREAM: "STOP_STREAM"}.get(msg_id, f"0x{msg_id:02x}")
+                native.STOP_STREAM: "STOP_STREAM", native.RESTART: "RESTART"}.get(msg_id, f"0x{msg_id:02x}")
         self.commands[name] = self.commands.get(name, 0) + 1
         if msg_id == native.GET_INFO:
             return native.encode_device_info(self.info())
@@ -191,9 +205,34 @@ class SimDevice:
         if msg_id in (native.START_STREAM, native.STOP_STREAM):
             self.streaming = msg_id == native.START_STREAM
             return native.encode_ack(msg_id)
+        if msg_id == native.RESTART:
+            if not self.restartable:
+                return native.encode_ack(msg_id, native.ACK_UNKNOWN)
+            self._restart()
+            return native.encode_ack(msg_id)
         if msg_id in (native.IMU_SAMPLE, native.DEVICE_INFO, native.ACK):
             return b""  # device-to-host messages echoed back by the host: not commands
         return native.encode_ack(msg_id, native.ACK_UNKNOWN)
+
+    def _restart(self) -> None:
+        """Power up again where the unit is: same attitude and step label, held; new turn-on biases,
+        new noise, the power-up rate, streaming, seq and the unit's clock from 0."""
+        local = self.sampler.time_of(self.sampler.count)
+        attitude = self.timeline.attitude_at(local)
+        label = str(self.timeline.evaluate(np.array([local]), [])[2][0])
+        temperature = self.sampler.temperature
+        epoch = self._epoch_s + local
+        self.restarts += 1
+        self.truth = self.base_truth.turned_on(self.restarts, self._seed)
+        self.timeline = Timeline([], loop=False, r_start=attitude)
+        self.timeline.pieces[-1].label = label
+        self.sampler = UnitSampler(self.truth, self.timeline, self._power_up_rate,
+                                   self._seed * 7919 + self.restarts,
+                                   lambda t: np.asarray(temperature(np.asarray(t) + epoch), float),
+                                   self.sampler.temp_noise_degc)
+        self._epoch_s = epoch
+        self.streaming = True
+        self.seq = 0
 
     # --- samples ---------------------------------------------------------------------------
 
@@ -211,7 +250,7 @@ class SimDevice:
         ndarray of SAMPLE_DTYPE
         """
         with self._lock:
-            n = self.sampler.due_count(t_s)
+            n = self.sampler.due_count(t_s - self._epoch_s)
             if n == 0:
                 return np.zeros(0, dtype=SAMPLE_DTYPE)
             rec = self.sampler.next(n)
@@ -256,7 +295,7 @@ class SimDevice:
             Device time, s.
         """
         with self._lock:
-            return self.timeline.command(segments, self.sampler.time_of(self.sampler.count))
+            return self._epoch_s + self.timeline.command(segments, self.sampler.time_of(self.sampler.count))
 
     def set_pose(self, pose: str, move_s: float = 2.0, label: str | None = None) -> float:
         """Move the unit smoothly to ``pose`` ("+x", "-z", "+x+y") and hold it there.

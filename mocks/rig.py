@@ -15,6 +15,8 @@ Segments (labels as in ``shared/specs/capture-csv.md``):
 - :class:`Static`: hold a pose (``"+z"``, ``"-x"``, ``"+x+y"``: that body direction up).
 - :class:`Rotation`: with the axis vertical, turn about it by the signed angle with a
   trapezoidal rate profile (ramps of ``ramp_s``), ``settle_s`` still before and after.
+- :class:`ConstantRate`: with the axis vertical, spin up to a constant rate, hold it, spin down;
+  labelled (``rate+z:90``) only while the rate is steady, after ``settle_s`` at the rate.
 - :class:`Move`: a hand-held move to the attitude of the next segment: rotation about the
   fixed axis of the relative attitude with a quintic smooth-step angle
   ``phi = theta (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration`` (rate and angular
@@ -89,13 +91,37 @@ class Rotation:
 
 
 @dataclass
+class ConstantRate:
+    """Turn about the body ``axis`` held vertical at ``rate_dps`` (signed: ``rate-z:90`` is -90 deg/s
+    about +z): a linear spin-up over ``ramp_s``, ``settle_s`` at the rate (unlabelled), ``duration_s``
+    at the rate under the step's label, a linear spin-down over ``ramp_s``."""
+
+    axis: str
+    rate_dps: float
+    duration_s: float = 5.0
+    settle_s: float = 1.0
+    ramp_s: float = 0.5
+    label: str | None = None
+
+    def signed(self) -> tuple[int, float]:
+        """(index of the axis, signed rate in rad/s about the positive axis)."""
+        index, sign = Rotation(self.axis).signed()
+        return index, math.copysign(1.0, sign) * math.radians(self.rate_dps)
+
+    def default_label(self) -> str:
+        """The capture-csv label of this step: ``rate+z:90`` (the sign is the rate's about +axis)."""
+        index, rate = self.signed()
+        return f"rate{'+' if rate >= 0 else '-'}{'xyz'[index]}:{abs(math.degrees(rate)):g}"
+
+
+@dataclass
 class Move:
     """A smooth hand-held move to the next segment's attitude (unlabelled)."""
 
     duration_s: float = DEFAULT_MOVE_S
 
 
-Segment = Static | Rotation | Move
+Segment = Static | Rotation | ConstantRate | Move
 
 
 # --- angle profiles phi(tau) over one piece, tau = time since the piece started -------------
@@ -143,6 +169,22 @@ class _Trapezoid:
         return self.sign * np.where((u > 0) & (u < self.turn), rate, 0.0)
 
 
+class _Ramp:
+    """Rate going linearly from w0 to w1 over T: phi = w0 tau + (w1 - w0) tau^2 / (2 T)."""
+
+    def __init__(self, w0: float, w1: float, duration: float):
+        self.w0, self.w1, self.duration = w0, w1, duration
+        self.total = 0.5 * (w0 + w1) * duration
+
+    def angle(self, tau: np.ndarray) -> np.ndarray:
+        u = np.clip(tau, 0.0, self.duration)
+        return self.w0 * u + (self.w1 - self.w0) * u**2 / (2.0 * self.duration)
+
+    def rate(self, tau: np.ndarray) -> np.ndarray:
+        u = np.clip(tau, 0.0, self.duration)
+        return self.w0 + (self.w1 - self.w0) * u / self.duration
+
+
 class _SmoothStep:
     """phi = theta s(u), s = 10u^3 - 15u^4 + 6u^5, u = tau / T; phi' = theta 30u^2 (1-u)^2 / T."""
 
@@ -186,7 +228,7 @@ def _target(segment: Segment, current: np.ndarray) -> np.ndarray:
         if segment.attitude is not None:
             return np.asarray(segment.attitude, float)
         return pose_attitude(segment.pose, current)
-    if isinstance(segment, Rotation):
+    if isinstance(segment, Rotation | ConstantRate):
         index, _ = segment.signed()
         return pose_attitude("+" + "xyz"[index], current)
     return current
@@ -241,6 +283,18 @@ def build_pieces(segments: Sequence[Segment], r_start: np.ndarray, t_start: floa
             label = seg.pose if seg.label is None else seg.label
             pieces.append(Piece(t, t + seg.duration_s, r, np.array([1.0, 0.0, 0.0]), _Hold(), label))
             t += seg.duration_s
+        elif isinstance(seg, ConstantRate):
+            index, w = seg.signed()
+            label = seg.default_label() if seg.label is None else seg.label
+            # spin-up and settling unlabelled, the steady rate labelled, spin-down unlabelled
+            parts = ((_Ramp(0.0, w, seg.ramp_s), ""), (_Ramp(w, w, seg.settle_s), ""),
+                     (_Ramp(w, w, seg.duration_s), label), (_Ramp(w, 0.0, seg.ramp_s), ""))
+            for ramp, piece_label in parts:
+                if ramp.duration <= 0:
+                    continue
+                piece = Piece(t, t + ramp.duration, r, np.eye(3)[index], ramp, piece_label)
+                pieces.append(piece)
+                r, t = piece.r1, piece.t1
         else:
             index, angle = seg.signed()
             profile = _Trapezoid(angle, math.radians(seg.rate_dps), seg.ramp_s, seg.settle_s)
@@ -526,20 +580,26 @@ class Recording:
     timeline: Timeline | None = field(default=None, repr=False)
     acc_bias: np.ndarray | None = field(default=None, repr=False)
     gyro_bias: np.ndarray | None = field(default=None, repr=False)
+    # A unit with a magnetometer (truth.mag): the raw field (N, 3) and the true one in body axes, uT.
+    mag: np.ndarray | None = field(default=None, repr=False)
+    true_field: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.t)
 
     def samples(self) -> np.ndarray:
-        """The samples as the wire carries them (``SAMPLE_DTYPE``: seq, t_us, float32 values)."""
-        from protocols.base import SAMPLE_DTYPE
+        """The samples as the wire carries them (``SAMPLE_DTYPE``: seq, t_us, float32 values;
+        ``MAG_SAMPLE_DTYPE`` with the field for a unit with a magnetometer)."""
+        from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE
 
-        out = np.zeros(len(self.t), dtype=SAMPLE_DTYPE)
+        out = np.zeros(len(self.t), dtype=SAMPLE_DTYPE if self.mag is None else MAG_SAMPLE_DTYPE)
         out["seq"] = (self.first_seq + np.arange(len(self.t))) % (1 << 32)
         out["t_us"] = np.round(self.t * 1e6).astype(np.uint64)
         out["acc"] = self.acc
         out["gyro"] = self.gyro
         out["temp"] = self.temp
+        if self.mag is not None:
+            out["mag"] = self.mag
         return out
 
     def attitude(self) -> np.ndarray:
@@ -563,6 +623,7 @@ class Recording:
             step=np.array([str(x) for x in self.step], dtype=object),
             device=self.truth.device_info(self.rate_hz),
             source=f"simulated unit {self.truth.serial}",
+            mag=None if self.mag is None else s["mag"].astype(float),
         )
 
 
@@ -590,6 +651,7 @@ class UnitSampler:
         self._gravity_world = np.array([0.0, 0.0, truth.gravity])
         self._earth_world = (earth_rate_world(truth.latitude_deg, truth.heading_deg) if truth.earth_rate
                              else None)
+        self._mag_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x3A7]))
         self.rate_hz = float(rate_hz)
         self.count = 0  # samples produced so far
         self._k_base = 0
@@ -617,6 +679,9 @@ class UnitSampler:
         k = np.arange(self.count, self.count + n)
         t = self._t_base + (k - self._k_base) / self.rate_hz
         worlds = [self._gravity_world] + ([self._earth_world] if self._earth_world is not None else [])
+        mag = self.truth.mag
+        if mag is not None:
+            worlds.append(mag.field.world(self.truth.heading_deg))
         rig_rate, seen, labels = self.timeline.evaluate(t, worlds)
         force = seen[0]
         rate = rig_rate + seen[1] if self._earth_world is not None else rig_rate
@@ -625,6 +690,8 @@ class UnitSampler:
         acc_noise, acc_drift = self._acc_noise.next_with_drift(n)
         gyro_noise, gyro_drift = self._gyro_noise.next_with_drift(n)
         acc = self.truth.accel.measure(force, temp_true, dtemp_true, acc_noise)
+        if np.any(self.truth.g_sensitivity):
+            gyro_noise = gyro_noise + force @ self.truth.g_sensitivity.T  # raw += G f
         gyro = self.truth.gyro.measure(rate, temp_true, dtemp_true, gyro_noise)
         temp = temp_true + self._temp_rng.standard_normal(n) * self.temp_noise_degc
         rec = Recording(t=t, acc=acc, gyro=gyro, temp=temp, temp_true=temp_true, dtemp_true=dtemp_true,
@@ -632,6 +699,9 @@ class UnitSampler:
                         rate_hz=self.rate_hz, first_seq=self.count, timeline=self.timeline,
                         acc_bias=self.truth.accel.realized_bias(temp_true, dtemp_true, acc_drift),
                         gyro_bias=self.truth.gyro.realized_bias(temp_true, dtemp_true, gyro_drift))
+        if mag is not None:
+            rec.true_field = seen[-1]
+            rec.mag = mag.measure(seen[-1], self._mag_rng)
         self.count += n
         return rec
 

@@ -2,7 +2,9 @@
 
 It speaks the table protocol of ``drivers/turntable.py`` and moves the :class:`~mocks.device.SimDevice`
 mounted on it: ``POSE +x`` becomes a smooth move of the unit to +x up, ``ROT +z 360 90`` a turn
-about the unit's z axis held vertical, with the rig's trapezoidal rate profile. The table is
+about the unit's z axis held vertical, with the rig's trapezoidal rate profile, ``SPIN +z 90 10`` a
+constant-rate step (``mocks.rig.ConstantRate``: spin-up, ``rate_settle_s`` settling, 10 s labelled
+``rate+z:90``, spin-down). The table is
 MOVING until the unit's device clock passes the end of the commanded motion, so a host that waits
 for IDLE and a host that watches the unit's samples see the same motion.
 """
@@ -22,11 +24,13 @@ import numpy as np
 
 from mocks.device import SimDevice
 from mocks.raw_pty import PtyService, open_serving_pty
+from mocks.rig import ConstantRate
 
 _POSE_RE = re.compile(r"^(?:[+-][xyz]){1,3}$")
 _AXIS_RE = re.compile(r"^[+-][xyz]$")
 MAX_TURN_DEG = 3600.0
 MAX_RATE_DPS = 720.0
+MAX_SPIN_S = 3600.0
 
 
 def _up_vector(label: str) -> np.ndarray:
@@ -48,6 +52,7 @@ class TurntableSim(PtyService):
     turn_error : fault injection: the table turns (1 + turn_error) times the asked angle (a wrong
         gear ratio, a slipping belt) and still reports the asked one, as a table whose encoder sits
         on the motor would.
+    rate_settle_s : seconds at the asked rate before a SPIN step's samples are labelled steady.
     """
 
     THREAD_NAME = "turntable-sim"
@@ -56,13 +61,14 @@ class TurntableSim(PtyService):
     firmware = "1.0.0"
 
     def __init__(self, device: SimDevice, slew_dps: float = 180.0, settle_s: float = 0.2,
-                 serial: str = "TT-SIM-0001", turn_error: float = 0.0):
+                 serial: str = "TT-SIM-0001", turn_error: float = 0.0, rate_settle_s: float = 1.0):
         super().__init__()
         self.device = device
         self.slew_dps = slew_dps
         self.settle_s = settle_s
         self.serial = serial
         self.turn_error = turn_error
+        self.rate_settle_s = rate_settle_s
         self.up = "+z"
         self.commands: list[str] = []
         self._lock = threading.Lock()
@@ -130,7 +136,7 @@ class TurntableSim(PtyService):
                 self._move_end = self._now()
                 self.device.set_pose(self.up, move_s=0.2)
                 return "OK"
-            if name in ("HOME", "POSE", "ROT") and self.moving():
+            if name in ("HOME", "POSE", "ROT", "SPIN") and self.moving():
                 return "ERR 3 busy: the table is moving; wait for STATE? IDLE"
             if name == "HOME":
                 return self._pose("+z") if not args else "ERR 2 HOME takes no argument"
@@ -141,6 +147,8 @@ class TurntableSim(PtyService):
                 return self._pose(args[0])
             if name == "ROT":
                 return self._rotate(args)
+            if name == "SPIN":
+                return self._spin(args)
             return f"ERR 1 unknown command {parts[0]!r}"
 
     def _turned(self) -> float:
@@ -173,4 +181,23 @@ class TurntableSim(PtyService):
         kept = 1.0 + self.turn_error
         self._move_end = self.device.rotate(sign + args[0][1], abs(angle) * kept, rate * kept, self.settle_s)
         self.up, self._turn_deg = "+" + args[0][1], angle if args[0][0] == "+" else -angle
+        return "OK"
+
+    def _spin(self, args: list[str]) -> str:
+        if len(args) != 3 or not _AXIS_RE.match(args[0]):
+            return "ERR 2 SPIN takes <axis> <dps> <seconds>, e.g. SPIN +z 90 10"
+        try:
+            rate, seconds = float(args[1]), float(args[2])
+        except ValueError:
+            return "ERR 2 SPIN: <dps> and <seconds> must be numbers"
+        if not (math.isfinite(rate) and 0 < abs(rate) <= MAX_RATE_DPS):
+            return f"ERR 2 SPIN: the rate must be non-zero and within +-{MAX_RATE_DPS:g} deg/s"
+        if not (math.isfinite(seconds) and 0 < seconds <= MAX_SPIN_S):
+            return f"ERR 2 SPIN: the seconds must be within 0..{MAX_SPIN_S:g}"
+        sign = args[0][0] if rate > 0 else ("-" if args[0][0] == "+" else "+")
+        kept = 1.0 + self.turn_error
+        self._move_start = self._now()
+        self._move_end = self.device.command([ConstantRate(sign + args[0][1], abs(rate) * kept, seconds,
+                                                           settle_s=self.rate_settle_s)]) + self.settle_s
+        self.up, self._turn_deg = "+" + args[0][1], 0.0
         return "OK"

@@ -46,6 +46,7 @@ from station.engines.calibration_turntable_checks import (
     check_rotation_gaps,
     check_steady_steps,
 )
+from station.engines.calibration_turntable_gsens import g_sensitivity_from_poses
 from station.engines.earth import STANDARD_GRAVITY, earth_rate_vertical
 from station.engines.samples import as_samples, check_rate
 from station.engines.sensor_model import SensorCalibration
@@ -326,8 +327,18 @@ def fit_gyroscope(data: TurntableCapture, accel: AccelStage, settings: Turntable
     if not bias_solved:
         warnings.append("gyroscope: the rotations turn one way only about each axis, so the bias does "
                         "not cancel; the static bias was subtracted instead (add the opposite turns)")
+    # g-sensitivity (calibration_turntable_gsens, eq. 1), where the poses determine it. The bias stays the
+    # static mean: the poses' specific force averages to zero in the built-in sequences, where it is the
+    # intercept of eq. (1) too.
+    gsens = g_sensitivity_from_poses(acc, gyro, statics, accel.matrix, accel.bias, m_g, omega_v)
+    warnings += gsens.warnings
+    g_extra = {}
+    if gsens.matrix is not None:
+        g_extra["g_sensitivity"] = gsens.matrix.tolist()
     b_sd = _gyro_bias_sd(gyro, statics, static_var, len(static_gyro))
     gyro_sd = _gyro_stddev(rot, gyro_mean, b_sd)
+    if gsens.stddev is not None:
+        gyro_sd["g_sensitivity"] = gsens.stddev
     if rot.condition > 50:
         warnings.append(f"gyroscope: the rotations determine the parameters poorly (condition number "
                         f"{rot.condition:.0f}); turn about each axis both ways")
@@ -336,7 +347,7 @@ def fit_gyroscope(data: TurntableCapture, accel: AccelStage, settings: Turntable
         residual_rms=float(np.sqrt(np.mean(rot.angle_error**2))), stddev=gyro_sd,
         extra={"rotations": len(rotations), "residual": "integrated angle error, rad",
                "earth_rate_compensated": latitude_deg is not None,
-               "bias_from_rotations": rot.bias_rotation.tolist()})
+               "bias_from_rotations": rot.bias_rotation.tolist(), **g_extra})
     poses = [{"label": lab, "t0": float(t[sl.start]), "t1": float(t[sl.stop - 1]), "kind": "rotation",
               "angle_error_deg": float(np.degrees(rot.angle_error[k]))}
              for k, (lab, sl) in enumerate(rotations)]
