@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from mocks.chamber import ChamberSweep, scenario_sweep
+from mocks.mag_sessions import desk_session, sphere_session
 from mocks.rig import (
     Move,
     Rotation,
@@ -40,7 +41,7 @@ from mocks.rig import (
 )
 from mocks.truth import UnitTruth
 from protocols import native
-from protocols.base import SAMPLE_DTYPE
+from protocols.base import SAMPLE_DTYPE, has_mag
 
 ENCODERS: dict[str, Callable[[np.ndarray], bytes]] = {"native": native.encode_samples}
 FRAME_SIZES: dict[str, int] = {"native": native.SAMPLE_FRAME_SIZE}
@@ -63,6 +64,8 @@ SCENARIOS: dict[str, tuple[Callable[[int], list[Segment]], bool]] = {
     "six-position-static": (lambda seed: sequence_segments("six-position", rotations=False), True),
     "handheld": (lambda seed: handheld_session(n_poses=20, seed=seed, hold_s=3.0, initial_still_s=10.0),
                  True),
+    "mag-sphere": (lambda seed: sphere_session(seed=seed), True),
+    "mag-desk": (lambda seed: desk_session(seed=seed), True),
 }
 
 
@@ -210,7 +213,7 @@ class SimDevice:
                 return native.encode_ack(msg_id, native.ACK_UNKNOWN)
             self._restart()
             return native.encode_ack(msg_id)
-        if msg_id in (native.IMU_SAMPLE, native.DEVICE_INFO, native.ACK):
+        if msg_id in (native.IMU_SAMPLE, native.IMU_MAG_SAMPLE, native.DEVICE_INFO, native.ACK):
             return b""  # device-to-host messages echoed back by the host: not commands
         return native.encode_ack(msg_id, native.ACK_UNKNOWN)
 
@@ -273,7 +276,8 @@ class SimDevice:
         -------
         list of bytes
         """
-        size = FRAME_SIZES.get(self.encoder_name)
+        # A nine-axis batch has frames of another size (IMU_MAG_SAMPLE): encoded one by one.
+        size = None if has_mag(samples) else FRAME_SIZES.get(self.encoder_name)
         if size is None:
             return [self.encode_samples(samples[i : i + 1]) for i in range(len(samples))]
         data = self.encode_samples(samples)

@@ -9,11 +9,17 @@ URL options (all optional)::
 
     seed=N            unit, noise and scenario seed (default 0)
     rate=HZ           sample rate at power-up (default 200)
-    scenario=NAME     still | chamber | six-position | twelve-position | six-position-static | handheld
+    scenario=NAME     still | chamber | six-position | twelve-position | six-position-static | handheld |
+                      mag-sphere | mag-desk
     t_min=C t_max=C rate_c_per_min=R soak_s=S
                       the chamber scenario's programme: from t_min up to t_max and back at R degC/min,
                       soaking S s at each end (default -20, 60, 1, 600: 3 h), then held at t_min
     loop=0|1          repeat the scenario (default: per scenario)
+    mag=1             a nine-axis unit: a magnetometer (hard and soft iron, rotated against the
+                      accelerometer, mocks.magnetometer) sending IMU_MAG_SAMPLE frames
+    field=UT dip=DEG declination=DEG
+                      the local Earth field (default 50 uT, dip 60, declination 0; implies mag=1);
+                      scenario=mag-sphere or mag-desk turns the unit for a magnetometer calibration
     grade=mems|tactical   intrinsics of the random unit (default mems)
     ideal=1           an ideal unit (identity, no noise) instead of a random one
     speed=X           device time runs X times faster than the wall clock (default 1)
@@ -42,6 +48,7 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException, to_
 from mocks.chamber import SCENARIO_DEFAULTS, ChamberSweep, sweep_from_options
 from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ, SCENARIOS, SimDevice
 from mocks.faults import FaultInjector, FaultSpec
+from mocks.magnetometer import MAG_OPTIONS, MagTruth, mag_from_options
 from mocks.truth import UnitTruth
 
 _FAULT_KEYS = {"garbage", "bitflip", "truncate", "drop", "stall", "stall_s", "garbage_max",
@@ -63,6 +70,7 @@ class SimOptions:
     record: bool = False
     faults: FaultSpec | None = None
     chamber: ChamberSweep | None = None
+    mag: MagTruth | None = None
 
 
 MAX_SEED = 2**32 - 1  # numpy's generators take seeds of 0..2^32-1
@@ -85,6 +93,7 @@ def parse_sim_url(url: str) -> SimOptions:
     options = SimOptions()
     fault_parts: list[str] = []
     chamber_options: dict[str, str] = {}
+    mag_options: dict[str, str] = {}
     for key, values in urllib.parse.parse_qs(parts.query, keep_blank_values=True).items():
         value = values[-1]
         try:
@@ -117,12 +126,18 @@ def parse_sim_url(url: str) -> SimOptions:
                 fault_parts.append(f"{key}={value}")
             elif key in SCENARIO_DEFAULTS:
                 chamber_options[key] = value
+            elif key in MAG_OPTIONS:
+                mag_options[key] = value
             else:
                 raise ValueError("unknown option")
         except ValueError as exc:
             raise ValueError(f"sim:// option {key}={value!r}: {exc}") from None
     if fault_parts:
         options.faults = FaultSpec.parse(",".join(fault_parts))
+    try:
+        options.mag = mag_from_options(mag_options, options.seed)
+    except ValueError as exc:
+        raise ValueError(f"sim:// magnetometer: {exc}") from None
     if options.scenario == "chamber":
         try:
             options.chamber = sweep_from_options(chamber_options)
@@ -163,6 +178,7 @@ class Serial(SerialBase):
         try:
             opts = parse_sim_url(self._port)
             truth = UnitTruth.ideal() if opts.ideal else UnitTruth.random(opts.seed, grade=opts.grade)
+            truth.mag = opts.mag
             self.device = SimDevice(truth, seed=opts.seed, rate_hz=opts.rate, scenario=opts.scenario,
                                     loop=opts.loop, chamber=opts.chamber)
         except ValueError as exc:

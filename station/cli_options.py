@@ -28,7 +28,8 @@ EXPORT_FORMATS = ("c", "bin", "json", "yaml", "px4", "ardupilot")
 """``station.export.writers.FORMATS``."""
 EXPORT_MAX_INSTANCE = {"px4": 3, "ardupilot": 2}
 """``station.export.writers.MAX_INSTANCE``: the highest sensor instance each autopilot has parameters for."""
-SIM_SCENARIOS = ("still", "chamber", "six-position", "twelve-position", "six-position-static", "handheld")
+SIM_SCENARIOS = ("still", "chamber", "six-position", "twelve-position", "six-position-static", "handheld",
+                 "mag-sphere", "mag-desk")
 """``mocks.device.SCENARIOS``: how the simulated unit moves."""
 SIM_ENCODERS = ("ascii", "mavlink", "mavlink-raw", "mavlink-scaled", "motioncal", "native", "vnymr", "xsens",
                 "xsens-fp1632")

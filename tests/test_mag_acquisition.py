@@ -4,6 +4,8 @@ the recorder over a real pty."""
 from __future__ import annotations
 
 import struct
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +13,11 @@ import pytest
 from test_drivers_serial import RawPty, make_samples
 
 from drivers import open_device
+from mocks.device import SimDevice
+from mocks.mag_sessions import mag_capture, nine_axis_unit
+from mocks.magnetometer import EarthField, MagTruth, mag_from_options
+from mocks.protocol_sim import parse_sim_url
+from mocks.pty_server import PtyServer
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, has_mag
 from protocols.crc import crc16_ccitt_false
 from protocols.mag_batches import join_batches, with_mag
@@ -188,3 +195,101 @@ def test_recorder_over_a_pty_keeps_the_field(tmp_path: Path, suffix: str) -> Non
     assert back.mag is not None
     n = len(back)
     assert np.allclose(back.mag, sent["mag"][:n].astype(float), equal_nan=True, rtol=1e-7)
+
+
+# ---------------------------------------------------------------------------------- the simulated unit
+
+
+def _dip_deg(acc: np.ndarray, field_body: np.ndarray) -> np.ndarray:
+    """Angle of the field below the horizontal plane the specific force (up) defines, degrees."""
+    up = acc / np.linalg.norm(acc, axis=1)[:, None]
+    return np.degrees(np.arcsin(-np.sum(up * field_body, axis=1) / np.linalg.norm(field_body, axis=1)))
+
+
+def test_earth_field_in_world_axes() -> None:
+    earth = EarthField(magnitude_ut=48.0, dip_deg=64.0, declination_deg=10.0)
+    north_facing = earth.world(heading_deg=10.0)  # world x towards magnetic north
+    assert np.allclose(north_facing, 48.0 * np.array([np.cos(np.radians(64)), 0.0, -np.sin(np.radians(64))]))
+    east_facing = earth.world(heading_deg=100.0)  # world x points magnetic east, world y magnetic north
+    assert abs(east_facing[0]) < 1e-9 and east_facing[1] > 0
+    assert np.isclose(np.linalg.norm(earth.world(37.0)), 48.0)
+
+
+def test_mag_truth_measure_and_correct_are_inverse() -> None:
+    truth = MagTruth.random(4)
+    assert np.allclose(truth.soft_iron, truth.soft_iron.T)
+    angle = np.degrees(np.arccos((np.trace(truth.rotation) - 1) / 2))
+    assert 1.0 <= angle <= 2.0
+    b = np.random.default_rng(0).normal(0, 30, (100, 3))
+    exact = MagTruth(hard_iron=truth.hard_iron, soft_iron=truth.soft_iron, rotation=truth.rotation)
+    assert np.allclose(exact.correct(exact.measure(b)), b)
+
+
+@pytest.mark.parametrize("kind", ["sphere", "desk"])
+def test_mag_capture_sessions_carry_the_truths_field(kind: str) -> None:
+    cap, truth = mag_capture(kind, seed=2, rate_hz=50.0, n_poses=12)
+    assert cap.mag is not None and cap.mag.shape == (len(cap), 3)
+    corrected = truth.mag.correct(cap.mag)
+    magnitude = np.linalg.norm(corrected, axis=1)
+    assert abs(magnitude.mean() - 50.0) < 0.05 and magnitude.std() < 0.4
+    still = np.linalg.norm(cap.gyro - np.median(cap.gyro, axis=0), axis=1) < np.radians(1.0)
+    dip = _dip_deg(cap.acc[still], corrected[still])
+    assert abs(np.median(dip) - 60.0) < 1.0  # the accelerometer's own errors tilt it by a few tenths
+    tilt = np.degrees(np.arccos(np.clip(cap.acc[:, 2] / np.linalg.norm(cap.acc, axis=1), -1, 1)))
+    if kind == "desk":
+        assert tilt.max() < 46.0
+    else:
+        assert tilt.max() > 120.0
+
+
+def test_sim_url_options_make_a_nine_axis_unit() -> None:
+    opts = parse_sim_url("sim://?mag=1&seed=3&field=45&dip=-30&declination=5&scenario=mag-desk")
+    assert opts.mag is not None and opts.mag.field == EarthField(45.0, -30.0, 5.0)
+    assert parse_sim_url("sim://?seed=3").mag is None and parse_sim_url("sim://?mag=0&field=40").mag is None
+    with pytest.raises(ValueError, match="dip"):
+        parse_sim_url("sim://?mag=1&dip=100")
+    with pytest.raises(ValueError, match="field"):
+        parse_sim_url("sim://?field=strong")
+
+
+def test_pty_end_to_end_capture_of_a_mag_unit_matches_what_was_sent(tmp_path: Path) -> None:
+    truth = nine_axis_unit(5, EarthField(magnitude_ut=47.0, dip_deg=55.0))
+    device = SimDevice(truth, seed=5, rate_hz=200, scenario="mag-sphere")
+    paths = [tmp_path / "mag.h5", tmp_path / "mag.csv"]
+    with PtyServer(device, record=True, speed=10) as server:
+        for path in paths:
+            with open_device(server.port_path) as dev:
+                result = record(dev, path, duration_s=8.0, handle_sigint=False)
+            assert result.ended_by == "duration" and result.error is None
+        sent = server.sent()
+    assert has_mag(sent)
+    got = read_samples(paths[0])
+    first = int(got["seq"][0])
+    assert got.tobytes() == sent[first : first + len(got)].tobytes()  # bit-exact, field included
+    for path in paths:
+        cap = read_capture(path)
+        assert cap.mag is not None and len(cap) >= 1500
+        magnitude = np.linalg.norm(truth.mag.correct(cap.mag), axis=1)
+        assert abs(magnitude.mean() - 47.0) < 0.1
+
+
+def test_simulate_command_serves_a_mag_unit(tmp_path: Path) -> None:
+    cli = [str(Path(sys.executable).with_name("imu-station"))]
+    link = tmp_path / "imu"
+    sim = subprocess.Popen(cli + ["simulate", "--mag", "field=40,dip=70", "--scenario", "mag-desk",
+                                  "--seed", "7", "--speed", "10", "--link", str(link), "--duration", "60"],
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        lines = [sim.stdout.readline() for _ in range(3)]
+        assert any("magnetometer: local field 40 uT, dip 70 deg" in line for line in lines), lines
+        out = tmp_path / "desk.csv"
+        cap_proc = subprocess.run(cli + ["capture", "--port", str(link), "--duration", "5", "-o", str(out)],
+                                  capture_output=True, text=True, timeout=60)
+        assert cap_proc.returncode == 0, cap_proc.stderr
+    finally:
+        sim.terminate()
+        sim.wait(timeout=10)
+    cap = read_capture(out)
+    truth = mag_from_options({"mag": "1", "field": "40", "dip": "70"}, 7)
+    assert truth is not None and cap.mag is not None
+    assert abs(np.linalg.norm(truth.correct(cap.mag), axis=1).mean() - 40.0) < 0.1

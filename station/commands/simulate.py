@@ -14,6 +14,7 @@ from station.cli_options import DURATION_S, MAX_SPEED, SEED, SIM_ENCODERS, SIM_S
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
+    from mocks.magnetometer import MagTruth
     from mocks.pty_server import PtyServer
 
 NAME = "simulate"
@@ -31,7 +32,13 @@ scenarios: still (lying flat, +z up), six-position, twelve-position (the capture
 with their rotations, looped), six-position-static (no rotations), handheld (imu_tk-style random
 poses, looped), chamber (lying flat, +z up, in a climatic chamber: from -20 up to +60 degC and
 back at 1 degC/min with 10 min soaks, 3 h of device clock, then held at -20 degC; the unit's
-thermal bias follows; --chamber changes the programme).
+thermal bias follows; --chamber changes the programme), mag-sphere (turned by hand through
+attitudes that cover the sphere, still a moment at each), mag-desk (turned on a desk, z axis within
+45 deg of up, still at each pose): the two magnetometer calibration sessions, for a unit with --mag.
+
+--mag makes a nine-axis unit: a magnetometer with hard and soft iron, turned a degree or two
+against the accelerometer, sending IMU_MAG_SAMPLE frames; --mag field=UT,dip=DEG,declination=DEG
+sets the local Earth field (default 50 uT, dip 60 deg, declination 0).
 
 faults (probabilities per frame, comma separated): garbage=P, bitflip=P, truncate=P, drop=P,
 stall=P with stall_s=S, garbage_max=N, disconnect_bytes=N, disconnect_s=S, seed=N."""
@@ -41,6 +48,7 @@ examples:
   imu-station simulate --scenario six-position --faults garbage=0.01,drop=0.001
   imu-station simulate --scenario twelve-position --speed 10
   imu-station simulate --scenario chamber --chamber t_min=0,t_max=40,rate_c_per_min=2 --speed 100
+  imu-station simulate --mag field=48,dip=64 --scenario mag-desk
   imu-station capture --port /tmp/imu --duration 10 -o still.csv   (in another terminal)"""
 
 
@@ -54,6 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chamber", default="", metavar="SPEC",
                         help="programme of --scenario chamber: t_min=C,t_max=C,rate_c_per_min=R,soak_s=S, "
                              "any of them (default: t_min=-20,t_max=60,rate_c_per_min=1,soak_s=600)")
+    parser.add_argument("--mag", nargs="?", const="mag=1", default="", metavar="SPEC",
+                        help="a unit with a magnetometer; SPEC sets the local field: field=UT,dip=DEG,"
+                             "declination=DEG, any of them (default: field=50,dip=60,declination=0)")
     parser.add_argument("--hold", action="store_true",
                         help="hold the last pose at the end of the scenario instead of looping it")
     parser.add_argument("--grade", default="mems", choices=["mems", "tactical"],
@@ -97,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     if args.link is not None and os.path.lexists(args.link) and not args.link.is_symlink():
         raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
+    truth.mag = _magnetometer(args.mag, args.seed)
     device = SimDevice(truth, seed=args.seed, rate_hz=args.rate, scenario=args.scenario,
                        loop=False if args.hold else None, encoder=args.protocol, chamber=chamber)
     server = PtyServer(device, faults=faults, link=args.link, speed=args.speed)
@@ -110,6 +122,10 @@ def run(args: argparse.Namespace) -> int:
               f"faults {faults.describe()}{speed}")
         if chamber is not None:
             print(f"chamber: {describe_scenario(chamber)}")
+        if truth.mag is not None:
+            earth = truth.mag.field
+            print(f"magnetometer: local field {earth.magnitude_ut:g} uT, dip {earth.dip_deg:g} deg, "
+                  f"declination {earth.declination_deg:g} deg")
         print(f"port: {server.port_path}")
         if args.link is not None:
             print(f"link: {args.link} -> {server.port_path}")
@@ -123,6 +139,21 @@ def run(args: argparse.Namespace) -> int:
         server.stop()
     _summary(server)
     return ExitCode.OK
+
+
+def _magnetometer(spec: str, seed: int) -> MagTruth | None:
+    """The magnetometer of ``--mag SPEC`` (comma-separated key=value), or None without --mag."""
+    from mocks.magnetometer import mag_from_options
+
+    if not spec:
+        return None
+    options = dict(part.partition("=")[::2] for part in spec.split(",") if part.strip())
+    options = {k.strip(): v.strip() for k, v in options.items()}
+    options.setdefault("mag", "1")
+    try:
+        return mag_from_options(options, seed)
+    except ValueError as exc:
+        raise StationError(f"--mag {spec!r}: {exc}; give field=UT,dip=DEG,declination=DEG") from None
 
 
 def _wait(server: PtyServer, stop: threading.Event, duration: float | None) -> None:
