@@ -12,7 +12,17 @@ with the temperature calibration of ``AP_InertialSensor_tempcal.cpp``: T and T_c
 
 and T_cal the INS_ACCn_CALTEMP / INS_GYRn_CALTEMP at which the offsets hold. Our re-fit of the
 thermal bias is c0 + P(T), so the offsets are b + c0 + P(T_cal). ArduPilot holds no misalignment,
-no gyro scale, no dT terms, and one temperature range per IMU for both sensors.
+no gyro scale, no dT terms, no gyro g-sensitivity, and one temperature range per IMU for both sensors.
+
+The compass (``AP_Compass_Backend::correct_field``, milligauss):
+
+    mag = W ((raw + COMPASS_OFS) * COMPASS_SCALE)   (the scale only where COMPASS_SCALE is set)
+
+W symmetric, [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]] (the parameters'
+own description). The offsets are ADDED: COMPASS_OFS = -b_m in milligauss (1 uT = 10 mGauss); W is
+the symmetric factor P of our correction (``autopilot.polar``), and COMPASS_SCALE is written 0 (no
+scaling) since W holds our scale. The rotation U is not held. Second and third compasses are
+COMPASS_OFS2_/DIA2_/ODI2_/SCALE2 and ..3.
 """
 
 from __future__ import annotations
@@ -23,6 +33,7 @@ from station import __version__
 from station.engines.thermal_model import ThermalModel
 from station.export import autopilot as ap
 from station.export.params_file import ParamsFile
+from station.export.sections import mag_calibration
 
 AXES = ("X", "Y", "Z")
 TEMP_REFERENCE = 35.0
@@ -30,6 +41,8 @@ SCALE_FACTOR = 1.0e6
 MAX_INSTANCE = 2
 ACCEL_SCALE_RANGE = (0.8, 1.2)  # INS_ACCSCAL_* @Range
 ACCEL_OFFSET_LIMIT = 3.5  # INS_ACCOFFS_* @Range, m/s^2
+MGAUSS_PER_UT = 10.0
+COMPASS_OFFSET_RANGE = 400.0  # COMPASS_OFS_* @Range, mGauss
 
 
 def names(instance: int) -> dict[str, str]:
@@ -46,6 +59,44 @@ def names(instance: int) -> dict[str, str]:
         "acc_caltemp": f"INS_ACC{n}_CALTEMP",
         "gyr_caltemp": f"INS_GYR{n}_CALTEMP",
     }
+
+
+def compass_names(instance: int) -> dict[str, str]:
+    """Compass parameter name prefixes of compass ``instance`` (0-based: 0 is COMPASS_OFS_*)."""
+    n = "" if instance == 0 else str(instance + 1)
+    return {"ofs": f"COMPASS_OFS{n}_", "dia": f"COMPASS_DIA{n}_", "odi": f"COMPASS_ODI{n}_",
+            "scale": f"COMPASS_SCALE{n}"}
+
+
+def ardupilot_correct_mag(values: dict[str, float], instance: int, raw_ut: np.ndarray) -> np.ndarray:
+    """ArduPilot's compass correction (no motor compensation) with ``values``, microtesla in and out."""
+    n = compass_names(instance)
+    offset = np.array([values.get(f"{n['ofs']}{a}", 0.0) for a in AXES])
+    scale = values.get(n["scale"], 0.0)
+    w = ap.symmetric_from(values, [f"{n['dia']}{a}" for a in AXES], [f"{n['odi']}{a}" for a in AXES], 1.0)
+    field = np.asarray(raw_ut, float) * MGAUSS_PER_UT + offset
+    if scale != 0.0:
+        field = field * scale
+    return field @ w.T / MGAUSS_PER_UT
+
+
+def _compass_params(params: ParamsFile, instance: int, notes: list[str]) -> list[ap.Param]:
+    mag = mag_calibration(params)
+    if mag is None:
+        return []
+    _, w = ap.polar(mag.correction)
+    n = compass_names(instance)
+    offsets = -mag.bias * MGAUSS_PER_UT
+    out = ap.vector_params(n["ofs"], AXES, offsets)
+    out += ap.symmetric_params([f"{n['dia']}{a}" for a in AXES], [f"{n['odi']}{a}" for a in AXES], w)
+    out.append(ap.Param(n["scale"], 0.0, "float"))
+    if np.any(np.abs(offsets) > COMPASS_OFFSET_RANGE):
+        notes.append(f"warning: compass offsets {np.round(offsets, 1).tolist()} mGauss are beyond the "
+                     f"documented +-{COMPASS_OFFSET_RANGE:g}; ArduPilot's arming check refuses offsets above "
+                     "COMPASS_OFFS_MAX")
+    notes.append("compass values are in the unit's own axes; ArduPilot applies COMPASS_ORIENT (external) or "
+                 "AHRS_ORIENTATION (internal) before them")
+    return out
 
 
 def _poly(values: dict[str, float], prefix: str, x: np.ndarray) -> np.ndarray:
@@ -101,6 +152,7 @@ def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None
     n = names(instance)
     out: list[ap.Param] = []
     notes: list[str] = []
+    compass = _compass_params(params, instance, notes)
     thermal = params.thermal
     if thermal is not None and thermal.accel is None and thermal.gyro is None:
         thermal = None  # a thermal section without a model: nothing to compensate
@@ -147,11 +199,15 @@ def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None
         out += ap.vector_params(n["gyr_off"], AXES, gyr_off)
         notes.append("ArduPilot re-measures gyro offsets at every boot unless INS_GYR_CAL = 0; "
                      "set it to keep these")
-    out += tcal
-    notes.append("ArduPilot applies the sensor's orientation before these corrections; the values are in the "
-                 "unit's own axes, as calibrated")
+    if out or thermal is not None:
+        # The IMU's temperature calibration is written only with the IMU's sections: a file holding
+        # a compass alone must not switch off a thermal calibration the vehicle already has.
+        out += tcal
+        notes.append("ArduPilot applies the sensor's orientation before these corrections; the values are in "
+                     "the unit's own axes, as calibrated")
+    out += compass
     return ap.finish_export("ardupilot", params, out, notes, fits, instance, ardupilot_correct,
-                            ardupilot_offsets)
+                            ardupilot_offsets, ardupilot_correct_mag)
 
 
 def render_ardupilot(result: ap.AutopilotExport, params: ParamsFile, station_id: str, exported: str) -> str:

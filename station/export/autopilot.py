@@ -3,8 +3,16 @@ and the size of what an autopilot cannot hold, measured at the six calibration p
 
 An autopilot corrects each axis on its own, (raw - offset(T)) * scale, with offset(T) one cubic
 in T. Our model (``station.engines.correction``) is a full matrix, a piecewise seven-term thermal
-bias with dT terms. What is lost is never hidden: ``assess`` runs the autopilot's own formula
-(read from the very parameters written) against ``apply_calibration`` and reports the error.
+bias with dT terms, and a gyro g-sensitivity. What is lost is never hidden: ``assess`` runs the
+autopilot's own formula (read from the very parameters written) against ``apply_calibration`` and
+reports the error.
+
+The magnetometer: both autopilots correct with a symmetric soft-iron matrix W after the offsets,
+W (raw - offset). Our correction C = M_m^-1 also turns the field into the accelerometer's axes
+(``frame: accel``), so it is split by the polar decomposition C = U P (U a rotation, P symmetric
+positive definite): P is written, U is what the target cannot hold. P (raw - b) has exactly the
+length of C (raw - b), so the field's magnitude survives and only its direction turns, by U's
+angle; ``assess_mag`` measures that error with the target's own formula.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ from station.engines.correction import apply_calibration
 from station.engines.sensor_model import SensorCalibration
 from station.engines.thermal_model import ThermalBias
 from station.export.params_file import ParamsFile
+from station.export.sections import field_norm, g_sensitivity, mag_calibration
 
 GYRO_POSE_RATE = 1.0  # rad/s: the gyro "poses" are +-1 rad/s about each axis
 FIT_POINTS = 401
@@ -34,6 +43,9 @@ TargetCorrection = Callable[[dict[str, float], np.ndarray, np.ndarray, np.ndarra
 InstanceCorrection = Callable[[dict[str, float], int, np.ndarray, np.ndarray, np.ndarray],
                               tuple[np.ndarray, np.ndarray]]
 InstanceOffsets = Callable[[dict[str, float], int, np.ndarray], tuple[np.ndarray, np.ndarray]]
+# A target's magnetometer formula: parameters, instance, raw field (uT) -> corrected field (uT).
+MagCorrection = Callable[[dict[str, float], int, np.ndarray], np.ndarray]
+MAG_UNIT = "uT"
 
 
 @dataclass
@@ -194,15 +206,21 @@ def assess(params: ParamsFile, values: dict[str, float],
     true_gyr = np.tile(poses["gyro"], (len(temps), 1))
     acc_triad = thermal.accel if thermal is not None else None
     gyr_triad = thermal.gyro if thermal is not None else None
+    g_matrix = g_sensitivity(params)
     raw_acc = _raw(params.accel, acc_triad, t_ref, true_acc, grid_t)
     raw_gyr = _raw(params.gyro, gyr_triad, t_ref, true_gyr, grid_t)
+    if g_matrix is not None:
+        # Each gyro pose is taken at the accel pose of its row: the bias G f rides on it.
+        raw_gyr = raw_gyr + true_acc @ g_matrix.T
     ours = apply_calibration(raw_acc, raw_gyr, grid_t, np.zeros_like(grid_t), params.accel, params.gyro,
-                             thermal)
+                             thermal, g_matrix)
     theirs = correct(values, raw_acc, raw_gyr, grid_t)
     # Exactly T_ref (it is in the grid): a grid point within isclose's tolerance of it is not it.
     at_ref = grid_t == t_ref
     is_pose = np.tile(np.arange(7) < 6, len(temps))
     for k, (name, triad) in enumerate((("accel", acc_triad), ("gyro", gyr_triad))):
+        if getattr(params, name) is None and triad is None:
+            continue  # nothing of this sensor in the file, nothing written for it
         err = np.linalg.norm(theirs[k] - ours[k], axis=1)
         entry: dict[str, Any] = {
             "unit": "m/s^2" if name == "accel" else "rad/s",
@@ -225,10 +243,12 @@ def misalignment_size(cal: SensorCalibration | None) -> float:
 
 def limitations(params: ParamsFile, errors: dict[str, dict[str, Any]],
                 cubic_fits: dict[str, CubicFit | None]) -> list[Limitation]:
-    """What an autopilot with per-axis offsets, per-axis accel scale (none for the gyro) and one
-    thermal cubic per sensor cannot hold, each with the error it leaves."""
+    """What an autopilot with per-axis offsets, per-axis accel scale (none for the gyro), one
+    thermal cubic per sensor and no g-sensitivity cannot hold, each with the error it leaves."""
     out = []
     for name in ("accel", "gyro"):
+        if name not in errors:
+            continue
         cal = getattr(params, name)
         e = errors[name]
         unit = e["unit"]
@@ -255,20 +275,100 @@ def limitations(params: ParamsFile, errors: dict[str, dict[str, Any]],
             out.append(Limitation(name, "dT terms", e["dtemp_terms"], unit,
                                   f"dT^2, dT and t*dT terms dropped; largest bias they carry for dT in "
                                   f"[{triad.dt_min:g}, {triad.dt_max:g}] degC/s"))
+    g_matrix = g_sensitivity(params)
+    if g_matrix is not None and params.gyro is not None:
+        # The corrected gyro's error at 1 g in each of the six poses: M_g^-1 G f.
+        left = np.linalg.norm(six_poses(STANDARD_GRAVITY) @ g_matrix.T @ params.gyro.correction.T, axis=1)
+        largest = float(np.max(np.abs(g_matrix)))
+        out.append(Limitation("gyro", "g-sensitivity", float(np.max(left)), "rad/s",
+                              f"no g-sensitivity on this target: largest |G_ij| {largest:.3g} rad/s per "
+                              "m/s^2; gyro bias left at 1 g, worst of the six poses"))
     return out
+
+
+def polar(correction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The polar decomposition C = U P (module docstring), from the SVD C = W S V^T.
+
+    Parameters
+    ----------
+    correction : ndarray, (3, 3)
+        C, the mag section's correction.
+
+    Returns
+    -------
+    tuple of ndarray
+        U = W V^T, the rotation; P = V S V^T, symmetric positive definite (both (3, 3)).
+    """
+    w, s, vt = np.linalg.svd(np.asarray(correction, float))
+    return w @ vt, vt.T @ np.diag(s) @ vt
+
+
+def rotation_angle(rotation: np.ndarray) -> float:
+    """The angle (rad) of a rotation matrix: arccos((trace - 1) / 2)."""
+    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def assess_mag(params: ParamsFile, values: dict[str, float], correct: Callable[[dict[str, float], np.ndarray],
+               np.ndarray]) -> tuple[dict[str, Any], list[Limitation]] | None:
+    """The target's magnetometer error against ours, and what it cannot hold (None without a mag section).
+
+    The six poses are the field of the section's ``field_norm`` along +-x, +-y, +-z of the output
+    frame; raw = M_m true + b_m; ours = true, theirs = ``correct(values, raw)``. The rotation U the
+    target drops turns a field of length |B| by at most 2 sin(angle / 2) |B|, reported as the
+    limitation's size.
+    """
+    mag = mag_calibration(params)
+    if mag is None:
+        return None
+    norm = field_norm(mag)
+    true = six_poses(norm)
+    err = np.linalg.norm(correct(values, mag.forward(true)) - true, axis=1)
+    rotation, _ = polar(mag.correction)
+    angle = rotation_angle(rotation)
+    frame = mag.extra.get("frame", "sensor")
+    errors = {"unit": MAG_UNIT, "poses": list(POSE_NAMES), "at_reference": [float(e) for e in err],
+              "field_norm": norm}
+    limitation = Limitation(
+        "mag", "rotation (polar part of C)", 2.0 * np.sin(angle / 2.0) * norm, MAG_UNIT,
+        f"the target's soft-iron matrix is symmetric: {np.degrees(angle):.3g} deg of rotation dropped "
+        + ("(the magnetometer's axes to the accelerometer's, frame accel)" if frame == "accel" else
+           "(frame sensor: only rounding)")
+        + f"; field direction off by up to that angle, worst error at |B| = {norm:g} uT; magnitude kept")
+    return errors, [limitation]
 
 
 def finish_export(target: str, params: ParamsFile, out: list[Param], notes: list[str],
                   fits: dict[str, CubicFit | None], instance: int, correct: InstanceCorrection,
-                  offsets: InstanceOffsets) -> AutopilotExport:
+                  offsets: InstanceOffsets, correct_mag: MagCorrection) -> AutopilotExport:
     """The export of ``out`` with its pose errors, offsets and limitations, from the target's own
-    ``correct`` and ``offsets`` formulas for sensor ``instance``."""
+    ``correct``, ``offsets`` and ``correct_mag`` formulas for sensor ``instance``."""
     result = AutopilotExport(target, out, notes=notes)
     values = result.values()
     result.pose_errors = assess(params, values, lambda v, a, g, t: correct(v, instance, a, g, t))
     result.offsets = lambda temp: offsets(values, instance, temp)
     result.limitations = limitations(params, result.pose_errors, cubic_fits=fits)
+    mag = assess_mag(params, values, lambda v, raw: correct_mag(v, instance, raw))
+    if mag is not None:
+        result.pose_errors["mag"], mag_limits = mag
+        result.limitations += mag_limits
     return result
+
+
+def symmetric_params(diagonal: list[str], off_diagonal: list[str], matrix: np.ndarray) -> list[Param]:
+    """A symmetric matrix as the autopilots name it: ``diagonal`` names for W_00, W_11, W_22,
+    ``off_diagonal`` for W_01, W_02, W_12 (both autopilots' order)."""
+    m = np.asarray(matrix, float)
+    values = [*np.diag(m), m[0, 1], m[0, 2], m[1, 2]]
+    names = [*diagonal, *off_diagonal]
+    return [Param(name, float(v), "float") for name, v in zip(names, values, strict=True)]
+
+
+def symmetric_from(values: dict[str, float], diagonal: list[str], off_diagonal: list[str],
+                   default_diagonal: float) -> np.ndarray:
+    """The symmetric matrix a target builds from its parameters (absent ones at their defaults)."""
+    d = [values.get(name, default_diagonal) for name in diagonal]
+    o = [values.get(name, 0.0) for name in off_diagonal]
+    return np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
 
 
 def vector_params(prefix: str, suffixes: tuple[str, ...], values: np.ndarray) -> list[Param]:

@@ -5,6 +5,9 @@ writers by file suffix: the ``export`` command, the factory run and the TUI's re
 call :func:`write_export`, and a new format is one entry of the table. Each writer writes its
 files atomically and returns them; :class:`ExportResult` says what was written and what the
 target cannot hold, and renders the report the command prints.
+
+A parameter file may hold any subset of sections: each format writes what it carries
+(:data:`CARRIES`) and notes the sections it leaves out; only a file holding none of them is refused.
 """
 
 from __future__ import annotations
@@ -20,9 +23,10 @@ from typing import Any
 from station.errors import StationError
 from station.export import ardupilot, c_export, json_export, px4
 from station.export.autopilot import AutopilotExport
-from station.export.blob import SERIAL_SIZE, STATION_ID_SIZE, build_blob, fixed_utf8
+from station.export.blob import CARRIED, SERIAL_SIZE, STATION_ID_SIZE, build_blob, fixed_utf8
 from station.export.loss_plot import plot_losses
 from station.export.params_file import ParamsFile
+from station.export.sections import left_out, present
 from station.files import atomic_write_bytes, atomic_write_text
 
 DEFAULT_NAMES = {"bin": "imu_calib.bin", "json": "imu_calib.json", "yaml": "imu_calib.yaml",
@@ -33,6 +37,9 @@ MAX_EPOCH_S = 253_402_300_799
 """9999-12-31T23:59:59Z, the last second an export date can name."""
 MAX_INSTANCE = {"px4": px4.MAX_INSTANCE, "ardupilot": ardupilot.MAX_INSTANCE}
 """The highest sensor instance (0-based) each autopilot has parameters for."""
+CARRIES: dict[str, tuple[str, ...] | None] = {"c": CARRIED, "bin": CARRIED, "json": None, "yaml": None,
+                                              "px4": CARRIED, "ardupilot": CARRIED}
+"""The sections each format writes (None: every section, the document is the file itself)."""
 
 
 @dataclass(frozen=True)
@@ -134,6 +141,10 @@ def report_lines(report: dict[str, Any]) -> list[str]:
             lines.append(f"  {lim['triad']:<5} {lim['what']:<26} {size} {lim['detail']}")
     for name, e in (report.get("pose_errors") or {}).items():
         poses = ", ".join(f"{p} {v:.3g}" for p, v in zip(e["poses"], e["at_reference"], strict=True))
+        if "temperature_range" not in e:  # the magnetometer: no thermal model, a field of field_norm
+            lines.append(f"  {name} error at the six field directions of {e['field_norm']:g} {e['unit']} "
+                         f"({e['unit']}): {poses}")
+            continue
         lines.append(f"  {name} error at the six poses at {e['reference_temp']:g} degC ({e['unit']}): "
                      f"{poses}; worst over {e['temperature_range'][0]:g}..{e['temperature_range'][1]:g} "
                      f"degC: {e['over_temperature']:.3g}")
@@ -167,9 +178,12 @@ def export_time() -> int:
     return int(_dt.datetime.now(_dt.UTC).timestamp())
 
 
-def _nothing_to_export(source: str) -> StationError:
-    return StationError(f"{source}: no accel, gyro or thermal section, nothing to export; run "
-                        "'imu-station calibrate' or 'imu-station thermal' first")
+def _nothing_to_export(source: str, fmt: str, held: list[str]) -> StationError:
+    holds = f"holds only {', '.join(held)}" if held else "holds no section"
+    return StationError(f"{source}: {holds}; --format {fmt} writes the accel, gyro, thermal and mag "
+                        "sections, so there is nothing to export; run 'imu-station calibrate' (--method mag "
+                        "for the magnetometer) or 'imu-station thermal' first, or export it with --format "
+                        "json or yaml")
 
 
 def _file_target(out: Path, fmt: str) -> Path:
@@ -208,7 +222,7 @@ def _autopilot_writer(fmt: str, build: Callable[..., AutopilotExport],
         except ValueError as exc:
             raise StationError(str(exc)) from None
         if not result.params:
-            raise _nothing_to_export(settings.source)
+            raise _nothing_to_export(settings.source, fmt, present(params))
         path = _file_target(out, fmt)
         atomic_write_text(path, render(result, params, settings.station_id, settings.exported))
         return [path], result
@@ -279,9 +293,10 @@ def write_export(params: ParamsFile, fmt: str, out: str | Path, *, source: str |
     """
     if fmt not in WRITERS:
         raise StationError(f"unknown export format {fmt!r}; known: {', '.join(FORMATS)}")
-    empty = params.accel is None and params.gyro is None and params.thermal is None
-    if empty and fmt not in ("json", "yaml"):
-        raise _nothing_to_export(str(source))
+    carried = CARRIES[fmt]
+    held = present(params)
+    if carried is not None and not set(held) & set(carried):
+        raise _nothing_to_export(str(source), fmt, held)
     settings = ExportSettings(source=str(source),
                               station_id=station_id if station_id is not None else socket.gethostname(),
                               exported_utc=export_time() if exported_utc is None else exported_utc,
@@ -290,8 +305,15 @@ def write_export(params: ParamsFile, fmt: str, out: str | Path, *, source: str |
     result = ExportResult(format=fmt, params=settings.source, station_id=settings.station_id,
                           exported=settings.exported, files=list(files), autopilot=autopilot)
     if autopilot is not None and plot is not None:
-        plot_losses(params, autopilot, plot)
-        result.files.append(Path(plot))
+        if params.accel is None and params.gyro is None:
+            result.notes.append(f"--plot {plot}: not written, the file has no accel or gyro offsets to draw")
+        else:
+            plot_losses(params, autopilot, plot)
+            result.files.append(Path(plot))
+    if carried is not None:
+        skipped = left_out(params, carried, fmt)
+        if skipped is not None:
+            result.notes.append(skipped)
     if fmt in ("c", "bin"):
         result.notes += _cut_notes(params, settings.station_id)
     return result
