@@ -199,3 +199,12 @@ def test_text_report_of_a_mag_only_file(tmp_path: Path, capsys) -> None:
     assert "what ardupilot cannot hold" in text and "rotation (polar part of C)" in text
     assert f"mag error at the six field directions of {FIELD_UT:g} uT (uT)" in text
     assert "not written, the file has no accel or gyro offsets to draw" in text and not png.exists()
+
+
+def test_large_hard_iron_warns_against_ardupilots_arming_limit() -> None:
+    params = make_params(seed=17, accel=False, gyro=False, thermal=False, mag="sensor")
+    params.other["mag"]["bias"] = [200.0, 0.0, -10.0]  # 2000 mGauss on x
+    notes = " ".join(build_ardupilot(params).notes)
+    assert "exceed COMPASS_OFFS_MAX's default 1800" in notes
+    params.other["mag"]["bias"] = [150.0, 0.0, -10.0]
+    assert "COMPASS_OFFS_MAX" not in " ".join(build_ardupilot(params).notes)

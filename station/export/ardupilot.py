@@ -42,7 +42,7 @@ MAX_INSTANCE = 2
 ACCEL_SCALE_RANGE = (0.8, 1.2)  # INS_ACCSCAL_* @Range
 ACCEL_OFFSET_LIMIT = 3.5  # INS_ACCOFFS_* @Range, m/s^2
 MGAUSS_PER_UT = 10.0
-COMPASS_OFFSET_RANGE = 400.0  # COMPASS_OFS_* @Range, mGauss
+COMPASS_OFFSETS_MAX = 1800.0  # COMPASS_OFFS_MAX default (AP_COMPASS_OFFSETS_MAX_DEFAULT), mGauss
 
 
 def names(instance: int) -> dict[str, str]:
@@ -90,10 +90,10 @@ def _compass_params(params: ParamsFile, instance: int, notes: list[str]) -> list
     out = ap.vector_params(n["ofs"], AXES, offsets)
     out += ap.symmetric_params([f"{n['dia']}{a}" for a in AXES], [f"{n['odi']}{a}" for a in AXES], w)
     out.append(ap.Param(n["scale"], 0.0, "float"))
-    if np.any(np.abs(offsets) > COMPASS_OFFSET_RANGE):
-        notes.append(f"warning: compass offsets {np.round(offsets, 1).tolist()} mGauss are beyond the "
-                     f"documented +-{COMPASS_OFFSET_RANGE:g}; ArduPilot's arming check refuses offsets above "
-                     "COMPASS_OFFS_MAX")
+    if np.any(np.abs(offsets) > COMPASS_OFFSETS_MAX):
+        notes.append(f"warning: compass offsets {np.round(offsets, 1).tolist()} mGauss exceed "
+                     f"COMPASS_OFFS_MAX's default {COMPASS_OFFSETS_MAX:g}: ArduPilot's arming check refuses "
+                     "them unless it is raised")
     notes.append("compass values are in the unit's own axes; ArduPilot applies COMPASS_ORIENT (external) or "
                  "AHRS_ORIENTATION (internal) before them")
     return out
