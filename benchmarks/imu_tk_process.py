@@ -1,0 +1,159 @@
+"""Calibration speed, whole process against whole process: ``imu-station calibrate --method free --imu-tk``
+against imu_tk's own C++/Ceres build on imu_tk's Xsens session, side by side in one run.
+
+    .venv/bin/python benchmarks/imu_tk_process.py [--repeats 7] [--cache DIR]
+
+imu_tk is built once with ``../shared/peers/imu_tk/build.sh`` into ``--cache`` (default
+``~/.cache/imu-station/imu_tk``; skipped, saying why, when it cannot be built). Both processes read the
+session from files (imu_tk its two text files, the station a capture CSV written from them), fit, and
+write their result (imu_tk prints it; the station merges it into a parameter file and prints its report):
+
+- imu_tk: ``test_imu_calib_quiet ACC GYRO`` (the upstream demo without its viewer);
+- station: ``imu-station calibrate xsens.csv --method free --imu-tk --gravity 9.81744 --convention upper
+  --initial-still 50 -o params.yaml`` (imu_tk's gravity, misalignment form and 50 s still period).
+
+Runs alternate (imu_tk, station, imu_tk, ...) so that both see the same load; medians of ``--repeats``.
+The parameters are compared entry by entry: the station's ``correction`` matrices (C = T K) and biases
+against imu_tk's full-precision dump (``test_imu_calib_dump``). Start-up is measured too: ``imu-station
+--help``, and the station's run with OpenBLAS allowed two threads (``OPENBLAS_NUM_THREADS=2``) against
+the default the command sets (one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import os
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+XSENS = REPO / "tests" / "data" / "xsens-imu_tk"
+BUILD = REPO.parent / "shared" / "peers" / "imu_tk" / "build.sh"
+STATION = [str(Path(sys.executable).with_name("imu-station"))]
+OPTIONS = ["--method", "free", "--imu-tk", "--gravity", "9.81744", "--convention", "upper",
+           "--initial-still", "50"]
+
+
+def build_imu_tk(cache: Path) -> Path | str:
+    """imu_tk's binaries folder, built once into ``cache``; or why it could not be built."""
+    binaries = cache / "bin"
+    if (binaries / "test_imu_calib_quiet").exists() and (binaries / "test_imu_calib_dump").exists():
+        return binaries
+    if not BUILD.exists():
+        return f"{BUILD} is not there (the peers folder is not checked out beside the project)"
+    print(f"building imu_tk into {cache} (about a minute, once) ...", flush=True)
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run(["bash", str(BUILD), str(cache)], capture_output=True, text=True)
+    if done.returncode != 0:
+        return f"build.sh failed ({done.returncode}): {(done.stderr or done.stdout).strip()[-400:]}"
+    return binaries
+
+
+def inputs(folder: Path) -> tuple[Path, Path, Path]:
+    """imu_tk's two text files, gunzipped, and the same session as a capture CSV."""
+    from station.acquisition.capture import Capture
+    from station.acquisition.capture_csv import write_csv
+
+    paths = []
+    for name in ("acc", "gyro"):
+        path = folder / f"xsens_{name}.txt"
+        with gzip.open(XSENS / f"xsens_{name}.txt.gz", "rb") as src, open(path, "wb") as dst:
+            shutil.copyfileobj(src, dst)
+        paths.append(path)
+    acc, gyro = np.loadtxt(paths[0]), np.loadtxt(paths[1])
+    csv = folder / "xsens.csv"
+    write_csv(csv, Capture(acc[:, 0], acc[:, 1:], gyro[:, 1:]))
+    return paths[0], paths[1], csv
+
+
+def wall(cmd: list[str], env: dict[str, str] | None = None) -> float:
+    """Wall seconds of one process, which must succeed."""
+    start = time.perf_counter()
+    done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    seconds = time.perf_counter() - start
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}): {done.stderr[-1000:]}")
+    return seconds
+
+
+def imu_tk_parameters(binaries: Path, acc: Path, gyro: Path) -> dict[str, np.ndarray]:
+    """acc_T, acc_K, acc_B, gyro_T, gyro_K, gyro_B from imu_tk's full-precision dump."""
+    out = subprocess.run([str(binaries / "test_imu_calib_dump"), str(acc), str(gyro)], check=True,
+                         capture_output=True, text=True).stdout
+    values = {}
+    for name, body in re.findall(r"^(\w+)=\[(.*)\]$", out, flags=re.M):
+        values[name] = np.array([[float(v) for v in row.split(",")] for row in body.split(";")]).squeeze()
+    return values
+
+
+def compare(params: Path, ref: dict[str, np.ndarray]) -> list[tuple[str, float]]:
+    """Largest relative difference per quantity: C = T K (relative to its largest entry) and the bias."""
+    with open(params) as fh:
+        ours = yaml.safe_load(fh)
+    rows = []
+    for sensor, key in (("accel", "acc"), ("gyro", "gyro")):
+        c_ref = ref[f"{key}_T"] @ np.diag(ref[f"{key}_K"])
+        c_ours = np.asarray(ours[sensor]["correction"])
+        rows.append((f"{sensor} C = T K", float(np.abs(c_ours - c_ref).max() / np.abs(c_ref).max())))
+        b_ref, b_ours = ref[f"{key}_B"], np.asarray(ours[sensor]["bias"])
+        rows.append((f"{sensor} bias", float(np.abs(b_ours / b_ref - 1.0).max())))
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "imu-station" / "imu_tk")
+    args = parser.parse_args()
+
+    helps = [wall([*STATION, "--help"]) for _ in range(args.repeats)]
+    print(f"start-up: imu-station --help {statistics.median(helps):.3f} s (median of {args.repeats}; "
+          "target under 0.15 s)")
+    binaries = build_imu_tk(args.cache)
+    with tempfile.TemporaryDirectory(prefix="imu-tk-bench-") as tmp:
+        acc, gyro, csv = inputs(Path(tmp))
+        params = Path(tmp) / "params.yaml"
+        station = [*STATION, "calibrate", str(csv), *OPTIONS, "-o", str(params), "--replace"]
+        two_threads = dict(os.environ, OPENBLAS_NUM_THREADS="2")
+        if isinstance(binaries, str):
+            print(f"imu_tk: skipped, {binaries}")
+            ours = [wall(station) for _ in range(args.repeats)]
+            print(f"imu-station calibrate --method free --imu-tk, whole process: "
+                  f"{statistics.median(ours):.3f} s")
+            return
+        theirs, ours, ours_two = [], [], []
+        wall(station)  # compiled modules cached before the first timed run
+        for _ in range(args.repeats):
+            theirs.append(wall([str(binaries / "test_imu_calib_quiet"), str(acc), str(gyro)]))
+            ours.append(wall(station))
+            ours_two.append(wall(station, env=two_threads))
+        t_ref, t_ours, t_two = (statistics.median(v) for v in (theirs, ours, ours_two))
+        print(f"imu_tk's Xsens session, whole processes, median of {args.repeats} alternating runs:")
+        print(f"  imu_tk (C++/Ceres, test_imu_calib_quiet):        {t_ref:.3f} s  "
+              f"(runs {' '.join(format(v, '.2f') for v in theirs)})")
+        print(f"  imu-station calibrate --method free --imu-tk:     {t_ours:.3f} s  "
+              f"(runs {' '.join(format(v, '.2f') for v in ours)})")
+        print(f"  ratio station / imu_tk: {t_ours / t_ref:.2f} ({'faster' if t_ours < t_ref else 'SLOWER'})")
+        print(f"  the station with OpenBLAS on two threads:        {t_two:.3f} s (one thread is the default: "
+              f"{t_two / t_ours:.2f}x its time)")
+        print("parameters against imu_tk's (largest relative difference):")
+        for name, diff in compare(params, imu_tk_parameters(binaries, acc, gyro)):
+            print(f"  {name:16s} {diff:.1e}")
+    print(f"load average at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+
+
+if __name__ == "__main__":
+    main()
