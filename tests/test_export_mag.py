@@ -208,3 +208,47 @@ def test_large_hard_iron_warns_against_ardupilots_arming_limit() -> None:
     assert "exceed COMPASS_OFFS_MAX's default 1800" in notes
     params.other["mag"]["bias"] = [150.0, 0.0, -10.0]
     assert "COMPASS_OFFS_MAX" not in " ".join(build_ardupilot(params).notes)
+
+
+def test_simulated_nine_axis_unit_through_apply_the_c_and_the_autopilots(tmp_path: Path, capsys) -> None:
+    """A simulated desk session (mocks.mag_sessions) with the unit's true magnetometer as the mag
+    section: 'imu-station apply' and the exported C give the truth's own inverse of the field, and
+    the autopilots report the unit's rotation against the accelerometer."""
+    from test_export_c import build, c_apply, relative_error
+
+    from mocks.mag_sessions import mag_capture
+    from station.acquisition.capture_csv import read_csv, write_csv
+    from station.engines.sensor_model import SensorCalibration
+    from station.export.c_export import write_c_export
+
+    capture, truth = mag_capture("desk", seed=3)
+    mag = truth.mag
+    params = ParamsFile(device={"serial": truth.serial},
+                        accel=SensorCalibration(truth.accel.matrix, truth.accel.bias, method="truth"))
+    matrix = mag.soft_iron @ mag.rotation
+    params.other["mag"] = {"matrix": matrix.tolist(), "bias": mag.hard_iron.tolist(),
+                           "correction": np.linalg.inv(matrix).tolist(), "frame": "accel",
+                           "field_norm": mag.field.magnitude_ut}
+    source, raw_csv, out = tmp_path / "unit.yaml", tmp_path / "raw.csv", tmp_path / "corrected.csv"
+    params.save(source)
+    write_csv(raw_csv, capture)
+    assert main(["apply", str(source), str(raw_csv), "-o", str(out)]) == 0
+    raw, corrected = read_csv(raw_csv), read_csv(out)
+    np.testing.assert_allclose(corrected.mag, mag.correct(raw.mag), atol=1e-5)
+    # The field's magnitude comes back to the Earth field within the unit's noise and resolution.
+    assert np.abs(np.linalg.norm(corrected.mag, axis=1) - 50.0).max() < 1.0
+    # The C on the same raw samples.
+    write_c_export(ParamsFile.load(source), tmp_path / "fw", "st", 0)
+    rows = np.zeros((len(raw.t), 11), dtype=np.float32)
+    rows[:, 0] = np.nan
+    rows[:, 2:5], rows[:, 5:8], rows[:, 8:11] = raw.acc, raw.gyro, raw.mag
+    got, _ = c_apply(build(tmp_path / "fw", "c"), tmp_path / "fw" / "imu_calib.bin", rows, tmp_path)
+    reference = np.hstack([corrected.acc, corrected.gyro, corrected.mag])
+    assert relative_error(got, reference, rows) < 2e-6
+    # What PX4 drops is the unit's own rotation against the accelerometer.
+    capsys.readouterr()
+    assert main(["export", str(source), "-f", "px4", "-o", str(tmp_path / "u.params"), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    lim = next(x for x in report["limitations"] if x["triad"] == "mag")
+    true_angle = np.degrees(np.arccos((np.trace(mag.rotation) - 1) / 2))
+    assert 1.0 <= true_angle <= 2.0 and f"{true_angle:.3g} deg" in lim["detail"]
