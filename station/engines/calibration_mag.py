@@ -1,0 +1,424 @@
+"""Magnetometer calibration: hard iron, soft iron and the rotation against the accelerometer, fitted
+jointly with the dip-angle constraint (the equations are in :mod:`station.engines.mag_fit`).
+
+The steps:
+
+1. rows with a magnetometer sample; refuse constant or clipped readings (:mod:`mag_inputs`);
+2. a start: the least-squares sphere (eq. (7) of ``mag_fit``); where its directions cover at least
+   ``ELLIPSOID_COVERAGE`` of the sphere, the algebraic ellipsoid (eq. (6)) instead, since on a
+   partial cover the quadric is poorly determined and may not even be an ellipsoid; refuse
+   directions in a plane or covering less than ``MIN_COVERAGE``;
+3. the still samples give the down direction d = -a / |a|; the rotation that best satisfies the dip
+   constraint is solved linearly (``initial_rotation``);
+4. a first fit with the soft-L1 loss (iteratively reweighted, ``JointProblem.reweighted``), whose
+   magnitude residuals show the disturbed stretches (eq. (1) of ``mag_inputs``) and whose dip
+   residuals show still samples that were not (an acceleration the detector missed): both are
+   left out;
+5. the final Levenberg-Marquardt fit, each residual set weighted by its own scatter, and its
+   covariance s^2 (J^T J)^-1 (``calibration_common.covariance``) propagated to every reported value.
+
+Without the operator's field magnitude F the data's own is used: the fit runs at the start's F and
+is then rescaled so that det C = 1 (the geometric mean of the ellipsoid's semi-axes becomes F):
+(3) is unchanged by a common scale of C and F, and (2) scales with it. The result's matrix A = C^-1
+splits (left polar decomposition) into A = P R: P symmetric (the soft iron's shape and scale) and R
+the rotation from the accelerometer's axes to the magnetometer's (``alignment``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from station.engines.calibration_common import covariance, propagate
+from station.engines.mag_coverage import MagCoverage, field_coverage
+from station.engines.mag_fit import JointProblem, Start, ellipsoid_fit, initial_rotation, polar, sphere_fit
+from station.engines.mag_inputs import (
+    Disturbance,
+    check_directions,
+    check_moving,
+    check_not_saturated,
+    disturbed,
+    gravity_spread,
+    still_noise,
+    still_samples,
+    usable_rows,
+)
+from station.errors import EngineInputError
+
+# Magnetometer samples the fit needs at the least.
+MIN_SAMPLES = 50
+# Below this share of the sphere the readings cannot determine an ellipsoid at all.
+MIN_COVERAGE = 0.15
+# From this share on, the algebraic ellipsoid is a good start; below it, the sphere.
+ELLIPSOID_COVERAGE = 0.6
+# Below this share the result carries a warning naming the missing directions.
+WARN_COVERAGE = 0.5
+# Still samples the dip constraint needs, and the least spread of their down directions (deg):
+# with one pose only, the rotation about the field is free.
+MIN_STILL, MIN_DOWN_SPREAD_DEG = 20, 10.0
+# A dip residual beyond this many robust sigmas is a sample that was not still after all.
+DIP_OUTLIER_SIGMAS = 6.0
+# Differences between the estimated dip and the geomagnetic model's worth a warning (deg).
+DIP_WARN_DEG = 3.0
+# Scatter of |a| between still poses above which the accelerometer looks uncalibrated (a calibrated
+# one scatters by a few 1e-4, an uncalibrated MEMS part by 3e-3 to 1e-2).
+GRAVITY_SPREAD = 2e-3
+# Share of the samples in disturbed stretches above which the capture is refused: the level the
+# rest holds is then no longer clearly the Earth's field.
+MAX_DISTURBED = 0.25
+# The magnitude residual may exceed the noise at the still poses by this factor (the noise of moving
+# samples, quantization and rounding add a little) before the fit is said not to describe the data.
+MAX_NOISE_RATIO = 3.0
+# Outlier-resistant first pass: rounds of reweighting, residuals beyond this share of F weighed down.
+ROBUST_SHARE, ROBUST_ROUNDS = 0.02, 3
+
+
+@dataclass(frozen=True)
+class MagCapture:
+    """A session for the magnetometer fit: one row per sample.
+
+    Attributes
+    ----------
+    t : ndarray, (N,)
+        Sample times, s.
+    mag : ndarray, (N, 3)
+        Raw field, microtesla (NaN rows: no magnetometer sample there).
+    acc : ndarray, (N, 3), optional
+        Accelerometer (any unit, corrected if a calibration is at hand): the down direction. None
+        gives the plain fit in the magnetometer's own axes.
+    gyro : ndarray, (N, 3), optional
+        Gyroscope, rad/s: also required slow for a still sample.
+    """
+
+    t: np.ndarray
+    mag: np.ndarray
+    acc: np.ndarray | None = None
+    gyro: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class MagSettings:
+    """How to fit.
+
+    Attributes
+    ----------
+    field_ut : float, optional
+        |true| to scale to (microtesla); None: the data's own.
+    model_dip_deg : float, optional
+        The dip a geomagnetic model gives for the place, compared with the estimate.
+    window_s : float
+        Moving-variance window of the still detector, s.
+    joint : bool
+        Fit the rotation with the dip constraint (needs ``acc``); False: the plain fit.
+    """
+
+    field_ut: float | None = None
+    model_dip_deg: float | None = None
+    window_s: float = 0.5
+    joint: bool = True
+
+
+@dataclass
+class MagCalibration:
+    """The fitted magnetometer: forward model raw = matrix @ true + bias, microtesla.
+
+    Attributes
+    ----------
+    matrix, bias : ndarray
+        A (3, 3) and b (3,) of the forward model.
+    frame : str
+        ``accel`` (true in the accelerometer's axes) or ``sensor`` (plain fit, C symmetric).
+    field_norm : float
+        F, microtesla.
+    field_given : bool
+        F was given (the operator or a geomagnetic model), not the data's own.
+    residual_rms : float
+        RMS of |true| - F over the samples used, microtesla.
+    dip_rms : float or None
+        RMS of the dip residual (eq. (3) of ``mag_fit``) over the still samples, microtesla.
+    coverage : MagCoverage
+        Field directions visited (corrected field).
+    dip_deg : float or None
+        Estimated dip (positive: the field points down).
+    stddev : dict
+        1-sigma: ``bias`` (3,), ``matrix`` and ``correction`` (3, 3), ``alignment_deg`` (3,: the
+        rotation vector of R, deg), ``dip_deg``, ``field_norm`` (when the data's own).
+    start : str
+        ``ellipsoid`` or ``sphere``.
+    samples, still : int
+        Samples in the magnitude fit and in the dip fit.
+    disturbances : list of Disturbance
+        Stretches left out.
+    warnings : list of str
+        What the operator should know, with what to do.
+    """
+
+    matrix: np.ndarray
+    bias: np.ndarray
+    frame: str
+    field_norm: float
+    field_given: bool
+    residual_rms: float
+    dip_rms: float | None
+    coverage: MagCoverage
+    dip_deg: float | None
+    stddev: dict[str, np.ndarray | float]
+    start: str
+    samples: int
+    still: int
+    disturbances: list[Disturbance] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def correction(self) -> np.ndarray:
+        """C = A^-1: true = C (raw - b)."""
+        return np.linalg.inv(self.matrix)
+
+    @property
+    def method(self) -> str:
+        """Which fit produced it, for the parameter file."""
+        return ("mag: joint ellipsoid and alignment, dip constraint" if self.frame == "accel"
+                else "mag: ellipsoid (no gravity reference)")
+
+    def shape_and_alignment(self) -> tuple[np.ndarray, np.ndarray]:
+        """A = P R (left polar decomposition): the soft iron's symmetric P and the rotation R."""
+        return polar(self.matrix)
+
+    def alignment_deg(self) -> float:
+        """Angle of R, the rotation between the accelerometer's and the magnetometer's axes, deg."""
+        _, rot = self.shape_and_alignment()
+        return float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def rotation_vector(rot: np.ndarray) -> np.ndarray:
+    """The rotation vector (axis times angle, rad) of a rotation matrix near the identity or not.
+
+    Parameters
+    ----------
+    rot : ndarray, (3, 3)
+
+    Returns
+    -------
+    ndarray, (3,)
+    """
+    angle = np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))
+    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
+    if angle < 1e-12:
+        return 0.5 * axis
+    return axis * (angle / (2.0 * np.sin(angle)))
+
+
+def _start(m: np.ndarray) -> Start:
+    """Step 2: the sphere, or the ellipsoid where the sphere's directions cover enough."""
+    sphere = sphere_fit(m)
+    check_directions(m - sphere.bias)
+    cover = field_coverage(m - sphere.bias)
+    if cover.share < MIN_COVERAGE:
+        raise EngineInputError(
+            f"the capture's field directions cover {cover.share:.0%} of the sphere, too few to fit the "
+            f"magnetometer (at least {MIN_COVERAGE:.0%}); capture again turning the unit through more "
+            f"orientations: {'; '.join(cover.advice(2))}")
+    if cover.share >= ELLIPSOID_COVERAGE:
+        ellipsoid = ellipsoid_fit(m)
+        if ellipsoid is not None:
+            return ellipsoid
+    return sphere
+
+
+def _spread_deg(down: np.ndarray) -> float:
+    """Largest angle of the down directions from their mean direction, deg."""
+    mean = down.mean(axis=0)
+    mean /= max(np.linalg.norm(mean), 1e-300)
+    return float(np.degrees(np.arccos(np.clip(down @ mean, -1.0, 1.0))).max())
+
+
+def _robust_sigma(r: np.ndarray) -> float:
+    return 1.4826 * float(np.median(np.abs(r - np.median(r))))
+
+
+def _rms(r: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(r**2))) if len(r) else 0.0
+
+
+def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> MagCalibration:
+    """Fit hard iron, soft iron and (with a gravity reference) the alignment to the accelerometer.
+
+    Parameters
+    ----------
+    data : MagCapture
+        The session.
+    settings : MagSettings
+        Field magnitude, the model's dip, the still detector's window.
+
+    Returns
+    -------
+    MagCalibration
+        The forward model, its 1-sigma, residuals, coverage, disturbances left out and warnings.
+
+    Raises
+    ------
+    EngineInputError
+        No magnetometer samples, constant or clipped readings, too few directions, or a capture
+        disturbed throughout; each message says what to do.
+    """
+    t = np.asarray(data.t, float)
+    rows = usable_rows(data.mag)
+    m = np.asarray(data.mag, float)[rows]
+    t_m = t[rows]
+    if len(m) < MIN_SAMPLES:
+        raise EngineInputError(f"the capture holds {len(m)} magnetometer samples; the fit needs at least "
+                               f"{MIN_SAMPLES} (a minute of turning the unit at 10 Hz or more)")
+    check_moving(m)
+    check_not_saturated(m)
+    start = _start(m)
+    warnings: list[str] = []
+    gravity = _gravity_reference(data, rows, settings, warnings)
+    field_fit = settings.field_ut if settings.field_ut is not None else float(
+        np.linalg.det(start.correction) ** (-1.0 / 3.0))
+    problem = JointProblem(m, m[gravity.still], gravity.down, field_fit)
+    correction0 = field_fit * start.correction
+    sin0 = 0.0
+    if problem.joint:
+        rot, sin0 = initial_rotation(problem.m_still, problem.down, start)
+        correction0 = rot @ correction0
+    p = problem.pack(start.bias, correction0, sin0)
+    robust = ROBUST_SHARE * field_fit
+    for _ in range(ROBUST_ROUNDS):
+        p = problem.reweighted(p, robust, robust).solve(p)
+
+    # Step 4: disturbances and still samples that moved, by the first fit's residuals.
+    r_norm, r_dip = problem.residual_parts(p)
+    left_out, disturbances = disturbed(t_m, r_norm, field_fit)
+    keep_norm = ~left_out
+    keep_dip = ~left_out[gravity.still]
+    if problem.joint:
+        keep_dip &= np.abs(r_dip - np.median(r_dip)) <= DIP_OUTLIER_SIGMAS * max(_robust_sigma(r_dip), 1e-12)
+    if left_out.mean() > MAX_DISTURBED:
+        raise EngineInputError(
+            f"the field's magnitude jumps in {len(disturbances)} stretches covering {left_out.mean():.0%} of "
+            "the capture: the unit was near magnets, motors or steel most of the time; capture again away "
+            "from them (a wooden table, a metre from computers and desk frames)")
+    if disturbances:
+        warnings.append(f"left out {len(disturbances)} disturbed stretch(es) where the field's magnitude "
+                        f"jumped: {', '.join(d.describe() for d in disturbances[:5])}"
+                        f"{' ...' if len(disturbances) > 5 else ''}; keep magnets, motors and steel away")
+
+    # Step 5: the final fit, each residual set weighted by its scatter, twice: the second time with
+    # the scatter at the optimum, so that s^2 of the covariance is about 1 for both sets.
+    final = replace(problem, m=m[keep_norm], m_still=problem.m_still[keep_dip], down=problem.down[keep_dip])
+    r_norm, r_dip = r_norm[keep_norm], r_dip[keep_dip]
+    for _ in range(2):
+        final = replace(final, w_norm=max(_rms(r_norm), 1e-9 * field_fit),
+                        w_dip=max(_rms(r_dip), 1e-9 * field_fit) if final.joint else 1.0)
+        p = final.solve(p)
+        r_norm, r_dip = final.residual_parts(p)
+    cov, _ = covariance(final.jacobian(p), final.residual(p))
+    if gravity.noise is not None and _rms(r_norm) > MAX_NOISE_RATIO * gravity.noise:
+        warnings.append(f"the magnitude residual ({_rms(r_norm):.2g} uT RMS) is "
+                        f"{_rms(r_norm) / gravity.noise:.0f} times the magnetometer's noise at the still "
+                        f"poses ({gravity.noise:.2g} uT): the field changed during the session in a way no "
+                        "calibration describes (a disturbance that moved with the unit, steel nearby); "
+                        "check the surroundings and capture again")
+    return _result(final, p, cov, settings, start, disturbances, warnings)
+
+
+@dataclass(frozen=True)
+class _Gravity:
+    """Step 3: the still samples (of the magnetometer's rows) used for eq. (3), their down
+    directions, and the magnetometer's noise there."""
+
+    still: np.ndarray
+    down: np.ndarray
+    noise: float | None
+
+
+def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings,
+                       warnings: list[str]) -> _Gravity:
+    """Step 3: the down directions at the still samples, or none (the plain fit), saying why."""
+    none = _Gravity(np.zeros(int(rows.sum()), bool), np.zeros((0, 3)), None)
+    if not settings.joint:
+        return none
+    if data.acc is None:
+        warnings.append("no accelerometer: fitted in the magnetometer's own axes (frame: sensor)")
+        return none
+    t = np.asarray(data.t, float)[rows]
+    acc = np.asarray(data.acc, float)[rows]
+    gyro = np.asarray(data.gyro, float)[rows] if data.gyro is not None else None
+    rate = 1.0 / float(np.median(np.diff(t)))
+    still = still_samples(acc, gyro, rate, settings.window_s) & np.isfinite(acc).all(axis=1)
+    noise = still_noise(np.asarray(data.mag, float)[rows], still)
+    if still.sum() < MIN_STILL:
+        warnings.append(f"only {int(still.sum())} still samples: the rotation to the accelerometer needs "
+                        "still poses (hold the unit still for a second at each); fitted in the "
+                        "magnetometer's own axes instead")
+        return replace(none, noise=noise)
+    down = -acc[still] / np.linalg.norm(acc[still], axis=1)[:, None]
+    if _spread_deg(down) < MIN_DOWN_SPREAD_DEG:
+        warnings.append("the unit was held still in one attitude only: the rotation to the accelerometer "
+                        "needs still poses at several tilts; fitted in the magnetometer's own axes instead")
+        return replace(none, noise=noise)
+    spread = gravity_spread(acc, still)
+    if spread is not None and spread > GRAVITY_SPREAD:
+        warnings.append(f"|a| differs by {spread:.2%} (1 sigma) between the still poses: the accelerometer "
+                        "looks uncalibrated, and its errors tilt the down direction the alignment is solved "
+                        "against; calibrate it first (imu-station calibrate --method free -o PARAMS) and "
+                        "run this again with the same PARAMS")
+    return _Gravity(still, down, noise)
+
+
+def _normalised(problem: JointProblem, p: np.ndarray, given: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """(C, b, F) of the parameters, rescaled to det C = 1 where F is the data's own."""
+    b, c, _ = problem.unpack(p)
+    if given:
+        return c, b, problem.field
+    k = float(np.linalg.det(c)) ** (-1.0 / 3.0)
+    return k * c, b, k * problem.field
+
+
+def _result(problem: JointProblem, p: np.ndarray, cov: np.ndarray, settings: MagSettings, start: Start,
+            disturbances: list[Disturbance], warnings: list[str]) -> MagCalibration:
+    """The reported values and their 1-sigma by first-order propagation of the fit's covariance."""
+    given = settings.field_ut is not None
+    c, b, field_norm = _normalised(problem, p, given)
+    matrix = np.linalg.inv(c)
+    _, rot = polar(matrix)
+
+    def reported(q: np.ndarray) -> np.ndarray:
+        cq, bq, fq = _normalised(problem, q, given)
+        aq = np.linalg.inv(cq)
+        _, rq = polar(aq)
+        dip = np.degrees(np.arcsin(np.clip(problem.unpack(q)[2], -1.0, 1.0)))
+        # the rotation relative to the fitted one: small, so its vector is smooth in q
+        turn = np.degrees(rotation_vector(rq @ rot.T))
+        return np.concatenate([bq, aq.ravel(), cq.ravel(), turn, [dip, fq]])
+
+    sd = np.sqrt(np.clip(np.diag(propagate(reported, p, cov)), 0.0, None))
+    stddev: dict[str, np.ndarray | float] = {"bias": sd[0:3], "matrix": sd[3:12].reshape(3, 3),
+                                             "correction": sd[12:21].reshape(3, 3)}
+    if problem.joint:
+        stddev["alignment_deg"] = sd[21:24]
+        stddev["dip_deg"] = float(sd[24])
+    if not given:
+        stddev["field_norm"] = float(sd[25])
+    h = (problem.m - b) @ c.T
+    cover = field_coverage(h)
+    sin_dip = problem.unpack(p)[2]
+    dip_rms = (_rms(np.einsum("ij,ij->i", problem.down, (problem.m_still - b) @ c.T) - field_norm * sin_dip)
+               if problem.joint else None)
+    dip = float(np.degrees(np.arcsin(np.clip(sin_dip, -1.0, 1.0)))) if problem.joint else None
+    if cover.share < WARN_COVERAGE:
+        leans = ("the fit leans on the dip constraint" if problem.joint
+                 else "the soft iron is poorly determined without a gravity reference")
+        warnings.append(f"the field directions cover {cover.share:.0%} of the sphere: {leans}; to cover "
+                        f"more, {'; '.join(cover.advice(2))}")
+    model = settings.model_dip_deg
+    if dip is not None and model is not None and abs(dip - model) > DIP_WARN_DEG:
+        warnings.append(f"the estimated dip {dip:.1f} deg differs from the geomagnetic model's "
+                        f"{model:.1f} deg: a disturbance the whole session long (a steel desk, a building's "
+                        "frame), or a wrong place or date given")
+    return MagCalibration(
+        matrix=matrix, bias=b, frame="accel" if problem.joint else "sensor", field_norm=field_norm,
+        field_given=given, residual_rms=_rms(np.linalg.norm(h, axis=1) - field_norm), dip_rms=dip_rms,
+        coverage=cover, dip_deg=dip, stddev=stddev, start=start.kind, samples=len(problem.m),
+        still=len(problem.m_still), disturbances=disturbances, warnings=warnings)
