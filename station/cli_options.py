@@ -259,7 +259,7 @@ def port(text: str) -> str:
 
 def add_port_options(parser: argparse.ArgumentParser, *, required: bool = True,
                      port_group: argparse._ActionsContainer | None = None, port_help: str | None = None,
-                     protocol_option: bool = True, baud: bool = True) -> None:
+                     protocol_option: bool = True, baud: bool = True, repeat: bool = False) -> None:
     """Add ``--port``, ``--protocol`` and ``--baud``, the same for every command that opens a unit.
 
     Parameters
@@ -276,9 +276,11 @@ def add_port_options(parser: argparse.ArgumentParser, *, required: bool = True,
         Add ``--protocol`` too.
     baud : bool
         Add ``--baud`` too.
+    repeat : bool
+        ``--port`` may be given several times; the namespace holds the list.
     """
     (port_group or parser).add_argument(
-        "--port", required=required, type=port, metavar="PORT",
+        "--port", required=required, type=port, metavar="PORT", action="append" if repeat else "store",
         help=port_help or "serial device path (/dev/ttyUSB0, a pty), or pyserial URL (sim://, loop://)")
     if protocol_option:
         add_protocol_option(parser)

@@ -24,15 +24,22 @@ and the link statistics). It runs until --duration seconds of device clock, Ctrl
 breaks; in every case the file keeps every sample received. A status line on stderr shows the
 rate, samples, damaged frames and lost samples.
 
-exit codes: 0 done, 3 device or link error (after saving what was received), 4 usage,
-130 interrupted by Ctrl-C (after saving)."""
+With several --port, every unit is recorded at once, by one process, into its own file in the
+directory -o names: SERIAL.csv (or SERIAL.h5 with --format h5), with the serial the unit reports
+(a unit that does not say it is named after its port; a serial two ports report names the
+second file SERIAL-2). One status line per unit. A unit that fails (vanishes, is silent, sends
+no frames) is reported and the others go on.
+
+exit codes: 0 done, 3 device or link error (after saving what was received; with several ports,
+any unit's), 4 usage, 130 interrupted by Ctrl-C (after saving)."""
 EPILOG = """\
 examples:
   imu-station capture --port /dev/ttyUSB0 --duration 60 -o still.csv
   imu-station capture --port sim:// --rate 400 --duration 10 -o sim.h5
   imu-station capture --port /dev/ttyUSB0 --protocol auto --baud 115200 --duration 60 -o mti.csv
   imu-station capture --port /dev/ttyACM0 --protocol ascii \\
-      --columns t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps --duration 30 -o arduino.csv"""
+      --columns t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps --duration 30 -o arduino.csv
+  imu-station capture --port /dev/ttyUSB0 --port /dev/ttyUSB1 --port /dev/ttyUSB2 --duration 60 -o tray/"""
 
 
 # SET_RATE carries the rate as an unsigned 16-bit number of Hz (specs/native-protocol.md).
@@ -41,7 +48,9 @@ RATE_HZ = number(int, 1, 0xFFFF, unit="Hz")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the capture command's options to ``parser``."""
-    add_port_options(parser, required=True)
+    add_port_options(parser, required=True, repeat=True,
+                     port_help="serial device path (/dev/ttyUSB0, a pty), or pyserial URL (sim://, loop://); "
+                               "repeat it to record several units at once (device paths and ptys only)")
     parser.add_argument("--columns", metavar="SPEC",
                         help="with --protocol ascii: CSV columns and units, e.g. t:ms,ax:g,ay:g,az:g,gx:dps,"
                              "gy:dps,gz:dps (default: t,ax,ay,az,gx,gy,gz,temp in s, m/s^2, rad/s, degC)")
@@ -51,7 +60,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="set the unit's output rate first (SET_RATE, 1..65535 Hz); with text lines that "
                              "carry no clock (MotionCal, VectorNav), the rate they come at (default: 100)")
     add_output_option(parser, required=True, metavar="FILE",
-                      help="capture file to write: .csv, or .h5/.hdf5 for the HDF5 capture file")
+                      help="capture file to write: .csv, or .h5/.hdf5 for the HDF5 capture file; with "
+                           "several --port, the directory the units' files go in")
+    parser.add_argument("--format", choices=("csv", "h5"), default=None,
+                        help="with several --port: the files' format, SERIAL.csv or SERIAL.h5 (default: csv)")
 
 
 def report(result: CaptureResult, out: IO[str]) -> None:
@@ -185,6 +197,12 @@ def run(args: argparse.Namespace) -> int:
     from station.acquisition.port_capture import capture_to_file
     from station.status_line import CaptureStatusLine
 
+    if len(args.port) > 1:
+        return run_many(args)
+    if args.format is not None:
+        raise StationError("--format applies to several --port; with one, the suffix of -o FILE decides "
+                           "(.csv, or .h5/.hdf5)")
+    args.port = args.port[0]
     protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr, args.rate)
     result = capture_to_file(args.port, args.output, protocol=protocol, duration_s=args.duration,
                              rate_hz=args.rate, baudrate=args.baud,
@@ -195,5 +213,47 @@ def run(args: argparse.Namespace) -> int:
         return result.error.exit_code
     if result.ended_by == "interrupted":
         print("imu-station capture: interrupted; the file keeps every sample received", file=sys.stderr)
+        return ExitCode.INTERRUPTED
+    return ExitCode.OK
+
+
+def run_many(args: argparse.Namespace) -> int:
+    """Capture every ``--port`` at once into the directory ``-o``, print one summary line per unit,
+    and exit with the worst outcome."""
+    from station.acquisition.multi_capture import capture_many
+    from station.multi_status import UnitStatusLines
+
+    if args.protocol == "auto":
+        raise StationError("--protocol auto reads one port; with several, name the protocol (native, ...)")
+    if args.rate is not None:
+        raise StationError("--rate takes one --port; to record several units at another rate, set each "
+                           "unit's rate first (a capture of that port with --rate) and leave --rate out")
+    if args.output.exists() and not args.output.is_dir():
+        raise StationError(f"-o {args.output}: with several --port, -o names a directory, and this is a file")
+    protocol = resolve_protocol(args.port[0], args.protocol, args.baud, args.columns, sys.stderr)
+    outcomes = capture_many(args.port, args.output, fmt=args.format or "csv", protocol=protocol,
+                            duration_s=args.duration, baudrate=args.baud,
+                            status=lambda ports, duration_s: UnitStatusLines(sys.stderr, ports, duration_s))
+    failed = interrupted = with_file = 0
+    for outcome in outcomes:
+        name = outcome.serial or outcome.port
+        result = outcome.capture
+        if result is not None and result.rows:
+            with_file += 1
+            print(f"{name} ({outcome.port}): wrote {result.rows} samples ({result.device_time_s:.3f} s of "
+                  f"device clock) to {result.path}; link: {result.link.summary()}", file=sys.stdout)
+            if outcome.note:
+                print(f"  note: {outcome.note}", file=sys.stdout)
+        if outcome.error is not None:
+            failed += 1
+            print(f"imu-station capture: error: {outcome.error}", file=sys.stderr)
+        elif result is not None and result.ended_by == "interrupted":
+            interrupted += 1
+    print(f"{with_file} of {len(outcomes)} units have a file, {failed} ended with an error ({args.output})",
+          file=sys.stdout)
+    if failed:
+        return ExitCode.DEVICE
+    if interrupted:
+        print("imu-station capture: interrupted; the files keep every sample received", file=sys.stderr)
         return ExitCode.INTERRUPTED
     return ExitCode.OK

@@ -1,0 +1,264 @@
+"""A unit read without a thread: the caller's event loop says when its port has bytes.
+
+:class:`PolledPort` is a :class:`~drivers.interface.Device` whose bytes are read by whoever owns
+it, not by a reader thread of its own: it exposes the port's file descriptor for a selector
+(epoll), :meth:`PolledPort.read_now` reads and decodes what is there without waiting, and
+:meth:`PolledPort.send` writes a command without waiting for its answer. One loop can so serve
+many ports in one thread, decoding each port's bytes in one batch per turn (a thread per port
+wakes for every few bytes: that wake-up, not the decoding, is what a unit costs at 1 kHz).
+The blocking calls of the interface (``read(timeout)``, the commands) are built on the same two.
+
+It needs a port with a file descriptor: a device path or a pty, not a pyserial URL such as
+``sim://`` (served by a Python object, not by the kernel).
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+import serial
+
+from drivers.errors import (
+    CommandRejected,
+    CommandTimeout,
+    CommandUnsupported,
+    DriverError,
+    PortError,
+    PortLost,
+)
+from drivers.interface import Device
+from drivers.link_stats import LinkMonitor, LinkStats
+from drivers.serial_device import _COMMAND_NAMES, DEFAULT_BAUDRATE, MESSAGE_BACKLOG, _answers, open_serial
+from protocols import native
+from protocols.base import EMPTY_SAMPLES, Message
+from protocols.registry import make_decoder
+
+READ_CHUNK = 65_536
+
+
+class PolledPort(Device):
+    """One unit on a port with a file descriptor, read by the caller's loop.
+
+    Parameters
+    ----------
+    port : str
+        Device path (``/dev/ttyUSB0``, a pty such as ``/dev/pts/5``).
+    protocol : str
+        Decoder name from ``protocols.registry``; commands exist for ``native`` only.
+    baudrate : int
+        Line speed; ignored by pseudo-terminals.
+    exclusive : bool
+        Take an exclusive lock on the port (a second opener gets ``PortBusy``).
+
+    Raises
+    ------
+    PortError
+        The port cannot be opened, or it is a URL without a file descriptor.
+    """
+
+    def __init__(self, port: str, protocol: str = "native", baudrate: int = DEFAULT_BAUDRATE,
+                 exclusive: bool = True):
+        self.port = port
+        self._decoder = make_decoder(protocol)
+        self.protocol = self._decoder.label or protocol
+        self._serial = open_serial(port, baudrate, exclusive)
+        try:
+            self._fd = self._serial.fileno()
+        except (AttributeError, serial.SerialException, OSError):
+            self._serial.close()
+            raise PortError(f"{port}: a URL has no file descriptor to watch; give a device path or a pty "
+                            f"(serve simulated units with `imu-station simulate`)", port) from None
+        os.set_blocking(self._fd, False)
+        self._hangup = select.poll()
+        self._hangup.register(self._fd, select.POLLHUP | select.POLLERR | select.POLLNVAL)
+        self._pending: list[np.ndarray] = []
+        self._messages: deque[tuple[int, Message]] = deque(maxlen=MESSAGE_BACKLOG)
+        self._message_count = 0
+        self._info: dict[str, Any] = {}
+        self._monitor = LinkMonitor()
+        self._error: DriverError | None = None
+        self._closed = False
+
+    def fileno(self) -> int:
+        """The port's file descriptor, for a selector: readable when bytes arrived."""
+        return self._fd
+
+    @property
+    def failed(self) -> DriverError | None:
+        """The link's error once it broke (samples received before it may still wait in :meth:`read_now`)."""
+        return self._error
+
+    @property
+    def message_count(self) -> int:
+        """Messages other than samples received so far (a mark for :meth:`answer_since`)."""
+        return self._message_count
+
+    # -- reading -------------------------------------------------------------------------------
+
+    def _receive(self) -> None:
+        """Read and decode every byte waiting at the port, without blocking."""
+        if self._error is not None or self._closed:
+            return
+        chunks: list[bytes] = []
+        try:
+            while True:
+                data = os.read(self._fd, READ_CHUNK)
+                if not data:
+                    # pyserial's ports read nothing when nothing came (VMIN 0): only a hang-up says gone
+                    if not chunks and self._hangup.poll(0):
+                        raise OSError("hang-up")
+                    break
+                chunks.append(data)  # a tty gives at most its line buffer (4 KiB) a read: read on
+        except BlockingIOError:
+            pass
+        except OSError as exc:
+            self._error = PortLost(f"{self.port}: the port went away ({exc}); every sample received before "
+                                   f"was kept; check the cable or the simulator and capture again", self.port)
+        if chunks:
+            self._ingest(b"".join(chunks) if len(chunks) > 1 else chunks[0])
+
+    def _ingest(self, data: bytes) -> None:
+        decoded = self._decoder.feed(data)
+        mon = self._monitor
+        mon.add_bytes(len(data))
+        mon.update_decoder(self._decoder.stats)
+        if len(decoded.samples):
+            mon.add_samples(decoded.samples)
+            self._pending.append(decoded.samples)
+        for message in decoded.messages:
+            if message.msg_id == native.DEVICE_INFO:
+                try:
+                    self._info = native.parse_device_info(message.payload)
+                except (ValueError, UnicodeDecodeError):
+                    continue
+            self._message_count += 1
+            self._messages.append((self._message_count, message))
+
+    def read_now(self) -> np.ndarray:
+        """Every sample received since the last read, reading what the port has without waiting.
+
+        Raises the link's error once everything received before it was delivered.
+        """
+        self._receive()
+        if self._pending:
+            batch = self._pending[0] if len(self._pending) == 1 else np.concatenate(self._pending)
+            self._pending = []
+            return batch
+        if self._error is not None:
+            raise type(self._error)(str(self._error), self._error.port)
+        return EMPTY_SAMPLES
+
+    def _wait_readable(self, timeout: float | None) -> None:
+        if self._error is None and not self._closed:
+            select.select([self._fd], [], [], timeout)
+
+    def read(self, timeout: float | None = None) -> np.ndarray:
+        """Every sample received since the last read, waiting up to ``timeout`` for the first bytes."""
+        if not self._pending:
+            self._wait_readable(timeout)
+        return self.read_now()
+
+    # -- commands ------------------------------------------------------------------------------
+
+    def send(self, command_id: int, payload: bytes = b"") -> None:
+        """Write a native command and return at once; its answer arrives with later reads
+        (:meth:`answer_since`). A write that fails breaks the link (:attr:`failed`)."""
+        if self.protocol != "native":
+            name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
+            raise CommandUnsupported(f"{self.port}: the {self.protocol} protocol has no {name} command; "
+                                     f"configure the unit with its vendor's tool", self.port)
+        if self._error is not None or self._closed:
+            return
+        frame = native.encode_frame(command_id, payload)
+        try:
+            os.write(self._fd, frame)  # a command frame is far smaller than any port's output buffer
+        except OSError as exc:
+            self._error = PortLost(f"{self.port}: writing to the port failed ({exc}); check the cable or "
+                                   f"the simulator", self.port)
+
+    def answer_since(self, command_id: int, mark: int) -> Message | None:
+        """The answer to ``command_id`` among the messages after ``mark`` (:attr:`message_count`
+        when it was sent), or None; an ACK with an error status raises ``CommandRejected``."""
+        for index, message in self._messages:
+            if index > mark and _answers(message, command_id):
+                if message.msg_id == native.ACK:
+                    ack = native.parse_ack(message.payload)
+                    if not ack.ok:
+                        status = native.ACK_STATUS_NAMES.get(ack.status, f"status {ack.status}")
+                        name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
+                        raise CommandRejected(f"{self.port}: the unit refused {name}: {status}", self.port,
+                                              ack.status)
+                return message
+        return None
+
+    def command(self, command_id: int, payload: bytes = b"", timeout: float = 1.0,
+                retries: int = 2) -> Message:
+        """Send a native command and wait for its answer (resent on timeout); samples that arrive
+        meanwhile wait for the next read."""
+        name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
+        for _ in range(retries + 1):
+            mark = self._message_count
+            self.send(command_id, payload)
+            deadline = time.monotonic() + timeout
+            while True:
+                self._receive()
+                answer = self.answer_since(command_id, mark)
+                if answer is not None:
+                    return answer
+                if self._error is not None:
+                    raise type(self._error)(str(self._error), self._error.port)
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._wait_readable(left)
+        raise CommandTimeout(f"{self.port}: no answer to {name} in {retries + 1} tries of {timeout:g} s; "
+                             f"check that the unit is powered, speaks the {self.protocol} protocol and "
+                             f"that the baud rate is right", self.port)
+
+    def get_info(self, timeout: float = 1.0, retries: int = 2) -> dict[str, Any]:
+        """Ask the unit who it is (GET_INFO): serial, model, firmware, rate_hz."""
+        return native.parse_device_info(self.command(native.GET_INFO, b"", timeout, retries).payload)
+
+    def set_rate(self, rate_hz: int, timeout: float = 1.0) -> None:
+        """Set the output data rate (SET_RATE); raises ``CommandRejected`` if the unit refuses it."""
+        self.command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout)
+
+    def start(self, timeout: float = 1.0) -> None:
+        """Start streaming samples (START_STREAM)."""
+        self.command(native.START_STREAM, b"", timeout)
+
+    def stop(self, timeout: float = 1.0) -> None:
+        """Stop streaming samples (STOP_STREAM)."""
+        self.command(native.STOP_STREAM, b"", timeout)
+
+    # -- state ---------------------------------------------------------------------------------
+
+    @property
+    def stats(self) -> LinkStats:
+        """A snapshot of the link statistics (a copy: later samples do not change it)."""
+        return LinkStats(**vars(self._monitor.stats))
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """The last DEVICE_INFO the unit sent (empty until it sent one)."""
+        return dict(self._info)
+
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`close`."""
+        return self._closed
+
+    def close(self) -> None:
+        """Release the port; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._serial.close()
+        except (serial.SerialException, OSError):
+            pass

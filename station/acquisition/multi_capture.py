@@ -1,0 +1,362 @@
+"""Record many units at once from one thread: one event loop, one file per unit named by its serial.
+
+Every port is a :class:`~drivers.polled_port.PolledPort` registered with one selector (epoll).
+The loop wakes every ``READ_PERIOD_S``, reads the ports that have bytes and decodes each one's
+bytes in one batch, so a unit costs a few system calls and one decoder call per turn whatever
+its rate (a reader thread per port wakes for every few bytes). Each unit's samples gather
+for ``WRITE_PERIOD_S`` and go to its :class:`~station.acquisition.recorder.Recorder` in one
+batch; the units take turns, so the writes are spread over the period, not all on one turn.
+
+A unit is asked who it is (GET_INFO) as its port opens; its file is ``SERIAL.csv`` (or ``.h5``)
+in the directory, with the serial it reports. A unit that does not answer (twice), or speaks a
+protocol without commands, is named after its port. A serial reported by two ports names the
+second file ``SERIAL-2`` (the third ``SERIAL-3``...), which the outcome notes: no unit's
+samples are dropped for a provisioning mistake. Samples that come before the answer wait in
+memory and open the file.
+
+A unit that fails (its port does not open, vanishes, sends no sample in
+``NO_SAMPLES_TIMEOUT_S``: silent or garbage) ends with its error, keeping every sample it sent;
+the others go on. Ctrl-C ends every unit, keeping every sample received.
+"""
+
+from __future__ import annotations
+
+import re
+import selectors
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from drivers import DEFAULT_BAUDRATE, DriverError, LinkStats, NoSamples
+from drivers.polled_port import PolledPort
+from protocols import native
+from station.acquisition.recorder import (
+    NO_SAMPLES_TIMEOUT_S,
+    CaptureResult,
+    Recorder,
+    _install_sigint,
+    _link,
+    _no_rows,
+    _with_clock,
+)
+from station.text import printable
+
+READ_PERIOD_S = 0.02  # a pty holds ~20 KB: 0.4 s of a 1 kHz unit, far more than a turn
+WRITE_PERIOD_S = 0.5
+STATUS_INTERVAL_S = 0.25
+INFO_TIMEOUT_S = 0.5
+INFO_TRIES = 2
+FORMATS = {"csv": ".csv", "h5": ".h5"}
+
+
+@dataclass
+class UnitStatus:
+    """One unit as the live display shows it: name, link statistics, rows, device time, state."""
+
+    port: str
+    name: str  # the file's stem once known, else the port
+    stats: LinkStats
+    rows: int
+    device_time_s: float
+    state: str  # "identifying", "recording", "done", or the error that ended it
+
+
+StatusCallback = Callable[[Sequence[UnitStatus]], None]
+"""Called with every unit's :class:`UnitStatus` as the capture goes."""
+StatusDisplay = Callable[[Sequence[str], float | None], AbstractContextManager[StatusCallback]]
+"""Makes the live display for the given ports and duration; entering it gives the callback."""
+
+
+@dataclass
+class UnitOutcome:
+    """How one unit's capture ended.
+
+    ``capture`` is None when the port never opened (``error`` says why); else it is the unit's
+    :class:`CaptureResult`, whose ``error`` is this ``error``. ``note`` says what the station
+    decided about the file's name, when it was not simply the serial.
+    """
+
+    port: str
+    serial: str | None
+    capture: CaptureResult | None
+    error: DriverError | None
+    note: str = ""
+
+
+def file_stem(text: str) -> str:
+    """A file name from a serial or a port: what is not a letter, digit, ``.``, ``_`` or ``-`` becomes
+    ``_`` (a serial is the unit's, not a path), and a leading dot is dropped."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", text).lstrip(".") or "unit"
+
+
+def _port_stem(port: str) -> str:
+    """``/dev/ttyUSB0`` -> ``ttyUSB0``, ``/dev/pts/5`` -> ``pts-5``."""
+    return file_stem(port.removeprefix("/dev/").replace("/", "-"))
+
+
+class _Unit:
+    """One port in the loop: asked who it is, then recorded until it is done."""
+
+    def __init__(self, index: int, port: PolledPort, now: float):
+        self.index = index
+        self.port = port
+        self.opened_at = now
+        self.serial: str | None = None
+        self.stem: str | None = None
+        self.note = ""
+        self.recorder: Recorder | None = None
+        self.batch: list[np.ndarray] = []
+        self.info_tries = 0
+        self.info_due = now
+        self.done = False
+        self.ended_by = "stopped"
+        self.error: DriverError | None = None
+        self.result: CaptureResult | None = None
+
+    def receive(self) -> None:
+        """Take what the port has; a broken link ends the unit once its samples are taken."""
+        try:
+            batch = self.port.read_now()
+        except DriverError as exc:
+            self.error, self.ended_by, self.done = exc, "link error", True
+            return
+        if len(batch):
+            self.batch.append(batch)
+
+    def status(self) -> UnitStatus:
+        """The unit's line on the live display."""
+        rec = self.recorder
+        if self.done:
+            state = "done" if self.error is None else f"failed: {self.error}"
+        else:
+            state = "recording" if rec is not None else "identifying"
+        return UnitStatus(self.port.port, self.stem or self.port.port, self.port.stats,
+                          rec.rows if rec is not None else 0, rec.device_time_s if rec is not None else 0.0,
+                          state)
+
+
+class _Session:
+    """The units of one capture and the loop that serves them."""
+
+    def __init__(self, directory: Path, suffix: str, duration_s: float | None):
+        self.directory = directory
+        self.suffix = suffix
+        self.duration_s = duration_s
+        self.units: list[_Unit] = []
+        self.stems: dict[str, str] = {}  # stem -> port that has it
+
+    def identify(self, unit: _Unit, now: float) -> None:
+        """Name the unit's file once it said its serial, or once it did not answer in time."""
+        port = unit.port
+        serial = port.info.get("serial")
+        if serial is None and port.protocol == "native" and unit.info_tries < INFO_TRIES:
+            if now >= unit.info_due:
+                unit.info_tries += 1
+                unit.info_due = now + INFO_TIMEOUT_S
+                port.send(native.GET_INFO)
+            return
+        if serial is not None:
+            unit.serial = printable(serial)
+            stem = file_stem(str(serial))
+        else:
+            stem = _port_stem(port.port)
+            unit.note = (f"the unit did not say its serial (no answer to GET_INFO in {INFO_TRIES} tries of "
+                         f"{INFO_TIMEOUT_S:g} s): its file is named after its port"
+                         if port.protocol == "native" else
+                         f"the {port.protocol} protocol does not say the unit's serial: its file is named "
+                         f"after its port")
+        unit.stem = self._unique(stem, unit)
+        path = self.directory / (unit.stem + self.suffix)
+        unit.recorder = Recorder(path, device=port.info, port=port.port, protocol=port.protocol,
+                                 duration_s=self.duration_s)
+        if port.protocol == "native" and port.stats.samples == 0:
+            port.send(native.START_STREAM)  # a unit streams from power-up; one that was stopped starts
+
+    def _unique(self, stem: str, unit: _Unit) -> str:
+        """``stem``, or ``stem-2``, ``stem-3``... when another port already has it (noted)."""
+        first = stem
+        count = 1
+        while stem in self.stems:
+            count += 1
+            stem = f"{first}-{count}"
+        if count > 1:
+            unit.note = (f"serial {printable(first)} is also reported by {self.stems[first]}: this unit's "
+                         f"file is {stem}{self.suffix}; give the units distinct serials")
+        self.stems[stem] = unit.port.port
+        return stem
+
+    def write(self, unit: _Unit) -> None:
+        """Give the unit's gathered samples to its recorder in one batch."""
+        rec = unit.recorder
+        if rec is None or not unit.batch:
+            return
+        batch = unit.batch[0] if len(unit.batch) == 1 else np.concatenate(unit.batch)
+        unit.batch = []
+        rec.write(batch, _link(unit.port, rec))
+        if rec.full:
+            unit.ended_by, unit.done = "duration", True
+
+    def check(self, unit: _Unit, now: float, wall_deadline: float | None) -> None:
+        """End a unit that sent no sample in time, or ran past the wall-clock guard."""
+        stats = unit.port.stats
+        if stats.samples == 0 and now - unit.opened_at > NO_SAMPLES_TIMEOUT_S:
+            unit.error = NoSamples(f"{unit.port.port}: no sample arrived in {NO_SAMPLES_TIMEOUT_S:g} s "
+                                   f"({stats.bytes} bytes read, {stats.garbage_bytes} of them not frames); "
+                                   f"check that the unit streams, and the --protocol and baud rate",
+                                   unit.port.port)
+            unit.ended_by, unit.done = "link error", True
+        elif wall_deadline is not None and now > wall_deadline:
+            unit.ended_by, unit.done = "duration", True
+
+    def finish(self, unit: _Unit) -> None:
+        """Write what is left, close the file and the port, and keep the unit's result."""
+        port = unit.port
+        try:
+            if unit.recorder is None:  # the capture ends before the unit said who it is
+                unit.info_tries = INFO_TRIES
+                self.identify(unit, time.monotonic())
+            self.write(unit)
+        finally:
+            port.close()
+        rec = unit.recorder
+        assert rec is not None  # identify() made it
+        rec.close(_link(port, rec))
+        if rec.rows == 0:
+            unit.error, unit.ended_by = _no_rows(port, rec, unit.error, unit.ended_by), "link error"
+        unit.result = CaptureResult(path=rec.path, rows=rec.rows, device_time_s=rec.device_time_s,
+                                    link=_with_clock(port.stats, rec), ended_by=unit.ended_by,
+                                    error=unit.error, non_increasing=rec.non_increasing,
+                                    clock_jumps=list(rec.clock_jumps))
+
+
+def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", protocol: str = "native",
+                 duration_s: float | None = None, baudrate: int = DEFAULT_BAUDRATE,
+                 err: IO[str] | None = None, status: StatusDisplay | None = None,
+                 stop: threading.Event | None = None, handle_sigint: bool = True) -> list[UnitOutcome]:
+    """Record every unit at ``ports`` into its own file in ``directory`` until each has ``duration_s``
+    of device clock, or Ctrl-C, or ``stop``; a unit that fails ends alone.
+
+    Parameters
+    ----------
+    ports : sequence of str
+        Device paths or ptys (not URLs: the loop watches their file descriptors).
+    directory : str or Path
+        Where the files go (made if missing): ``SERIAL.csv`` or ``SERIAL.h5``.
+    fmt : str
+        ``csv`` or ``h5``.
+    protocol : str
+        Decoder name, with its option if any, for every port.
+    duration_s : float, optional
+        Seconds of device clock to record from each unit; None: until Ctrl-C or ``stop``.
+    baudrate : int
+        Line speed of real serial ports.
+    err : text stream, optional
+        Where ports that do not open are reported (default: stderr).
+    status : callable, optional
+        Makes the live display (see :data:`StatusDisplay`); None shows nothing.
+    stop : threading.Event, optional
+        Set it to end the capture (from another thread).
+    handle_sigint : bool
+        The first Ctrl-C ends the capture cleanly (main thread only).
+
+    Returns
+    -------
+    list of UnitOutcome
+        One per port, in the order of ``ports``.
+
+    Raises
+    ------
+    OutputFileError
+        A file cannot be written (the disk is full): every file is closed first.
+    """
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+    err = err if err is not None else sys.stderr
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    session = _Session(directory, FORMATS[fmt], duration_s)
+    outcomes: dict[int, UnitOutcome] = {}
+    selector = selectors.DefaultSelector()
+    now = time.monotonic()
+    for index, name in enumerate(ports):
+        try:
+            port = PolledPort(name, protocol=protocol, baudrate=baudrate)
+        except DriverError as exc:
+            print(f"{name}: {exc}", file=err)
+            outcomes[index] = UnitOutcome(name, None, None, exc)
+            continue
+        unit = _Unit(index, port, now)
+        session.units.append(unit)
+        selector.register(port, selectors.EVENT_READ, unit)
+        session.identify(unit, now)
+    interrupted = threading.Event()
+    restore = _install_sigint(interrupted) if handle_sigint else None
+    wall_deadline = None if duration_s is None else now + duration_s * 1.5 + 5.0
+    display = (status([u.port.port for u in session.units], duration_s) if status is not None
+               else nullcontext(None))
+    try:
+        with display as on_status:
+            _serve(session, selector, interrupted, stop, wall_deadline, on_status)
+    finally:
+        if restore is not None:
+            restore()
+        selector.close()
+        for unit in session.units:
+            if unit.result is None:
+                session.finish(unit)
+    for unit in session.units:
+        outcomes[unit.index] = UnitOutcome(unit.port.port, unit.serial, unit.result, unit.error, unit.note)
+    return [outcomes[i] for i in range(len(ports))]
+
+
+def _serve(session: _Session, selector: selectors.BaseSelector, interrupted: threading.Event,
+           stop: threading.Event | None, wall_deadline: float | None,
+           on_status: StatusCallback | None) -> None:
+    """The loop: every turn, read the ready ports; name, write, check the units; show the status."""
+    write_every = max(1, round(WRITE_PERIOD_S / READ_PERIOD_S))
+    start = time.monotonic()
+    last_status = 0.0
+    turn = 0
+    units = session.units
+    try:
+        while not all(u.done for u in units):
+            if interrupted.is_set() or (stop is not None and stop.is_set()):
+                for unit in units:
+                    if not unit.done:
+                        unit.ended_by, unit.done = "interrupted" if interrupted.is_set() else "stopped", True
+                break
+            turn += 1
+            delay = start + turn * READ_PERIOD_S - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            for key, _ in selector.select(0):
+                key.data.receive()
+            now = time.monotonic()
+            for unit in units:
+                if unit.result is not None:
+                    continue
+                if unit.stem is None:
+                    session.identify(unit, now)
+                if unit.done or (turn + unit.index) % write_every == 0:
+                    session.write(unit)
+                if not unit.done:
+                    session.check(unit, now, wall_deadline)
+                elif unit.result is None:
+                    selector.unregister(unit.port)
+                    session.finish(unit)
+            if on_status is not None and now - last_status >= STATUS_INTERVAL_S:
+                on_status([u.status() for u in units])
+                last_status = now
+    except KeyboardInterrupt:
+        for unit in units:
+            if not unit.done:
+                unit.ended_by, unit.done = "interrupted", True
+    if on_status is not None:
+        on_status([u.status() for u in units])

@@ -1,0 +1,134 @@
+"""``imu-station capture`` with several ports: one process, one file per unit named by its serial.
+
+Every unit is on a real pty: clean units are the project's simulator (``PtyServer``, which keeps
+what it sent), failing ones come from ``PtyFleet`` (garbage, silence, a port that vanishes).
+Files are read back and compared with what was sent, sample for sample.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.errors import PortError
+from drivers.polled_port import PolledPort
+from mocks.device import SimDevice
+from mocks.pty_fleet import FleetUnit, PtyFleet
+from mocks.pty_server import PtyServer
+from station.acquisition.capture import read_capture
+from station.acquisition.capture_h5 import read_samples
+from station.acquisition.multi_capture import capture_many, file_stem
+from station.cli import main
+
+CLI = [str(Path(sys.executable).with_name("imu-station"))]
+RATE_HZ = 200
+
+
+def assert_same_samples(path: Path, sent: np.ndarray, rows: int) -> None:
+    """The capture CSV at ``path`` holds ``rows`` samples: the first ``rows`` the unit sent."""
+    got = read_capture(path)
+    assert len(got) == rows
+    expected = sent[:rows]
+    np.testing.assert_array_equal(np.round(got.t * 1e6).astype(np.int64), expected["t_us"].astype(np.int64))
+    np.testing.assert_array_equal(got.acc.astype(np.float32), expected["acc"])
+    np.testing.assert_array_equal(got.gyro.astype(np.float32), expected["gyro"])
+
+
+def test_units_recorded_by_serial_while_failing_units_are_reported(tmp_path: Path) -> None:
+    failing = [FleetUnit(SimDevice(seed=20 + i, rate_hz=RATE_HZ), 3.0, mode, vanish_after_s=0.5)
+               for i, mode in enumerate(("garbage", "silent", "vanish"))]
+    out = tmp_path / "tray"
+    with PtyServer(seed=11, rate_hz=RATE_HZ, record=True) as a, \
+            PtyServer(seed=12, rate_hz=RATE_HZ, record=True) as b, PtyFleet(failing) as fleet:
+        garbage, silent, vanish = fleet.ports
+        ports = [a.port_path, garbage, b.port_path, silent, vanish]
+        run = subprocess.run([*CLI, "capture", *(x for p in ports for x in ("--port", p)), "--duration", "1",
+                              "-o", str(out)], capture_output=True, text=True, timeout=60)
+        vanished = fleet.stats[2].samples_sent
+    assert run.returncode == 3, run.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["SIM-000011.csv", "SIM-000012.csv", "SIM-000022.csv"]
+    assert_same_samples(out / "SIM-000011.csv", a.sent(), RATE_HZ)
+    assert_same_samples(out / "SIM-000012.csv", b.sent(), RATE_HZ)
+    kept = len(read_capture(out / "SIM-000022.csv"))
+    assert 0 < kept <= vanished
+    errors = [line for line in run.stderr.splitlines() if line.startswith("imu-station capture: error:")]
+    assert len(errors) == 3
+    assert f"{garbage}: no sample arrived" in errors[0] and "not frames" in errors[0]
+    assert f"{silent}: no sample arrived in 5 s (0 bytes read" in errors[1]
+    assert f"{vanish}: the port went away" in errors[2]
+    assert f"SIM-000011 ({a.port_path}): wrote {RATE_HZ} samples" in run.stdout
+    assert "3 of 5 units have a file, 3 ended with an error" in run.stdout
+
+
+def test_h5_files_and_a_serial_reported_twice(tmp_path: Path) -> None:
+    # Two units that report one serial: the second file gets a suffix, and the outcome says so.
+    with PtyServer(device=SimDevice(seed=5, rate_hz=RATE_HZ), record=True) as a, \
+            PtyServer(device=SimDevice(seed=5, rate_hz=RATE_HZ), record=True) as b:
+        outcomes = capture_many([a.port_path, b.port_path], tmp_path, fmt="h5", duration_s=0.5,
+                                handle_sigint=False)
+    assert [o.serial for o in outcomes] == ["SIM-000005", "SIM-000005"]
+    assert [o.capture.path.name for o in outcomes if o.capture] == ["SIM-000005.h5", "SIM-000005-2.h5"]
+    assert outcomes[0].note == ""
+    assert f"also reported by {a.port_path}" in outcomes[1].note and "SIM-000005-2.h5" in outcomes[1].note
+    for outcome, server in zip(outcomes, (a, b), strict=True):
+        assert outcome.error is None and outcome.capture is not None
+        got = read_samples(outcome.capture.path)
+        assert len(got) == RATE_HZ // 2 == outcome.capture.rows
+        assert got.tobytes() == server.sent()[: len(got)].tobytes()
+
+
+def test_ctrl_c_keeps_every_sample_received(tmp_path: Path) -> None:
+    with PtyServer(seed=31, rate_hz=RATE_HZ, record=True) as a, PtyServer(seed=32, rate_hz=RATE_HZ,
+                                                                             record=True) as b:
+        proc = subprocess.Popen([*CLI, "capture", "--port", a.port_path, "--port", b.port_path, "-o",
+                                 str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 20
+        while len(list(tmp_path.glob("*.csv"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=20)
+        sent = {"SIM-000031": a.sent(), "SIM-000032": b.sent()}
+    assert proc.returncode == 130, stderr
+    assert "interrupted; the files keep every sample received" in stderr
+    for serial, samples in sent.items():
+        got = read_capture(tmp_path / f"{serial}.csv")
+        # Every row is a sample sent, in order; the last ones sent may have been on the wire.
+        assert RATE_HZ // 4 < len(got) <= len(samples)
+        assert_same_samples(tmp_path / f"{serial}.csv", samples, len(got))
+        assert f"wrote {len(got)} samples" in stdout
+
+
+def test_usage_errors_of_several_ports(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    a_file = tmp_path / "a.csv"
+    a_file.write_text("")
+    cases = [
+        (["--port", "/dev/null", "--format", "h5", "-o", str(tmp_path / "x.h5")],
+         "--format applies to several"),
+        (["--port", "/dev/null", "--port", "/dev/zero", "--rate", "100", "-o", str(tmp_path)],
+         "--rate takes one"),
+        (["--port", "/dev/null", "--port", "/dev/zero", "--protocol", "auto", "-o", str(tmp_path)],
+         "--protocol auto reads one port"),
+        (["--port", "/dev/null", "--port", "/dev/zero", "-o", str(a_file)], "names a directory"),
+    ]
+    for argv, message in cases:
+        assert main(["capture", *argv]) == 4
+        assert message in capsys.readouterr().err
+
+
+def test_a_url_has_no_descriptor_to_watch() -> None:
+    with pytest.raises(PortError, match="a URL has no file descriptor"):
+        PolledPort("loop://")
+
+
+def test_file_stem_keeps_a_serial_inside_the_directory() -> None:
+    assert file_stem("SIM-000001") == "SIM-000001"
+    assert file_stem("../../etc/passwd") == "_.._etc_passwd"
+    assert file_stem("a b/c\x1b") == "a_b_c_"
+    assert file_stem("...") == "unit"
