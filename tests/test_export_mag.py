@@ -197,7 +197,7 @@ def test_text_report_of_a_mag_only_file(tmp_path: Path, capsys) -> None:
     assert main(argv) == 0
     text = capsys.readouterr().out
     assert "what ardupilot cannot hold" in text and "rotation (polar part of C)" in text
-    assert f"mag error at the six field directions of {FIELD_UT:g} uT (uT)" in text
+    assert f"mag error at the six field directions, |B| {FIELD_UT:g} uT (uT): +x" in text
     assert "not written, the file has no accel or gyro offsets to draw" in text and not png.exists()
 
 

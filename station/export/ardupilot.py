@@ -214,7 +214,7 @@ def render_ardupilot(result: ap.AutopilotExport, params: ParamsFile, station_id:
     """The ``.param`` text (Mission Planner / MAVProxy ``NAME,VALUE``)."""
     device = params.device
     lines = [
-        f"# ArduPilot IMU calibration written by imu-station {__version__} at "
+        f"# ArduPilot sensor calibration written by imu-station {__version__} at "
         f"{ap.sanitize_comment(exported)} on station {ap.sanitize_comment(station_id)}",
         f"# Unit serial {ap.sanitize_comment(str(device.get('serial', '')))}, "
         f"model {ap.sanitize_comment(str(device.get('model', '')))}, "

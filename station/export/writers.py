@@ -142,7 +142,7 @@ def report_lines(report: dict[str, Any]) -> list[str]:
     for name, e in (report.get("pose_errors") or {}).items():
         poses = ", ".join(f"{p} {v:.3g}" for p, v in zip(e["poses"], e["at_reference"], strict=True))
         if "temperature_range" not in e:  # the magnetometer: no thermal model, a field of field_norm
-            lines.append(f"  {name} error at the six field directions of {e['field_norm']:g} {e['unit']} "
+            lines.append(f"  {name} error at the six field directions, |B| {e['field_norm']:g} {e['unit']} "
                          f"({e['unit']}): {poses}")
             continue
         lines.append(f"  {name} error at the six poses at {e['reference_temp']:g} degC ({e['unit']}): "
