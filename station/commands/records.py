@@ -1,4 +1,5 @@
-"""``imu-station records``: query the factory records by serial and date; export a unit's history."""
+"""``imu-station records``: query the factory records by serial and date; export a unit's history;
+``records report``: the fleet report."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import add_db_arguments, db_url
+from station.cli_options import add_db_arguments, add_output_option, db_url
 from station.errors import ExitCode, StationError
 from station.factory.records import OUTCOMES, RecordStore, RunRecord, utc_now
 from station.files import atomic_write_text
@@ -25,22 +26,34 @@ oldest first, filtered by unit serial, station, outcome and start date (UTC). --
 full records (phases, measurements with limits and units, attachments with SHA-256); --export FILE
 writes them as one JSON document (schema imu-station/records-export/1), e.g. a unit's history
 with --serial. --plot draws each measurement across the records against its limits (PNG).
---verify re-hashes every attachment and reports missing or altered files."""
+--verify re-hashes every attachment and reports missing or altered files.
+
+'records report -o fleet.html' writes the fleet report of the records the filters select: per
+measurement with limits n, mean, standard deviation (n-1), Cpk against the plan's limits (one-sided
+for one limit), a histogram against the limits and the individuals control chart in time order
+with its moving-range control limits (points beyond flagged); per station and per day; the outlier
+units with links to their certificates. --json prints its statistics instead of the record list;
+--pdf prints the page with headless Chromium."""
 EPILOG = """\
-exit codes: 0 done; 1 --verify found a missing or altered file; 4 bad option or database.
+exit codes: 0 done; 1 --verify found a missing or altered file; 4 bad option or database, or
+'report' with no record selected.
 
 examples:
   imu-station records --serial A1234
   imu-station records --since 2026-11-01 --until 2026-11-22 --outcome FAIL
   imu-station records --serial A1234 --export A1234-history.json --verify
   imu-station records --since 2026-11-01 --plot trend.png --measurement gyro.bias.z
-  imu-station records --db postgresql://line@db/imu --station line-a-3 --json"""
+  imu-station records --db postgresql://line@db/imu --station line-a-3 --json
+  imu-station records report --since 2026-11-01 -o fleet.html --pdf fleet.pdf
+  imu-station records report --station line-a-3 --json"""
 
 EXPORT_SCHEMA = "imu-station/records-export/1"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the records command's options to ``parser``."""
+    parser.add_argument("action", nargs="?", choices=["report"], metavar="report",
+                        help="report: the fleet report of the selected records (-o FILE.html and/or --json)")
     add_db_arguments(parser)
     parser.add_argument("--serial", metavar="SN", help="only this unit")
     parser.add_argument("--station", metavar="ID", help="only this station")
@@ -56,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--plot: this measurement (repeat; default: every one with limits, up to 12)")
     parser.add_argument("--verify", action="store_true",
                         help="check every attachment against its SHA-256 (exit 1 when one differs)")
+    add_output_option(parser, metavar="FILE.html", help="report: the fleet report's HTML page")
+    parser.add_argument("--pdf", type=Path, metavar="FILE.pdf",
+                        help="report: also print the page to PDF (headless Chromium)")
 
 
 def _table(records: list[RunRecord]) -> Table:
@@ -84,6 +100,11 @@ def run(args: argparse.Namespace) -> int:
     if "://" not in url and not Path(url).exists():
         raise StationError(f"--db {url}: no such record database; give the file 'imu-station run' wrote "
                            "(or set IMU_STATION_DB)")
+    if args.action == "report":
+        return _report(args, url)
+    for option in ("output", "pdf"):
+        if getattr(args, option) is not None:
+            raise StationError(f"--{option} belongs to 'imu-station records report'")
     with RecordStore.open(url) as store:
         records = store.query(args.serial, args.since, args.until, args.station, args.outcome)
     problems: list[str] = []
@@ -119,3 +140,33 @@ def run(args: argparse.Namespace) -> int:
     for p in problems:
         print(f"imu-station records: {p}", file=sys.stderr)
     return ExitCode.OUT_OF_LIMITS if problems else ExitCode.OK
+
+
+def _report(args: argparse.Namespace, url: str) -> int:
+    """The fleet report: the page (-o), its PDF (--pdf) and the statistics (--json)."""
+    from station.report.certificate import CERTIFICATE_NAME
+    from station.report.fleet import collect, fleet_json, render_fleet
+
+    if args.output is None and not args.json:
+        raise StationError("records report: give -o FILE.html for the page, or --json for the statistics")
+    if args.pdf is not None and args.output is None:
+        raise StationError("--pdf prints the page: give -o FILE.html too")
+    for option in ("export", "plot", "verify"):
+        if getattr(args, option):
+            raise StationError(f"--{option} is not an option of 'records report'")
+    query = {k: getattr(args, k) for k in ("serial", "since", "until", "station", "outcome")}
+    with RecordStore.open(url) as store:
+        fleet = collect(store, query)
+        certificates = store.attachment_paths(CERTIFICATE_NAME, **query) if args.output else {}
+    if args.output is not None:
+        atomic_write_text(args.output, render_fleet(fleet, certificates, Path(args.output).resolve().parent))
+        print(f"{args.output}: fleet report of {len(fleet.runs)} record(s), {len(fleet.limited)} "
+              "measurement(s) with limits", file=sys.stderr if args.json else sys.stdout)
+    if args.pdf is not None:
+        from station.report.pdf import html_to_pdf
+
+        html_to_pdf(args.output, args.pdf)
+        print(f"{args.pdf}: PDF printed", file=sys.stderr if args.json else sys.stdout)
+    if args.json:
+        sys.stdout.write(json.dumps(fleet_json(fleet), indent=1, allow_nan=False) + "\n")
+    return ExitCode.OK

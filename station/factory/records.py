@@ -171,6 +171,25 @@ def _date_bound(text: str, end: bool, what: str) -> str:
     return moment.astimezone(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
+def _filters(serial: str | None, since: str | None, until: str | None, station: str | None,
+             outcome: str | None, prefix: str = "") -> tuple[list[str], list[Any]]:
+    """The WHERE terms (with ``?`` placeholders) and parameters of a query's filters on ``runs``."""
+    where: list[str] = []
+    params: list[Any] = []
+    for column, value in (("serial", serial), ("station", station),
+                          ("outcome", outcome.upper() if outcome is not None else None)):
+        if value is not None:
+            where.append(f"{prefix}{column} = ?")
+            params.append(value)
+    if since is not None:
+        where.append(f"{prefix}start_utc >= ?")
+        params.append(_date_bound(since, False, "--since"))
+    if until is not None:
+        where.append(f"{prefix}start_utc <= ?")
+        params.append(_date_bound(until, True, "--until"))
+    return where, params
+
+
 def _enable_wal(conn: sqlite3.Connection, wait_s: float = 30.0) -> None:
     """Switch to write-ahead logging. While another station creates the same new database, the switch
     can fail at once with "database is locked" (SQLite does not call the busy handler for it), so it is
@@ -281,61 +300,107 @@ class RecordStore:
 
     def save(self, record: RunRecord) -> None:
         """Insert (or replace) one record with its phases, measurements and attachments, atomically."""
-        data = record.to_dict()
-        with self._transaction() as cur:
-            for table in ("attachments", "measurements", "phases", "runs"):
-                cur.execute(self._sql(f"DELETE FROM {table} WHERE run_id = ?"), (record.run_id,))
-            cur.execute(self._sql(
-                "INSERT INTO runs (run_id, serial, station, plan_name, plan_sha256, start_utc, end_utc, "
-                "outcome, exit_code, reason, files_dir, record) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"),
-                (record.run_id, record.serial, record.station, str(record.plan.get("name", "")),
-                 str(record.plan.get("sha256", "")), record.start, record.end, record.outcome,
-                 record.exit_code, record.reason, record.files_dir, json.dumps(data, allow_nan=False)))
+        self.save_many([record])
+
+    def save_many(self, records: Iterable[RunRecord]) -> None:
+        """Insert (or replace) records in one transaction: all of them or none (an import, a benchmark)."""
+        runs, phases, measurements, attachments = [], [], [], []
+        for record in records:
+            runs.append((record.run_id, record.serial, record.station, str(record.plan.get("name", "")),
+                         str(record.plan.get("sha256", "")), record.start, record.end, record.outcome,
+                         record.exit_code, record.reason, record.files_dir,
+                         json.dumps(record.to_dict(), allow_nan=False)))
             for idx, phase in enumerate(record.phases):
-                cur.execute(self._sql("INSERT INTO phases (run_id, idx, name, outcome, start_utc, end_utc) "
-                                      "VALUES (?, ?, ?, ?, ?, ?)"),
-                            (record.run_id, idx, phase.name, phase.outcome, phase.start, phase.end))
+                phases.append((record.run_id, idx, phase.name, phase.outcome, phase.start, phase.end))
                 for m in phase.measurements:
                     number = m.value if isinstance(m.value, int | float) else None
                     text = m.value if isinstance(m.value, str) else None
-                    cur.execute(self._sql(
-                        "INSERT INTO measurements (run_id, phase, name, value, text_value, unit, low, high, "
-                        "outcome) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)"),
-                        (record.run_id, phase.name, m.name, number, text, m.unit, m.low, m.high, m.outcome))
-                for a in phase.attachments:
-                    cur.execute(self._sql(
-                        "INSERT INTO attachments (run_id, phase, name, path, sha256, size, mimetype) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?)"),
-                        (record.run_id, phase.name, a.name, a.path, a.sha256, a.size, a.mimetype))
+                    measurements.append((record.run_id, phase.name, m.name, number, text, m.unit, m.low,
+                                         m.high, m.outcome))
+                attachments += [(record.run_id, phase.name, a.name, a.path, a.sha256, a.size, a.mimetype)
+                                for a in phase.attachments]
+        with self._transaction() as cur:
+            for table in ("attachments", "measurements", "phases", "runs"):
+                cur.executemany(self._sql(f"DELETE FROM {table} WHERE run_id = ?"), [(r[0],) for r in runs])
+            cur.executemany(self._sql(
+                "INSERT INTO runs (run_id, serial, station, plan_name, plan_sha256, start_utc, end_utc, "
+                "outcome, exit_code, reason, files_dir, record) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)"),
+                runs)
+            cur.executemany(self._sql("INSERT INTO phases (run_id, idx, name, outcome, start_utc, end_utc) "
+                                      "VALUES (?, ?, ?, ?, ?, ?)"), phases)
+            cur.executemany(self._sql(
+                "INSERT INTO measurements (run_id, phase, name, value, text_value, unit, low, high, "
+                "outcome) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)"), measurements)
+            cur.executemany(self._sql(
+                "INSERT INTO attachments (run_id, phase, name, path, sha256, size, mimetype) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)"), attachments)
 
     def query(self, serial: str | None = None, since: str | None = None, until: str | None = None,
               station: str | None = None, outcome: str | None = None) -> list[RunRecord]:
         """Records in start order; ``since``/``until`` are dates or ISO date-times (UTC when unzoned)."""
-        where, params = [], []
-        if serial is not None:
-            where.append("serial = ?")
-            params.append(serial)
-        if station is not None:
-            where.append("station = ?")
-            params.append(station)
-        if outcome is not None:
-            where.append("outcome = ?")
-            params.append(outcome.upper())
-        if since is not None:
-            where.append("start_utc >= ?")
-            params.append(_date_bound(since, False, "--since"))
-        if until is not None:
-            where.append("start_utc <= ?")
-            params.append(_date_bound(until, True, "--until"))
+        where, params = _filters(serial, since, until, station, outcome)
         sql = "SELECT record FROM runs" + (" WHERE " + " AND ".join(where) if where else "")
         sql += " ORDER BY start_utc, run_id"
-        cur = self.conn.cursor()
-        try:
-            cur.execute(self._sql(sql), tuple(params))
-            rows = cur.fetchall()
-        finally:
-            cur.close()
-        return [RunRecord.from_dict(json.loads(row[0])) for row in rows]
+        return [RunRecord.from_dict(json.loads(row[0])) for row in self.rows(sql, params)]
+
+    def run_rows(self, serial: str | None = None, since: str | None = None, until: str | None = None,
+                 station: str | None = None, outcome: str | None = None) -> list[tuple]:
+        """The runs the filters select, in start order, without their JSON: ``(run_id, serial, station,
+        start_utc)``. The filters are those of :meth:`query`."""
+        where, params = _filters(serial, since, until, station, outcome)
+        sql = "SELECT run_id, serial, station, start_utc FROM runs" + (" WHERE " + " AND ".join(where)
+                                                                       if where else "")
+        sql += " ORDER BY start_utc, run_id"
+        return self.rows(sql, params)
+
+    def measurement_values(self, serial: str | None = None, since: str | None = None,
+                           until: str | None = None, station: str | None = None,
+                           outcome: str | None = None) -> list[tuple]:
+        """Every numeric measurement of the runs the filters select, each naming its run by position.
+
+        The fleet report reads these rows rather than the records' JSON: one join, small rows, no
+        parsing per record. Rows come in no particular order.
+
+        Parameters
+        ----------
+        serial, since, until, station, outcome
+            The filters of :meth:`query`.
+
+        Returns
+        -------
+        list of tuple
+            ``(name, unit, value, low, high, run, failed)``: ``run`` is the run's 1-based position in
+            :meth:`run_rows` (start order), ``failed`` 1 when it was judged FAIL, else 0.
+        """
+        where, params = _filters(serial, since, until, station, outcome)
+        sql = ("WITH sel AS (SELECT run_id, ROW_NUMBER() OVER (ORDER BY start_utc, run_id) AS pos FROM runs"
+               + (" WHERE " + " AND ".join(where) if where else "") + ") "
+               "SELECT m.name, m.unit, m.value, m.low, m.high, sel.pos, "
+               "CASE WHEN m.outcome = 'FAIL' THEN 1 ELSE 0 END "
+               "FROM measurements m JOIN sel ON sel.run_id = m.run_id WHERE m.value IS NOT NULL")
+        return self.rows(sql, params)
+
+    def attachment_paths(self, name: str, serial: str | None = None, since: str | None = None,
+                         until: str | None = None, station: str | None = None,
+                         outcome: str | None = None) -> dict[str, Path]:
+        """Where the attachment called ``name`` of each selected run is (e.g. its certificate).
+
+        Parameters
+        ----------
+        name : str
+            The attachment's name.
+        serial, since, until, station, outcome
+            The filters of :meth:`query`.
+
+        Returns
+        -------
+        dict of str to Path
+            Run id to the file's path (its record's files folder joined with the attachment's path).
+        """
+        where, params = _filters(serial, since, until, station, outcome, prefix="r.")
+        sql = ("SELECT r.run_id, r.files_dir, a.path FROM attachments a JOIN runs r ON r.run_id = a.run_id "
+               "WHERE a.name = ?" + "".join(f" AND {w}" for w in where))
+        return {run_id: Path(files_dir) / path for run_id, files_dir, path in self.rows(sql, [name, *params])}
 
     def table_counts(self) -> dict[str, int]:
         """Rows per table (consistency checks)."""

@@ -1,0 +1,321 @@
+"""A unit's calibration certificate: one self-contained HTML page (styles inline, plots inline SVG).
+
+It holds the unit, the station and its version, the date, the operator or station id, the method
+and sequence, the SHA-256 of every file the calibration rests on, every parameter with its 1-sigma
+in the units people read, each measurement against its limit, and the plots of the sections the
+parameter file has. What the file or the record lacks is said on the page, not silently left out.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import station
+from station.errors import StationError
+from station.export.params_file import SECTIONS, ParamsFile
+from station.factory.records import Measurement, RunRecord
+from station.files import atomic_write_text, sha256_file
+from station.report import cert_plots, parameters
+from station.report.cert_plots import Samples
+from station.report.html import render
+
+REPORTED_SECTIONS = (*SECTIONS, "mag", "characterisation")
+"""The parameter file's sections a certificate shows; one absent is named as absent."""
+CERTIFICATE_NAME = "calibration certificate"
+"""The attachment name of a certificate a factory run writes beside its record."""
+
+
+@dataclass
+class CaptureFile:
+    """A capture given to the certificate: where it is, its SHA-256 and its samples."""
+
+    path: str
+    sha256: str
+    samples: Samples
+
+
+@dataclass
+class Certificate:
+    """Everything a certificate is made from; :func:`render_certificate` turns it into the page.
+
+    ``params`` may be None (a record whose parameter file is gone); ``measurements`` are judged
+    against their limits already (a factory record's, or a plan's); ``notes`` are what the page
+    says is missing or wrong (absent sections, missing attachments).
+    """
+
+    params: ParamsFile | None
+    params_path: str = ""
+    params_sha256: str = ""
+    record: RunRecord | None = None
+    measurements: list[Measurement] = field(default_factory=list)
+    captures: list[CaptureFile] = field(default_factory=list)
+    station: str = ""
+    operator: str = ""
+    plan: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def _utc_now() -> str:
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def _section_capture(cert: Certificate, section: str) -> CaptureFile | None:
+    """The given capture the section was computed from: the one whose SHA-256 its ``sources`` entry names."""
+    if cert.params is None:
+        return None
+    wanted = (cert.params.sources.get(section) or {}).get("sha256")
+    return next((c for c in cert.captures if wanted and c.sha256 == wanted), None)
+
+
+def _data_files(cert: Certificate) -> list[dict[str, str]]:
+    """Every file the calibration rests on, with its SHA-256 and whether it is at hand and intact."""
+    files: list[dict[str, str]] = []
+    if cert.params_path:
+        files.append({"what": "parameter file", "path": cert.params_path, "sha256": cert.params_sha256,
+                      "state": "read" if cert.params is not None else (
+                          "unreadable" if Path(cert.params_path).exists() else "missing")})
+    if cert.params is not None:
+        for section, source in cert.params.sources.items():
+            if source.get("sha256"):
+                given = any(c.sha256 == source["sha256"] for c in cert.captures)
+                files.append({"what": f"capture of section {section}",
+                              "path": str(source.get("capture", "")), "sha256": str(source["sha256"]),
+                              "state": "given, matches" if given else "named"})
+    if cert.record is not None:
+        problems = " ".join(cert.record.verify())
+        for a in cert.record.attachments():
+            path = str(Path(cert.record.files_dir) / a.path)
+            if a.name == CERTIFICATE_NAME or path == cert.params_path:  # itself; the parameter file is listed
+                continue
+            state = "missing" if f"{path}: missing" in problems else (
+                "altered" if f"{path}: SHA-256" in problems else "intact")
+            files.append({"what": a.name, "path": path, "sha256": a.sha256, "state": state})
+    listed = {f["sha256"] for f in files}
+    files += [{"what": "capture given", "path": c.path, "sha256": c.sha256, "state": "given"}
+              for c in cert.captures if c.sha256 not in listed]
+    return files
+
+
+def _sections(cert: Certificate) -> list[dict[str, Any]]:
+    """The parameter tables, section by section, in the order of the spec."""
+    params = cert.params
+    if params is None:
+        return []
+    out = []
+    for name in ("accel", "gyro"):
+        cal = getattr(params, name)
+        if cal is not None:
+            section = ParamsFile(accel=cal).to_dict()["accel"]
+            out.append({"name": name, "title": f"{parameters.SENSOR_NAMES[name]} ({name})",
+                        "method": cal.method, "rows": parameters.sensor_rows(name, section)})
+    mag = params.other.get("mag")
+    if isinstance(mag, dict):
+        out.append({"name": "mag", "title": "magnetometer (mag)", "method": str(mag.get("frame") or ""),
+                    "rows": parameters.mag_rows(mag)})
+    if params.noise:
+        out.append({"name": "noise", "title": "noise terms (noise, Allan deviation)",
+                    "method": str(params.noise.get("method") or ""),
+                    "rows": parameters.noise_rows(params.noise)})
+    if params.thermal is not None:
+        out.append({"name": "thermal", "title": "temperature compensation (thermal)", "method": "",
+                    "rows": parameters.thermal_rows(params)})
+    character = params.other.get("characterisation")
+    if isinstance(character, dict):
+        out.append({"name": "characterisation", "title": "characterisation (datasheet figures)", "method": "",
+                    "rows": parameters.characterisation_rows(character)})
+    return out
+
+
+def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
+    """The plots the parameter file and the captures allow, and a note for each one they do not."""
+    params = cert.params
+    plots: list[dict[str, Any]] = []
+    notes: list[str] = []
+    if params is None:
+        return plots, notes
+    if params.accel is not None:
+        labelled = _section_capture(cert, "accel") or next(
+            (c for c in cert.captures if cert_plots.pose_residuals(c.samples, params)), None)
+        residuals = cert_plots.pose_residuals(labelled.samples, params) if labelled is not None else []
+        if residuals:
+            plots.append({"title": "Residuals per pose", "svg": cert_plots.residuals_svg(residuals),
+                          "caption": f"from {labelled.path}" if labelled else ""})
+        else:
+            notes.append("residuals per pose: give the calibration's labelled capture (--capture FILE)")
+    if params.noise and any(isinstance(params.noise.get(s), dict) for s in ("gyro", "accel")):
+        still = _section_capture(cert, "noise")
+        curve = cert_plots.measured_allan(still.samples) if still is not None else None
+        if curve is not None and still is not None:
+            caption = f"measured curve with its 68 % interval from {still.path}"
+        else:
+            caption = "model only: the curve needs the still capture the noise section names (--capture)"
+        plots.append({"title": "Allan deviation", "svg": cert_plots.allan_svg(params.noise, curve),
+                      "caption": caption})
+    if params.thermal is not None and (params.thermal.accel is not None or params.thermal.gyro is not None):
+        plots.append({"title": "Bias against temperature", "svg": cert_plots.thermal_svg(params),
+                      "caption": "the fitted model as firmware evaluates it"})
+    mag = params.other.get("mag")
+    if isinstance(mag, dict):
+        source = _section_capture(cert, "mag") or next(
+            (c for c in cert.captures if c.samples.mag is not None), None)
+        if source is not None and source.samples.mag is not None:
+            plots.append({"title": "Magnetometer coverage and corrected sphere",
+                          "svg": cert_plots.mag_svg(mag, source.samples.mag),
+                          "caption": f"from {source.path}"})
+        else:
+            notes.append("magnetometer sphere: give the magnetometer capture (--capture FILE)")
+    return plots, notes
+
+
+def _unit(cert: Certificate) -> dict[str, str]:
+    device: dict[str, Any] = {}
+    if cert.record is not None:
+        device.update({k: v for k, v in cert.record.device.items() if v is not None})
+        device.setdefault("serial", cert.record.serial)
+    if cert.params is not None:
+        device.update({k: v for k, v in cert.params.device.items() if v is not None})
+    return {k: str(device.get(k) or "not known") for k in ("serial", "model", "firmware")}
+
+
+def certificate_context(cert: Certificate) -> dict[str, Any]:
+    """The template's variables: unit, run, files, results, parameter tables, plots and what is absent.
+
+    Parameters
+    ----------
+    cert : Certificate
+
+    Returns
+    -------
+    dict
+    """
+    params = cert.params
+    notes = list(cert.notes)
+    if params is not None:
+        present = {s for s in REPORTED_SECTIONS if getattr(params, s, None) or params.other.get(s)}
+        absent = [s for s in REPORTED_SECTIONS if s not in present]
+        if absent:
+            notes.append("the parameter file has no section " + ", ".join(absent))
+    plots, plot_notes = _plots(cert)
+    notes += plot_notes
+    judged = [m for m in cert.measurements if m.outcome in ("PASS", "FAIL")]
+    if not judged:
+        notes.append("no measurement was judged against limits (give --plan PLAN.yaml, or --db for a "
+                     "factory record)")
+    record = cert.record
+    methods = [f"{s}: {getattr(params, s).method}" for s in ("accel", "gyro")
+               if params is not None and getattr(params, s) is not None and getattr(params, s).method]
+    calibrated = (record.end or record.start) if record is not None else (params.created if params else "")
+    if record is not None:
+        verdict = record.outcome
+    elif judged:
+        verdict = "FAIL" if any(m.outcome == "FAIL" for m in judged) else "PASS"
+    else:
+        verdict = "NOT JUDGED"
+    return {
+        "unit": _unit(cert),
+        "station": cert.station or (record.station if record is not None else "") or "not given",
+        "operator": cert.operator or "not given",
+        "version": station.__version__,
+        "calibrated": calibrated,
+        "issued": _utc_now(),
+        "run_id": record.run_id if record is not None else "",
+        "reason": record.reason if record is not None else "",
+        "plan": cert.plan or (record.plan if record is not None else {}),
+        "methods": methods,
+        "sequence": (cert.plan or (record.plan if record is not None else {})).get("sequence", ""),
+        "files": _data_files(cert),
+        "measurements": judged,
+        "other_measurements": [m for m in cert.measurements if m.outcome not in ("PASS", "FAIL")],
+        "verdict": verdict,
+        "sections": _sections(cert),
+        "plots": plots,
+        "notes": notes,
+    }
+
+
+def render_certificate(cert: Certificate) -> str:
+    """The certificate as one self-contained HTML page.
+
+    Parameters
+    ----------
+    cert : Certificate
+
+    Returns
+    -------
+    str
+        HTML5 with its styles inline and every plot an inline ``<svg>``; no network resource.
+    """
+    return render("certificate.html.j2", **certificate_context(cert))
+
+
+def write_certificate(cert: Certificate, path: str | Path) -> None:
+    """Write the certificate's HTML to ``path`` atomically.
+
+    Raises
+    ------
+    StationError
+        Neither a parameter file nor a record to certify.
+    """
+    if cert.params is None and cert.record is None:
+        raise StationError("a certificate needs a parameter file or a factory record")
+    atomic_write_text(path, render_certificate(cert))
+
+
+def capture_file(path: str | Path, samples: Samples) -> CaptureFile:
+    """A capture given to the certificate, hashed.
+
+    Parameters
+    ----------
+    path : str or Path
+        The capture file (its bytes are hashed).
+    samples : Samples
+        Its samples as read.
+
+    Returns
+    -------
+    CaptureFile
+    """
+    return CaptureFile(str(path), sha256_file(path), samples)
+
+
+PARAMS_ATTACHMENT = "parameter file"
+"""The attachment name of the parameter file a factory run writes (``station.factory.run``)."""
+
+
+def from_record(record: RunRecord, captures: list[CaptureFile] | None = None) -> Certificate:
+    """The certificate of a factory record: its parameter file (if still there), measurements and files.
+
+    Parameters
+    ----------
+    record : RunRecord
+        The run's record (measurements with the plan's limits, attachments with SHA-256).
+    captures : list of CaptureFile, optional
+        The record's captures as read (the raw capture gives the residuals per pose).
+
+    Returns
+    -------
+    Certificate
+        ``notes`` name the attachments that are gone or altered; without its parameter file the
+        certificate shows the record's measurements alone.
+    """
+    notes = [f"attachment {p}" for p in record.verify()]
+    params = None
+    params_path, params_sha = "", ""
+    attached = next((a for a in record.attachments() if a.name == PARAMS_ATTACHMENT), None)
+    if attached is None:
+        notes.append("the record lists no parameter file (the run ended before its export phase)")
+    else:
+        path = Path(record.files_dir) / attached.path
+        params_path, params_sha = str(path), attached.sha256
+        if path.is_file():
+            try:
+                params = ParamsFile.load(path)
+            except StationError as exc:
+                notes.append(f"the parameter file cannot be read: {exc}")
+    measurements = [m for m in record.measurements().values()
+                    if isinstance(m.value, int | float) or m.outcome in ("PASS", "FAIL")]
+    return Certificate(params, params_path, params_sha, record=record, measurements=measurements,
+                       captures=list(captures or []), notes=notes)
