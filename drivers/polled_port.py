@@ -17,23 +17,20 @@ from __future__ import annotations
 import os
 import select
 import time
-from collections import deque
 from typing import Any
 
 import numpy as np
 import serial
 
 from drivers.errors import (
-    CommandRejected,
-    CommandTimeout,
-    CommandUnsupported,
     DriverError,
     PortError,
     PortLost,
 )
 from drivers.interface import Device
 from drivers.link_stats import LinkMonitor, LinkStats
-from drivers.serial_device import _COMMAND_NAMES, DEFAULT_BAUDRATE, MESSAGE_BACKLOG, _answers, open_serial
+from drivers.message_log import MessageLog, no_answer, unsupported
+from drivers.serial_device import DEFAULT_BAUDRATE, open_serial
 from protocols import native
 from protocols.base import EMPTY_SAMPLES, Message
 from protocols.registry import make_decoder
@@ -77,9 +74,7 @@ class PolledPort(Device):
         self._hangup = select.poll()
         self._hangup.register(self._fd, select.POLLHUP | select.POLLERR | select.POLLNVAL)
         self._pending: list[np.ndarray] = []
-        self._messages: deque[tuple[int, Message]] = deque(maxlen=MESSAGE_BACKLOG)
-        self._message_count = 0
-        self._info: dict[str, Any] = {}
+        self._log = MessageLog()
         self._monitor = LinkMonitor()
         self._error: DriverError | None = None
         self._closed = False
@@ -96,7 +91,7 @@ class PolledPort(Device):
     @property
     def message_count(self) -> int:
         """Messages other than samples received so far (a mark for :meth:`answer_since`)."""
-        return self._message_count
+        return self._log.count
 
     # -- reading -------------------------------------------------------------------------------
 
@@ -131,13 +126,7 @@ class PolledPort(Device):
             mon.add_samples(decoded.samples)
             self._pending.append(decoded.samples)
         for message in decoded.messages:
-            if message.msg_id == native.DEVICE_INFO:
-                try:
-                    self._info = native.parse_device_info(message.payload)
-                except (ValueError, UnicodeDecodeError):
-                    continue
-            self._message_count += 1
-            self._messages.append((self._message_count, message))
+            self._log.add(message)
 
     def read_now(self) -> np.ndarray:
         """Every sample received since the last read, reading what the port has without waiting.
@@ -169,9 +158,7 @@ class PolledPort(Device):
         """Write a native command and return at once; its answer arrives with later reads
         (:meth:`answer_since`). A write that fails breaks the link (:attr:`failed`)."""
         if self.protocol != "native":
-            name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
-            raise CommandUnsupported(f"{self.port}: the {self.protocol} protocol has no {name} command; "
-                                     f"configure the unit with its vendor's tool", self.port)
+            raise unsupported(self.port, self.protocol, command_id)
         if self._error is not None or self._closed:
             return
         frame = native.encode_frame(command_id, payload)
@@ -184,25 +171,14 @@ class PolledPort(Device):
     def answer_since(self, command_id: int, mark: int) -> Message | None:
         """The answer to ``command_id`` among the messages after ``mark`` (:attr:`message_count`
         when it was sent), or None; an ACK with an error status raises ``CommandRejected``."""
-        for index, message in self._messages:
-            if index > mark and _answers(message, command_id):
-                if message.msg_id == native.ACK:
-                    ack = native.parse_ack(message.payload)
-                    if not ack.ok:
-                        status = native.ACK_STATUS_NAMES.get(ack.status, f"status {ack.status}")
-                        name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
-                        raise CommandRejected(f"{self.port}: the unit refused {name}: {status}", self.port,
-                                              ack.status)
-                return message
-        return None
+        return self._log.answer_since(command_id, mark, self.port)
 
     def command(self, command_id: int, payload: bytes = b"", timeout: float = 1.0,
                 retries: int = 2) -> Message:
         """Send a native command and wait for its answer (resent on timeout); samples that arrive
         meanwhile wait for the next read."""
-        name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
         for _ in range(retries + 1):
-            mark = self._message_count
+            mark = self._log.count
             self.send(command_id, payload)
             deadline = time.monotonic() + timeout
             while True:
@@ -216,9 +192,7 @@ class PolledPort(Device):
                 if left <= 0:
                     break
                 self._wait_readable(left)
-        raise CommandTimeout(f"{self.port}: no answer to {name} in {retries + 1} tries of {timeout:g} s; "
-                             f"check that the unit is powered, speaks the {self.protocol} protocol and "
-                             f"that the baud rate is right", self.port)
+        raise no_answer(self.port, self.protocol, command_id, retries + 1, timeout)
 
     def get_info(self, timeout: float = 1.0, retries: int = 2) -> dict[str, Any]:
         """Ask the unit who it is (GET_INFO): serial, model, firmware, rate_hz."""
@@ -246,7 +220,7 @@ class PolledPort(Device):
     @property
     def info(self) -> dict[str, Any]:
         """The last DEVICE_INFO the unit sent (empty until it sent one)."""
-        return dict(self._info)
+        return dict(self._log.info)
 
     @property
     def closed(self) -> bool:

@@ -11,7 +11,6 @@ and wait for their answer, which the reader picks out of the stream between samp
 from __future__ import annotations
 
 import errno
-import json
 import threading
 import time
 from collections import deque
@@ -22,8 +21,6 @@ import serial
 
 from drivers.errors import (
     CommandRejected,
-    CommandTimeout,
-    CommandUnsupported,
     DriverError,
     PortBusy,
     PortError,
@@ -33,6 +30,7 @@ from drivers.errors import (
 )
 from drivers.interface import Device
 from drivers.link_stats import LinkMonitor, LinkStats
+from drivers.message_log import MessageLog, no_answer, unsupported
 from protocols import native
 from protocols.base import EMPTY_SAMPLES, Message
 from protocols.registry import make_decoder
@@ -41,7 +39,6 @@ DEFAULT_BAUDRATE = 921_600  # 1 kHz of 47-byte frames needs 470 kbit/s
 DEFAULT_MAX_BUFFERED = 200_000  # samples (8 MB): minutes of data at 1 kHz before anything drops
 READ_CHUNK = 65_536
 READ_TIMEOUT_S = 0.05
-MESSAGE_BACKLOG = 64
 LIST_PORTS_HINT = "list the ports with `python -m serial.tools.list_ports -v`"
 
 
@@ -106,9 +103,7 @@ class SerialDevice(Device):
         self._cond = threading.Condition()
         self._pending: deque[np.ndarray] = deque()
         self._pending_count = 0
-        self._messages: deque[tuple[int, Message]] = deque(maxlen=MESSAGE_BACKLOG)
-        self._message_count = 0
-        self._info: dict[str, Any] = {}
+        self._log = MessageLog()
         self._monitor = LinkMonitor()
         self._error: DriverError | None = None
         self._closed = False
@@ -155,13 +150,7 @@ class SerialDevice(Device):
                     self._pending.append(samples)
                     self._pending_count += len(samples)
             for message in decoded.messages:
-                if message.msg_id == native.DEVICE_INFO:
-                    try:
-                        self._info = native.parse_device_info(message.payload)
-                    except (ValueError, UnicodeDecodeError):
-                        continue
-                self._message_count += 1
-                self._messages.append((self._message_count, message))
+                self._log.add(message)
             if len(samples) or decoded.messages:
                 self._cond.notify_all()
 
@@ -206,7 +195,7 @@ class SerialDevice(Device):
     def info(self) -> dict[str, Any]:
         """The last DEVICE_INFO the unit sent (empty until it sent one)."""
         with self._cond:
-            return dict(self._info)
+            return dict(self._log.info)
 
     @property
     def closed(self) -> bool:
@@ -258,10 +247,8 @@ class SerialDevice(Device):
         """Send any native command and wait for its answer: DEVICE_INFO for GET_INFO, else the ACK
         that names ``command_id``. Resent on timeout (the spec's commands are idempotent); an ACK
         with an error status raises ``CommandRejected``."""
-        name = _COMMAND_NAMES.get(command_id, f"command 0x{command_id:02x}")
         if self.protocol != "native":
-            raise CommandUnsupported(f"{self.port}: the {self.protocol} protocol has no {name} command; "
-                                     f"configure the unit with its vendor's tool", self.port)
+            raise unsupported(self.port, self.protocol, command_id)
         frame = native.encode_frame(command_id, payload)
         for _ in range(retries + 1):
             with self._cond:
@@ -269,31 +256,17 @@ class SerialDevice(Device):
                     raise DriverError(f"{self.port}: the device is closed", self.port)
                 if self._error is not None:
                     self._raise_error()
-                mark = self._message_count
+                mark = self._log.count
             self._write(frame)
             answer = self._wait_answer(command_id, mark, time.monotonic() + timeout)
             if answer is not None:
-                if answer.msg_id == native.ACK:
-                    ack = native.parse_ack(answer.payload)
-                    if not ack.ok:
-                        status = native.ACK_STATUS_NAMES.get(ack.status, f"status {ack.status}")
-                        raise CommandRejected(f"{self.port}: the unit refused {name}: {status}", self.port,
-                                              ack.status)
                 return answer
-        raise CommandTimeout(f"{self.port}: no answer to {name} in {retries + 1} tries of {timeout:g} s; "
-                             f"check that the unit is powered, speaks the {self.protocol} protocol and "
-                             f"that the baud rate is right", self.port)
+        raise no_answer(self.port, self.protocol, command_id, retries + 1, timeout)
 
     def _wait_answer(self, command_id: int, mark: int, deadline: float) -> Message | None:
-        def find() -> Message | None:
-            for index, message in self._messages:
-                if index > mark and _answers(message, command_id):
-                    return message
-            return None
-
         with self._cond:
             while True:
-                found = find()
+                found = self._log.answer_since(command_id, mark, self.port)
                 if found is not None:
                     return found
                 if self._error is not None:
@@ -335,19 +308,3 @@ class SerialDevice(Device):
             self._closed = True
             self._cond.notify_all()
 
-
-_COMMAND_NAMES = {native.GET_INFO: "GET_INFO", native.SET_RATE: "SET_RATE",
-                  native.START_STREAM: "START_STREAM", native.STOP_STREAM: "STOP_STREAM",
-                  native.RESTART: "RESTART"}
-
-
-def _answers(message: Message, command_id: int) -> bool:
-    if command_id == native.GET_INFO:
-        if message.msg_id != native.DEVICE_INFO:
-            return False
-        try:
-            json.loads(message.payload.decode("utf-8"))
-        except (ValueError, UnicodeDecodeError):
-            return False
-        return True
-    return message.msg_id == native.ACK and len(message.payload) == 2 and message.payload[0] == command_id
