@@ -1,7 +1,9 @@
 """One set of blob rules: the station's reader (``parse_blob``) and the firmware loader
 (``imu_calib_load`` of the exported C, compiled with gcc) accept and refuse the same blobs, with
 the same error code, over thousands of corrupted blobs: field mutations with a recomputed CRC (so
-they reach the content checks) and random bit flips with and without one.
+they reach the content checks) and random bit flips with and without one, of a version 2 blob
+with a mag section and a g-sensitivity and of a version 1 blob written by the station before
+version 2 (tests/data/blob-v1).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ HARNESS = Path(__file__).with_name("test_export_harness.c")
 CC = ["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
 N_FIELD = 2500
 N_FLIPS = 1500
+N_V1 = 600
+V1_BLOB = Path(__file__).parent / "data" / "blob-v1" / "imu_calib_v1_seed7.bin"
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc is needed to compile the loader")
 
@@ -52,7 +56,10 @@ def put(blob: bytes, offset: int, data: bytes) -> bytes:
 def field_mutation(good: bytes, rng: np.random.Generator) -> bytes:
     """A blob whose CRC is right and one field is wrong (or in an edge case)."""
     n_floats = (len(good) - 4 - PAYLOAD) // 4
+    tail = len(good) - 4 - blobfmt.TRIAD_SIZE - blobfmt.MATRIX_SIZE  # version 2: the mag triad, then G
     kinds: list[Callable[[], bytes]] = [
+        lambda: put(good, 4, struct.pack("<H", int(rng.choice([0, 1, 2, 3])))),
+        lambda: put(good, tail + 12 * int(rng.integers(0, 3)), bytes(12)),
         lambda: put(good, 6, struct.pack("<H", int(rng.choice([0, 95, 97, 0xFFFF, len(good) - 4,
                                                                 len(good)])))),
         lambda: put(good, 8, struct.pack("<I", int(rng.integers(0, 2**32)))),
@@ -88,7 +95,7 @@ def bit_flips(good: bytes, rng: np.random.Generator) -> bytes:
 @pytest.fixture(scope="module")
 def loader(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     out = tmp_path_factory.mktemp("blob_rules")
-    write_c_export(make_params(seed=3), out, "bench-7", 1_795_000_000)
+    write_c_export(make_params(seed=3, mag="accel", g_sensitivity=True), out, "bench-7", 1_795_000_000)
     exe = out / "harness"
     subprocess.run([*CC, "-I.", "imu_calib.c", str(HARNESS), "-lm", "-o", str(exe)], cwd=out, check=True,
                    capture_output=True, timeout=120)
@@ -124,8 +131,9 @@ def test_reader_and_loader_agree_on_corrupted_blobs(loader: tuple[Path, Path], t
     exe, out = loader
     good = (out / "imu_calib.bin").read_bytes()
     rng = np.random.default_rng(22)
-    blobs = [good] + [field_mutation(good, rng) for _ in range(N_FIELD)] + \
-        [bit_flips(good, rng) for _ in range(N_FLIPS)]
+    old = V1_BLOB.read_bytes()
+    blobs = [good, old] + [field_mutation(good, rng) for _ in range(N_FIELD)] + \
+        [bit_flips(good, rng) for _ in range(N_FLIPS)] + [field_mutation(old, rng) for _ in range(N_V1)]
     c_side = c_results(exe, blobs, tmp_path)
     disagreements = []
     for i, (data, (code, untouched)) in enumerate(zip(blobs, c_side, strict=True)):
@@ -153,6 +161,10 @@ def test_reader_and_loader_agree_on_corrupted_blobs(loader: tuple[Path, Path], t
      blobfmt.ERR_CONTENT),
     ("singular accel correction", lambda b: put(b, TRIADS, bytes(12)), blobfmt.ERR_CONTENT),
     ("nine segments", lambda b: put(b, ACCEL_THERMAL, struct.pack("<I", 9)), blobfmt.ERR_CAPACITY),
+    ("singular mag correction", lambda b: put(b, len(b) - 4 - 84, bytes(36)), blobfmt.ERR_CONTENT),
+    ("version 2 content called version 1", lambda b: put(b, 4, struct.pack("<H", 1)), blobfmt.ERR_CONTENT),
+    ("version 2 cut to version 1's length",
+     lambda b: put(b[:-84 - 4] + bytes(4), 8, struct.pack("<I", len(b) - 84)), blobfmt.ERR_CONTENT),
 ])
 def test_rules_the_two_sides_disagreed_on(loader: tuple[Path, Path], tmp_path: Path, name: str,
                                           damage: Callable[[bytes], bytes], code: int) -> None:
