@@ -13,7 +13,7 @@ from mag_helpers import calibrated_acc, errors, polar
 from mocks.mag_sessions import mag_capture
 from mocks.truth import UnitTruth
 from station.engines.calibration_mag import MagCalibration, MagCapture, MagSettings, calibrate_mag
-from station.engines.mag_coverage import CELLS, cell_centres, cell_index, field_coverage
+from station.engines.mag_coverage import CELLS, cell_bounds, cell_centres, cell_index, field_coverage
 from station.engines.mag_fit import JointProblem, ellipsoid_fit
 from station.errors import EngineInputError
 
@@ -31,6 +31,12 @@ def test_cells_have_equal_area() -> None:
     assert np.all(np.abs(counts - mean) < 5 * np.sqrt(mean))
     # and each centre lies in its own cell
     assert np.array_equal(cell_index(cell_centres()), np.arange(CELLS))
+    # the cells are rectangles of one area in Lambert's map (longitude, z): 4 pi / CELLS each
+    bounds = cell_bounds()
+    area = (bounds[:, 1] - bounds[:, 0]) * (bounds[:, 3] - bounds[:, 2])
+    np.testing.assert_allclose(area, 4 * np.pi / CELLS)
+    lon = np.mod(np.arctan2(cell_centres()[:, 1], cell_centres()[:, 0]), 2 * np.pi)
+    assert np.all((bounds[1:-1, 0] <= lon[1:-1]) & (lon[1:-1] <= bounds[1:-1, 1]))
 
 
 def test_full_sphere_is_covered_and_half_names_the_missing_side() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime
 import json
 import sys
 from pathlib import Path
@@ -31,7 +32,8 @@ if TYPE_CHECKING:
     from station.engines.calibration_common import CalibrationReport
 
 NAME = "calibrate"
-HELP = "accelerometer and gyroscope scale, misalignment and bias from a capture (turntable or hand-held)"
+HELP = ("accelerometer and gyroscope scale, misalignment and bias from a capture (turntable or hand-held); "
+        "magnetometer hard and soft iron (--method mag)")
 DESCRIPTION = """\
 Estimate the intrinsics of both triads, raw = K (I + S) true + b, from a capture and merge the
 'accel' and 'gyro' sections into PARAMS (other sections are kept; the file is written atomically).
@@ -44,6 +46,14 @@ Estimate the intrinsics of both triads, raw = K (I + S) true + b, from a capture
   fit minimises r = g - |a| (analytic Jacobian, Levenberg-Marquardt); the gyroscope fit integrates the
   calibrated rates (RK4) between static intervals and matches the gravity directions.
 --method auto (default): turntable when the capture has step labels, else free.
+--method mag: the magnetometer (capture columns mx, my, mz) into the 'mag' section: hard iron, soft iron
+  and the rotation to the accelerometer, fitted jointly with the dip constraint (the angle between
+  gravity and the field is the same at every still pose), so a desk-bound session whose z axis stays
+  within 45 deg of up still calibrates; the accelerometer is corrected first with PARAMS's 'accel'
+  section when it has one (calibrate it first). The field magnitude: --field, or the World Magnetic
+  Model at --latitude/--longitude/--height/--date, else the data's own. Prints the coverage of the
+  sphere of field directions (and which are missing), every parameter's 1-sigma and the residuals;
+  disturbed stretches are left out and named.
 
 Input may be in any raw unit (counts included): initial guesses come from the data.
 Every parameter is printed with its 1-sigma uncertainty; per-pose residuals and warnings follow.
@@ -53,20 +63,24 @@ EPILOG = """\
 examples:
   imu-station calibrate twelve.csv --method turntable -o unit.yaml
   imu-station calibrate handheld.csv --method free --initial-still 30 --convention upper -o unit.yaml
-  imu-station calibrate session.csv --latitude 45.07 --height 240 --json"""
+  imu-station calibrate session.csv --latitude 45.07 --height 240 --json
+  imu-station calibrate compass.csv --method mag --latitude 45.07 --longitude 7.68 -o unit.yaml"""
 
 
 # A station's height above the WGS-84 ellipsoid: from below the Dead Sea to above any laboratory.
 MIN_HEIGHT_M, MAX_HEIGHT_M = -1000.0, 10_000.0
 MAX_WINDOW_S = 60.0
+# The field magnitude --field accepts, microtesla: the Earth's is 22 to 67 uT; a lab's coil more.
+MIN_FIELD_UT, MAX_FIELD_UT = 1.0, 1000.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the calibrate command's options to ``parser``."""
     parser.add_argument("input", type=Path, metavar="INPUT",
                         help="capture CSV (.csv, .csv.gz) or capture file (.h5)")
-    parser.add_argument("--method", choices=("auto", "turntable", "free"), default="auto",
-                        help="turntable (labelled poses and rotations), free (hand-held), auto (default)")
+    parser.add_argument("--method", choices=("auto", "turntable", "free", "mag"), default="auto",
+                        help="turntable (labelled poses and rotations), free (hand-held), auto (default), "
+                             "mag (the magnetometer)")
     add_output_option(parser, metavar="PARAMS.yaml",
                       help="parameter file to merge the accel and gyro sections into (of the same unit)")
     add_replace_option(parser)
@@ -78,6 +92,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "for the turntable method, the Earth rate's vertical part")
     parser.add_argument("--height", type=number(float, MIN_HEIGHT_M, MAX_HEIGHT_M, unit="m"), default=0.0,
                         metavar="M", help="height above the ellipsoid (m)")
+    parser.add_argument("--field", type=float, metavar="UT",
+                        help="mag method: the local field's magnitude in microtesla (default: the World "
+                             "Magnetic Model's with --latitude/--longitude, else the data's own)")
+    parser.add_argument("--longitude", type=float, metavar="DEG",
+                        help="mag method: longitude, with --latitude, --height and --date for the World "
+                             "Magnetic Model's field magnitude and dip")
+    parser.add_argument("--date", type=_iso_date, metavar="YYYY-MM-DD",
+                        help="mag method: the date of the capture for the World Magnetic Model "
+                             "(default today)")
     parser.add_argument("--no-earth-rate", action="store_true",
                         help="with --latitude, do not compensate the Earth rate (gravity only)")
     parser.add_argument("--initial-still", type=DURATION_S, metavar="S",
@@ -99,6 +122,108 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "info, if any); refused if the timestamps disagree")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write a residual plot (PNG)")
+
+
+def _iso_date(text: str) -> datetime.date:
+    try:
+        return datetime.date.fromisoformat(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date; give YYYY-MM-DD") from None
+
+
+def mag_field(args: argparse.Namespace) -> tuple[float | None, float | None, str]:
+    """The field magnitude and dip for --method mag: --field, or the World Magnetic Model at
+    --latitude/--longitude/--height/--date, else neither (the data's own magnitude).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options (``field``, ``latitude``, ``longitude``, ``height``, ``date``).
+
+    Returns
+    -------
+    tuple
+        (magnitude in microtesla or None, the model's dip in deg or None, where they came from).
+
+    Raises
+    ------
+    StationError
+        --field with the model's options, half of a place, or a value out of range.
+    """
+    place = args.longitude is not None or args.date is not None
+    if args.field is not None:
+        if place:
+            raise StationError("give either --field or --latitude/--longitude/--date, not both")
+        check_range("--field", args.field, MIN_FIELD_UT, MAX_FIELD_UT, unit="uT",
+                    what="the Earth's field (about 22 to 67 uT),")
+        return float(args.field), None, f"given: --field {args.field:g} uT"
+    if place or args.latitude is not None:
+        if args.latitude is None or args.longitude is None:
+            raise StationError("the World Magnetic Model needs both --latitude and --longitude (and "
+                               "--height, --date if known); or give the field's magnitude with --field UT")
+        from station.geomagnetic import field_at
+
+        model = field_at(args.latitude, args.longitude, args.height,
+                         args.date or datetime.datetime.now(datetime.UTC).date())
+        return model.magnitude_ut, model.dip_deg, model.describe()
+    return None, None, "the data's own"
+
+
+def run_mag(args: argparse.Namespace) -> int:
+    """--method mag: fit the magnetometer, merge the 'mag' section into --output, print the summary."""
+    from rich.console import Console
+
+    from station.acquisition.capture import read_capture
+    from station.engines.calibration_mag import MagCapture, MagSettings, calibrate_mag
+    from station.errors import InputFileError
+    from station.export.params_file import merge_sections, open_for_unit
+    from station.export.params_mag import MAG, mag_section
+    from station.mag_summary import mag_report_dict, print_mag_report
+
+    field, dip, field_source = mag_field(args)  # refuse bad options before reading a long capture
+    with _progress(sys.stderr) as progress:
+        task = progress.add_task(f"reading {args.input}", total=None)
+        capture = read_capture(args.input)
+        if capture.mag is None:
+            raise InputFileError(args.input, "has no magnetometer columns (mx, my, mz): capture from a "
+                                 "unit that reports its magnetometer, or calibrate the accelerometer and "
+                                 "gyroscope with --method free or turntable")
+        params = open_for_unit(args.output, capture.device, replace=args.replace) if args.output else None
+        acc = capture.acc
+        if params is not None and params.accel is not None:
+            # the down direction in the calibrated accelerometer's axes
+            acc = params.accel.correct(capture.acc)
+        progress.update(task, description="fitting the magnetometer")
+        cal = calibrate_mag(MagCapture(capture.t, capture.mag, acc, capture.gyro),
+                            MagSettings(field_ut=field, model_dip_deg=dip))
+    uncalibrated = any("accelerometer looks uncalibrated" in w for w in cal.warnings)
+    if params is not None and params.accel is None and cal.frame == "accel" and not uncalibrated:
+        cal.warnings.append(f"{args.output} has no 'accel' section: the rotation is solved against the raw "
+                            "accelerometer; calibrate it into the same file first for the calibrated axes")
+    outputs = {}
+    if args.output:
+        merge_sections(args.output, capture.device, {MAG: mag_section(cal, field_source)}, capture=args.input,
+                       replace=args.replace)
+        corrected = params is not None and params.accel is not None
+        outputs[str(args.output)] = "mag section written" + (
+            " (accelerometer corrected with its accel section)" if corrected else "")
+    if args.plot:
+        from station.plots.mag_plot import plot_mag
+
+        plot_mag(cal, capture.t, capture.mag, args.plot,
+                 f"imu-station calibrate --method mag {args.input.name}")
+        outputs[str(args.plot)] = "written"
+    if args.json:
+        result = mag_report_dict(cal, str(args.input), field_source)
+        result["outputs"] = outputs
+        json.dump(result, sys.stdout, indent=1, allow_nan=False)
+        sys.stdout.write("\n")
+        return ExitCode.OK
+    console = Console(file=sys.stdout, width=140)
+    print_mag_report(cal, field_source, console)
+    for path, what in outputs.items():
+        console.print(f"{path}: {what}")
+    return ExitCode.OK
 
 
 def local_gravity(args: argparse.Namespace) -> float:
@@ -295,6 +420,8 @@ def run(args: argparse.Namespace) -> int:
     from station.acquisition.capture import read_capture
     from station.export.params_file import merge_sections, open_for_unit
 
+    if args.method == "mag":
+        return run_mag(args)
     local_gravity(args)  # refuse bad options before reading a long capture
     with _progress(sys.stderr) as progress:
         task = progress.add_task(f"reading {args.input}", total=None)

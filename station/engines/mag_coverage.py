@@ -127,6 +127,32 @@ def cell_centres(cells: int = CELLS) -> np.ndarray:
     return out
 
 
+def cell_bounds(cells: int = CELLS) -> np.ndarray:
+    """Each cell's extent: longitude (rad, 0..2 pi) and z (cos colatitude) from and to.
+
+    In the (longitude, z) plane, Lambert's cylindrical equal-area map, every cell is a rectangle of
+    the same area, 4 pi / cells.
+
+    Parameters
+    ----------
+    cells : int
+        Cells of the partition.
+
+    Returns
+    -------
+    ndarray, (cells, 4)
+        Row k: [lon_from, lon_to, z_from, z_to] of cell k (z_from < z_to).
+    """
+    part = _partition(cells)
+    out = np.empty((cells, 4))
+    for zone, count in enumerate(part.counts):
+        edges = np.arange(count + 1) * 2.0 * np.pi / count
+        rows = slice(part.first[zone], part.first[zone] + count)
+        out[rows] = np.column_stack([edges[:-1], edges[1:], np.full(count, part.cos_edges[zone + 1]),
+                                     np.full(count, part.cos_edges[zone])])
+    return out
+
+
 def _cube_directions() -> tuple[np.ndarray, tuple[str, ...]]:
     """The 26 directions of a cube (faces, edges, corners) as unit vectors and as labels like ``+x-z``."""
     vectors, labels = [], []

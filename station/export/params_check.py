@@ -193,11 +193,13 @@ def _sensor(c: _Checker, value: Any, name: str) -> None:
                 "rad/s per m/s^2")
 
 
-def _invertible(c: _Checker, matrix: Any, keys: Keys) -> None:
+def _invertible(c: _Checker, matrix: Any, keys: Keys, diagonal: bool = True) -> None:
     m = np.asarray(matrix, dtype=float)
     if abs(np.linalg.det(m)) < 1e-12 or np.linalg.cond(m) > MAX_CONDITION:
         raise c.fail(keys, f"is singular or nearly so (condition number {np.linalg.cond(m):.3g}, the most "
                      f"read is {MAX_CONDITION:g}): it cannot be inverted into a correction")
+    if not diagonal:
+        return
     # M = K (I + S): the scale K is the diagonal, and S = K^-1 M - I must be a misalignment.
     scale = np.abs(np.diag(m))
     if np.any(scale * MAX_MISALIGNMENT < np.max(np.abs(m), axis=1)):
@@ -306,7 +308,9 @@ def _mag(c: _Checker, value: Any) -> None:
             raise c.fail(("mag",), f"section 'mag' lacks the required key '{key}'")
     c.array(section["matrix"], ("mag", "matrix"), (3, 3), MATRIX_LIMIT, "raw per true unit")
     c.array(section["bias"], ("mag", "bias"), (3,), BIAS_LIMIT, "microtesla")
-    _invertible(c, section["matrix"], ("mag", "matrix"))
+    # frame accel: a magnetometer mounted with its axes permuted has a matrix whose diagonal is not its
+    # largest part, and is no less a calibration
+    _invertible(c, section["matrix"], ("mag", "matrix"), diagonal=section.get("frame") != "accel")
     if "correction" in section:
         c.array(section["correction"], ("mag", "correction"), (3, 3), FLOAT32_MAX, "")
     if section.get("frame") is not None and section["frame"] not in ("accel", "sensor"):
@@ -315,6 +319,16 @@ def _mag(c: _Checker, value: Any) -> None:
         c.number(section["field_norm"], ("mag", "field_norm"), 0.0, BIAS_LIMIT, "microtesla")
     if section.get("coverage") is not None:
         c.number(section["coverage"], ("mag", "coverage"), 0.0, 1.0, "(share of the sphere)")
+    if section.get("residual_rms") is not None:
+        c.number(section["residual_rms"], ("mag", "residual_rms"), 0.0, FLOAT32_MAX, "microtesla")
+    if section.get("method") is not None:
+        c.text(section["method"], ("mag", "method"))
+    if section.get("stddev") is not None:
+        for key, sd in c.mapping(section["stddev"], ("mag", "stddev")).items():
+            c.numbers(sd, ("mag", "stddev", key))
+    for key, limit in (("dip_deg", 90.0), ("alignment_deg", 180.0)):
+        if section.get(key) is not None:
+            c.number(section[key], ("mag", key), -limit, limit, "deg")
 
 
 def _characterisation(c: _Checker, value: Any) -> None:
