@@ -1,0 +1,200 @@
+"""``imu-station characterise``: turn-on bias repeatability, scale-factor nonlinearity and asymmetry, and
+the unit's datasheet."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from station.cli_options import (
+    DURATION_S,
+    add_output_option,
+    add_port_options,
+    add_replace_option,
+    number,
+)
+from station.errors import EngineInputError, ExitCode, InputFileError
+
+NAME = "characterise"
+HELP = "datasheet figures: turn-on bias repeatability, gyro scale nonlinearity and asymmetry, --datasheet"
+DESCRIPTION = """\
+Measure what a datasheet says of the unit and merge it into the 'characterisation' section of PARAMS
+(other sections are kept).
+
+Turn-on bias repeatability: give three or more still captures, each one power-up of the unit in the
+same pose (STILL1.csv ... STILLn.csv), or record them with --port PORT --turn-ons N --still S: the unit
+is restarted with the native RESTART command before each record (a unit that cannot restart itself is
+power-cycled by the operator when asked). The figure is the spread of the turn-on means with each
+record's in-run noise of its mean removed (from its own Allan deviation), with a chi-square interval.
+
+Scale-factor nonlinearity and asymmetry: give captures with constant-rate steps (labels rate+z:90,
+rate-z:90, ...: three or more rates over the range, both ways, about each axis measured), as a rate
+table records them; per the parameter-file spec's definitions, in ppm.
+
+--datasheet prints one table in datasheet units of every figure the parameter file holds (noise,
+calibration, g-sensitivity, thermal and characterisation sections), each with its uncertainty and what
+measured it; --json prints it for machines.
+
+exit codes: 0 done, 3 the unit or its link failed, 4 unusable input (the message names the file)."""
+EPILOG = """\
+examples:
+  imu-station characterise still1.csv still2.csv still3.csv still4.csv -o unit.yaml
+  imu-station characterise --port /dev/ttyUSB0 --turn-ons 10 --still 60 -o unit.yaml --keep turn-ons/
+  imu-station characterise rates.csv -o unit.yaml --datasheet
+  imu-station characterise --datasheet --params unit.yaml --json"""
+
+MAX_TURN_ONS = 1000
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the characterise command's options to ``parser``."""
+    parser.add_argument("inputs", type=Path, nargs="*", metavar="CAPTURE",
+                        help="still captures (one per power-up, same pose) and/or captures with rate steps")
+    add_port_options(parser, required=False,
+                     port_help="record the turn-ons from the unit at this port (with --turn-ons and --still)")
+    parser.add_argument("--turn-ons", type=number(int, 3, MAX_TURN_ONS), default=None, metavar="N",
+                        help=f"power-ups to record with --port, 3 to {MAX_TURN_ONS}")
+    parser.add_argument("--still", type=DURATION_S, default=None, metavar="S",
+                        help="seconds recorded still at each power-up with --port")
+    parser.add_argument("--keep", type=Path, metavar="DIR",
+                        help="keep the turn-on captures recorded with --port in DIR (default: not kept)")
+    parser.add_argument("--level", type=number(float, 0.5, 0.999), default=None, metavar="P",
+                        help="confidence level of the repeatability interval (default one sigma, 0.683)")
+    add_output_option(parser, metavar="PARAMS",
+                      help="parameter file to merge the 'characterisation' section into (of the same unit)")
+    add_replace_option(parser)
+    parser.add_argument("--datasheet", action="store_true",
+                        help="print the datasheet table of the parameter file (-o, or --params)")
+    parser.add_argument("--params", type=Path, metavar="PARAMS",
+                        help="parameter file the datasheet is read from (default: -o)")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    if args.port is not None and (args.turn_ons is None or args.still is None):
+        raise EngineInputError("--port records the turn-ons: give --turn-ons N (3 or more) and --still S")
+    if args.port is None and (args.turn_ons is not None or args.still is not None or args.keep is not None):
+        raise EngineInputError("--turn-ons, --still and --keep go with --port (the unit to record)")
+    if not args.inputs and args.port is None and not args.datasheet:
+        raise EngineInputError("nothing to do: give captures, --port with --turn-ons and --still, or "
+                               "--datasheet")
+    if args.datasheet and args.output is None and args.params is None:
+        raise EngineInputError("--datasheet reads a parameter file: give -o PARAMS or --params PARAMS")
+
+
+def _power_cycle(turn_on: int) -> None:
+    """Ask the operator at the terminal to power-cycle the unit."""
+    print(f"turn-on {turn_on}: the unit cannot restart itself. Switch it off, wait a few seconds, switch it "
+          "on, then press Enter", file=sys.stderr)
+    input()
+
+
+def _record(args: argparse.Namespace, folder: Path) -> list[Path]:
+    from station.acquisition.turn_ons import record_turn_ons
+    from station.status_line import CaptureStatusLine
+
+    interactive = sys.stdin.isatty()
+    status = (lambda duration_s: CaptureStatusLine(sys.stderr, duration_s)) if sys.stderr.isatty() else None
+    return record_turn_ons(args.port, folder, args.turn_ons, args.still, protocol=args.protocol,
+                           baudrate=args.baud, power_cycle=_power_cycle if interactive else None,
+                           err=sys.stderr, status=status)
+
+
+def _analyse(paths: list[Path], level: float | None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Read the captures, sort them into turn-on records and rate captures, run the engines; returns
+    the section's keys and what is known of the unit."""
+    from station.acquisition.capture import read_capture
+    from station.engines.allan import ONE_SIGMA
+    from station.engines.characterisation_scale import rate_steps, scale_linearity
+    from station.engines.characterisation_turnon import reduce_record, turn_on_repeatability
+    from station.export.params_characterisation import repeatability_keys, scale_keys
+
+    stills, steps, rate_files = [], [], []
+    device: dict[str, Any] = {}
+    for path in paths:
+        capture = read_capture(path)
+        if device.get("serial") and capture.device.get("serial") not in (None, device["serial"]):
+            raise InputFileError(path, f"is of unit {capture.device.get('serial')}, the first capture of "
+                                 f"unit {device['serial']}: characterise one unit at a time")
+        device = device or dict(capture.device)
+        found = rate_steps(capture.t, capture.gyro, capture.step, str(path))
+        if found:
+            steps += found
+            rate_files.append(str(path))
+            continue
+        poses = {label for label, _ in capture.segments()}
+        if len(poses) > 1:
+            raise InputFileError(path, f"holds several poses ({', '.join(sorted(poses))}) and no rate step: "
+                                 "a turn-on record is one still pose, recorded at one power-up")
+        pose = poses.pop() if poses else ""
+        stills.append(reduce_record(str(path), capture.t, capture.acc, capture.gyro, pose))
+    keys: dict[str, Any] = {}
+    if stills:
+        acc, gyro = turn_on_repeatability(stills, ONE_SIGMA if level is None else level)
+        keys |= repeatability_keys(acc, gyro, [s.source for s in stills])
+    if rate_files:
+        keys |= scale_keys(scale_linearity(steps, ", ".join(rate_files)), rate_files)
+    return keys, device
+
+
+def _lines(keys: dict[str, Any]) -> list[str]:
+    from station.export.datasheet import datasheet_rows, format_table
+
+    rows = datasheet_rows({"characterisation": keys})
+    return format_table(rows).splitlines() if rows else []
+
+
+def run(args: argparse.Namespace) -> int:
+    """Record or read the captures, compute the figures, merge them, print them (and the datasheet)."""
+    from station.export.params_characterisation import merged
+    from station.export.params_file import ParamsFile, merge_sections, open_for_unit
+
+    _check_options(args)
+    result: dict[str, Any] = {}
+    paths = list(args.inputs)
+    if args.port is not None:
+        if args.output:
+            open_for_unit(args.output, None, replace=args.replace)  # refuse before minutes of recording
+        if args.keep is not None:
+            paths += _record(args, args.keep)
+            keys, device = _analyse(paths, args.level)
+        else:
+            with tempfile.TemporaryDirectory(prefix="imu-turn-ons-") as folder:
+                paths += _record(args, Path(folder))
+                keys, device = _analyse(paths, args.level)
+    elif paths:
+        keys, device = _analyse(paths, args.level)
+    else:
+        keys, device = {}, {}
+    if keys:
+        result["characterisation"] = keys
+        if args.output:
+            held = open_for_unit(args.output, device, replace=args.replace)
+            section = merged(held.other.get("characterisation"), keys)
+            merge_sections(args.output, device, {"characterisation": section},
+                           capture=paths[0] if len(paths) == 1 else None, replace=args.replace)
+            result["output"] = str(args.output)
+    if args.datasheet:
+        from station.export.datasheet import datasheet_rows, format_table
+        from station.export.params_file import to_plain
+
+        source = args.params or args.output
+        rows = datasheet_rows(to_plain(ParamsFile.load(source).to_dict()))
+        result["datasheet"] = {"params": str(source), "rows": [r.as_dict() for r in rows]}
+    if args.json:
+        json.dump(result, sys.stdout, indent=1, allow_nan=False)
+        sys.stdout.write("\n")
+        return ExitCode.OK
+    if keys and not args.datasheet:
+        for line in _lines(keys):
+            print(line)
+    if args.datasheet:
+        print(f"datasheet of {result['datasheet']['params']}:")
+        print(format_table(rows) if rows else "(no section of the file gives a datasheet figure)")
+    if "output" in result:
+        print(f"{result['output']}: characterisation section written")
+    return ExitCode.OK
