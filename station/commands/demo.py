@@ -359,8 +359,10 @@ def export_firmware(ctx: DemoContext) -> None:
     compile them and check that the blob corrects a raw sample as the station does."""
     import numpy as np
 
+    from station.engines.correction import apply_calibration
     from station.export.c_export import BLOB_NAME, write_c_export
     from station.export.params_file import ParamsFile
+    from station.export.sections import g_sensitivity
 
     assert ctx.params_path is not None
     params = ParamsFile.load(ctx.params_path)
@@ -379,7 +381,8 @@ def export_firmware(ctx: DemoContext) -> None:
     true_acc = np.array([0.0, 0.0, truth.gravity])
     true_gyro = np.array([0.0, 0.0, np.radians(90.0)])
     raw_acc = (truth.accel.matrix @ true_acc + truth.accel.bias).astype(np.float32)
-    raw_gyro = (truth.gyro.matrix @ true_gyro + truth.gyro.bias).astype(np.float32)
+    raw_gyro = (truth.gyro.matrix @ true_gyro + truth.gyro.bias
+                + truth.g_sensitivity @ true_acc).astype(np.float32)
     with tempfile.TemporaryDirectory(prefix="imu-demo-cc-") as tmp:
         check_c = Path(tmp) / "check.c"
         check_c.write_text(_C_CHECK, encoding="ascii")
@@ -396,8 +399,9 @@ def export_firmware(ctx: DemoContext) -> None:
                          f"{ran.stdout.strip()} {ran.stderr.strip()}")
     c_out = np.array([float(x) for x in lines[1].split()])
     accel, gyro = _both_triads(params.accel, params.gyro, str(ctx.params_path))
-    station = np.concatenate([accel.correct(raw_acc[None, :].astype(float))[0],
-                              gyro.correct(raw_gyro[None, :].astype(float))[0]])
+    acc_out, gyro_out = apply_calibration(raw_acc[None, :].astype(float), raw_gyro[None, :].astype(float),
+                                          accel_cal=accel, gyro_cal=gyro, g_sensitivity=g_sensitivity(params))
+    station = np.concatenate([acc_out[0], gyro_out[0]])
     agreement = float(np.max(np.abs(c_out - station) / np.maximum(1.0, np.abs(station))))
     ctx.results["firmware_check"] = {"load": lines[0], "c": c_out.tolist(), "station": station.tolist(),
                                      "agreement": agreement}
