@@ -21,23 +21,24 @@ the others go on. Ctrl-C ends every unit, keeping every sample received.
 
 from __future__ import annotations
 
+import math
 import re
 import selectors
-import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
 
 import numpy as np
 
 from drivers import DEFAULT_BAUDRATE, DriverError, LinkStats, NoSamples
 from drivers.polled_port import PolledPort
 from protocols import native
+from station.acquisition.file_syncer import FileSyncer
 from station.acquisition.recorder import (
+    FLUSH_INTERVAL_S,
     NO_SAMPLES_TIMEOUT_S,
     CaptureResult,
     Recorder,
@@ -49,7 +50,7 @@ from station.acquisition.recorder import (
 from station.text import printable
 
 READ_PERIOD_S = 0.02  # a pty holds ~20 KB: 0.4 s of a 1 kHz unit, far more than a turn
-WRITE_PERIOD_S = 0.5
+WRITE_PERIOD_S = 1.0  # the HDF5 writer costs ~1 ms a call whatever the rows: fewer, larger batches
 STATUS_INTERVAL_S = 0.25
 INFO_TIMEOUT_S = 0.5
 INFO_TRIES = 2
@@ -119,6 +120,7 @@ class _Unit:
         self.ended_by = "stopped"
         self.error: DriverError | None = None
         self.result: CaptureResult | None = None
+        self.received = 0  # samples read from the port
 
     def receive(self) -> None:
         """Take what the port has; a broken link ends the unit once its samples are taken."""
@@ -129,6 +131,7 @@ class _Unit:
             return
         if len(batch):
             self.batch.append(batch)
+            self.received += len(batch)
 
     def status(self) -> UnitStatus:
         """The unit's line on the live display."""
@@ -151,6 +154,22 @@ class _Session:
         self.duration_s = duration_s
         self.units: list[_Unit] = []
         self.stems: dict[str, str] = {}  # stem -> port that has it
+        self.unopened: list[UnitStatus] = []  # ports that did not open, shown as failed
+        self.syncer = FileSyncer() if suffix == ".csv" else None
+
+    def close(self) -> None:
+        """Finish every unit still open, then make the files durable a last time."""
+        try:
+            for unit in self.units:
+                if unit.result is None:
+                    self.finish(unit)
+        finally:
+            if self.syncer is not None:
+                self.syncer.close()
+
+    def statuses(self) -> list[UnitStatus]:
+        """Every port's line: those that did not open, then the units."""
+        return self.unopened + [u.status() for u in self.units]
 
     def identify(self, unit: _Unit, now: float) -> None:
         """Name the unit's file once it said its serial, or once it did not answer in time."""
@@ -174,9 +193,14 @@ class _Session:
                          f"after its port")
         unit.stem = self._unique(stem, unit)
         path = self.directory / (unit.stem + self.suffix)
+        # A CSV's rows reach the OS as they are written; its flush is an fsync, left to the syncer's
+        # thread. An HDF5 file's flush writes its metadata, which only the writing thread may do.
+        flush_s = FLUSH_INTERVAL_S if self.syncer is None else math.inf
         unit.recorder = Recorder(path, device=port.info, port=port.port, protocol=port.protocol,
-                                 duration_s=self.duration_s)
-        if port.protocol == "native" and port.stats.samples == 0:
+                                 duration_s=self.duration_s, flush_interval_s=flush_s)
+        if self.syncer is not None:
+            self.syncer.add(path)
+        if port.protocol == "native" and unit.received == 0:
             port.send(native.START_STREAM)  # a unit streams from power-up; one that was stopped starts
 
     def _unique(self, stem: str, unit: _Unit) -> str:
@@ -205,8 +229,8 @@ class _Session:
 
     def check(self, unit: _Unit, now: float, wall_deadline: float | None) -> None:
         """End a unit that sent no sample in time, or ran past the wall-clock guard."""
-        stats = unit.port.stats
-        if stats.samples == 0 and now - unit.opened_at > NO_SAMPLES_TIMEOUT_S:
+        if unit.received == 0 and now - unit.opened_at > NO_SAMPLES_TIMEOUT_S:
+            stats = unit.port.stats
             unit.error = NoSamples(f"{unit.port.port}: no sample arrived in {NO_SAMPLES_TIMEOUT_S:g} s "
                                    f"({stats.bytes} bytes read, {stats.garbage_bytes} of them not frames); "
                                    f"check that the unit streams, and the --protocol and baud rate",
@@ -238,8 +262,8 @@ class _Session:
 
 def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", protocol: str = "native",
                  duration_s: float | None = None, baudrate: int = DEFAULT_BAUDRATE,
-                 err: IO[str] | None = None, status: StatusDisplay | None = None,
-                 stop: threading.Event | None = None, handle_sigint: bool = True) -> list[UnitOutcome]:
+                 status: StatusDisplay | None = None, stop: threading.Event | None = None,
+                 handle_sigint: bool = True) -> list[UnitOutcome]:
     """Record every unit at ``ports`` into its own file in ``directory`` until each has ``duration_s``
     of device clock, or Ctrl-C, or ``stop``; a unit that fails ends alone.
 
@@ -257,8 +281,6 @@ def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", 
         Seconds of device clock to record from each unit; None: until Ctrl-C or ``stop``.
     baudrate : int
         Line speed of real serial ports.
-    err : text stream, optional
-        Where ports that do not open are reported (default: stderr).
     status : callable, optional
         Makes the live display (see :data:`StatusDisplay`); None shows nothing.
     stop : threading.Event, optional
@@ -278,39 +300,36 @@ def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", 
     """
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}")
-    err = err if err is not None else sys.stderr
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     session = _Session(directory, FORMATS[fmt], duration_s)
     outcomes: dict[int, UnitOutcome] = {}
     selector = selectors.DefaultSelector()
-    now = time.monotonic()
-    for index, name in enumerate(ports):
-        try:
-            port = PolledPort(name, protocol=protocol, baudrate=baudrate)
-        except DriverError as exc:
-            print(f"{name}: {exc}", file=err)
-            outcomes[index] = UnitOutcome(name, None, None, exc)
-            continue
-        unit = _Unit(index, port, now)
-        session.units.append(unit)
-        selector.register(port, selectors.EVENT_READ, unit)
-        session.identify(unit, now)
     interrupted = threading.Event()
     restore = _install_sigint(interrupted) if handle_sigint else None
-    wall_deadline = None if duration_s is None else now + duration_s * 1.5 + 5.0
-    display = (status([u.port.port for u in session.units], duration_s) if status is not None
-               else nullcontext(None))
+    now = time.monotonic()
     try:
+        for index, name in enumerate(ports):
+            try:
+                port = PolledPort(name, protocol=protocol, baudrate=baudrate)
+            except DriverError as exc:
+                outcomes[index] = UnitOutcome(name, None, None, exc)
+                session.unopened.append(UnitStatus(name, name, LinkStats(), 0, 0.0, f"failed: {exc}"))
+                continue
+            unit = _Unit(index, port, now)
+            session.units.append(unit)
+            selector.register(port, selectors.EVENT_READ, unit)
+            session.identify(unit, now)
+        wall_deadline = None if duration_s is None else now + duration_s * 1.5 + 5.0
+        display = (status([u.port for u in session.statuses()], duration_s) if status is not None
+                   else nullcontext(None))
         with display as on_status:
             _serve(session, selector, interrupted, stop, wall_deadline, on_status)
     finally:
         if restore is not None:
             restore()
         selector.close()
-        for unit in session.units:
-            if unit.result is None:
-                session.finish(unit)
+        session.close()
     for unit in session.units:
         outcomes[unit.index] = UnitOutcome(unit.port.port, unit.serial, unit.result, unit.error, unit.note)
     return [outcomes[i] for i in range(len(ports))]
@@ -352,11 +371,11 @@ def _serve(session: _Session, selector: selectors.BaseSelector, interrupted: thr
                     selector.unregister(unit.port)
                     session.finish(unit)
             if on_status is not None and now - last_status >= STATUS_INTERVAL_S:
-                on_status([u.status() for u in units])
+                on_status(session.statuses())
                 last_status = now
     except KeyboardInterrupt:
         for unit in units:
             if not unit.done:
                 unit.ended_by, unit.done = "interrupted", True
     if on_status is not None:
-        on_status([u.status() for u in units])
+        on_status(session.statuses())
