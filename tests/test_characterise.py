@@ -233,6 +233,9 @@ def test_g_sensitivity_is_recovered_from_the_static_poses(sequence: str) -> None
     # tolerance in datasheet units: 0.01 deg/s/g on every term
     assert np.max(np.abs(estimate - G_TRUE)) * G / DEG < 0.01
     assert not [w for w in report.warnings if "g-sensitivity" in w]
+    # each turn's g-sensitivity (g along its vertical axis) is taken out of its integral
+    assert all(abs(p["angle_error_deg"]) < 0.05 for p in report.poses if p["kind"] == "rotation")
+    np.testing.assert_allclose(report.gyro.matrix, truth.gyro.matrix, atol=2e-3)
 
 
 def test_poses_that_never_turn_an_axis_leave_its_column_undetermined() -> None:

@@ -340,6 +340,12 @@ def print_report(report: CalibrationReport, console: Console) -> None:
                           *[("0" if i == j else _fmt(mis[i, j], mis_sd[i, j])) for j in range(3)])
         bias_sd = np.asarray(sd.get("bias", [None] * 3))
         table.add_row("bias b", *[_fmt(cal.bias[i], bias_sd[i]) for i in range(3)])
+        if cal.extra.get("g_sensitivity") is not None:  # rad/s per m/s^2: bias change = G f
+            g_sens = np.asarray(cal.extra["g_sensitivity"])
+            g_sd = np.asarray(sd.get("g_sensitivity", np.full((3, 3), np.nan)))
+            for i, row in enumerate("xyz"):
+                table.add_row(f"g-sensitivity G, row {row} (rad/s per m/s^2)",
+                              *[_fmt(g_sens[i, j], g_sd[i, j]) for j in range(3)])
         console.print(table)
         console.print(f"{name} residual RMS: {cal.residual_rms:.4g} ({cal.extra.get('residual', '')})")
     trials = report.details.get("trials")

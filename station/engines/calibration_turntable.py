@@ -302,11 +302,19 @@ def fit_gyroscope(data: TurntableCapture, accel: AccelStage, settings: Turntable
     check_rotation_axes(acc, rotations, axes, accel.matrix, accel.bias, t)
     static_var = static_gyro.var(axis=0, ddof=1)
     noise_var = np.array([static_var * np.sum(np.diff(t[sl]) ** 2) for _, sl in rotations])
+    correction = np.linalg.inv(accel.matrix)
+    force_rot = np.array([correction @ (acc[sl].mean(axis=0) - accel.bias) for _, sl in rotations])
+    # g-sensitivity (calibration_turntable_gsens, eq. 1), where the poses determine it (the Earth term
+    # there with M ~ I: its error is below 1e-6 rad/s). The bias stays the static mean: the poses'
+    # specific force averages to zero in the built-in sequences, where it is the intercept of eq. (1)
+    # too. Each turn, its axis vertical, feels g along it: G f T is taken out of its integral.
+    gsens = g_sensitivity_from_poses(acc, gyro, statics, accel.matrix, accel.bias, np.eye(3), omega_v)
+    warnings += gsens.warnings
+    if gsens.matrix is not None:
+        integrals = integrals - durations[:, None] * force_rot @ gsens.matrix.T
     earth = None
     if latitude_deg is not None:
-        correction = np.linalg.inv(accel.matrix)
-        up_rot = np.array([correction @ (acc[sl].mean(axis=0) - accel.bias) for _, sl in rotations])
-        up_rot /= np.linalg.norm(up_rot, axis=1, keepdims=True)
+        up_rot = force_rot / np.linalg.norm(force_rot, axis=1, keepdims=True)
         earth = omega_v * durations[:, None] * up_rot
     up_static = accel.up[np.repeat(np.arange(len(statics)), accel.counts)].mean(axis=0)
     rot, bias_solved = fit_rotations(integrals, angles, axes, durations, noise_var, rot_labels,
@@ -327,11 +335,6 @@ def fit_gyroscope(data: TurntableCapture, accel: AccelStage, settings: Turntable
     if not bias_solved:
         warnings.append("gyroscope: the rotations turn one way only about each axis, so the bias does "
                         "not cancel; the static bias was subtracted instead (add the opposite turns)")
-    # g-sensitivity (calibration_turntable_gsens, eq. 1), where the poses determine it. The bias stays the
-    # static mean: the poses' specific force averages to zero in the built-in sequences, where it is the
-    # intercept of eq. (1) too.
-    gsens = g_sensitivity_from_poses(acc, gyro, statics, accel.matrix, accel.bias, m_g, omega_v)
-    warnings += gsens.warnings
     g_extra = {}
     if gsens.matrix is not None:
         g_extra["g_sensitivity"] = gsens.matrix.tolist()
