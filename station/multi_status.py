@@ -27,7 +27,7 @@ def unit_text(unit: UnitStatus) -> str:
     -------
     str
     """
-    if unit.state == "identifying":
+    if unit.state == "preparing":
         return "asking the unit who it is"
     if unit.state.startswith("failed"):
         return unit.state

@@ -7,16 +7,18 @@ Files are read back and compared with what was sent, sample for sample.
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
-from drivers.errors import PortError
+from drivers.errors import CommandRejected, PortError
 from drivers.polled_port import PolledPort
 from mocks.device import SimDevice
 from mocks.pty_fleet import FleetUnit, PtyFleet
@@ -83,6 +85,26 @@ def test_h5_files_and_a_serial_reported_twice(tmp_path: Path) -> None:
         assert got.tobytes() == server.sent()[: len(got)].tobytes()
 
 
+def test_rate_set_on_every_unit_and_a_refused_rate_fails_the_unit(tmp_path: Path) -> None:
+    with PtyServer(seed=41, rate_hz=RATE_HZ) as a, PtyServer(seed=42, rate_hz=RATE_HZ) as b:
+        outcomes = capture_many([a.port_path, b.port_path], tmp_path / "slow", fmt="h5", duration_s=0.5,
+                                rate_hz=100, handle_sigint=False)
+        refused = capture_many([a.port_path], tmp_path / "fast", duration_s=0.5, rate_hz=5000,
+                               handle_sigint=False)
+    for outcome in outcomes:
+        assert outcome.error is None and outcome.capture is not None
+        got = read_samples(outcome.capture.path)
+        # Every row at the new rate: the samples before the ACK are not part of the capture.
+        assert len(got) == 50 and set(np.diff(got["t_us"].astype(np.int64))) == {10_000}
+        with h5py.File(outcome.capture.path) as f:
+            assert json.loads(f.attrs["device"])["rate_hz"] == 100
+    (outcome,) = refused
+    assert isinstance(outcome.error, CommandRejected)
+    assert "refused SET_RATE: bad argument" in str(outcome.error)
+    assert "no file was written" in str(outcome.error)
+    assert not (tmp_path / "fast" / "SIM-000041.csv").exists()
+
+
 def test_ctrl_c_keeps_every_sample_received(tmp_path: Path) -> None:
     with PtyServer(seed=31, rate_hz=RATE_HZ, record=True) as a, PtyServer(seed=32, rate_hz=RATE_HZ,
                                                                              record=True) as b:
@@ -111,8 +133,6 @@ def test_usage_errors_of_several_ports(tmp_path: Path, capsys: pytest.CaptureFix
     cases = [
         (["--port", "/dev/null", "--format", "h5", "-o", str(tmp_path / "x.h5")],
          "--format applies to several"),
-        (["--port", "/dev/null", "--port", "/dev/zero", "--rate", "100", "-o", str(tmp_path)],
-         "--rate takes one"),
         (["--port", "/dev/null", "--port", "/dev/zero", "--protocol", "auto", "-o", str(tmp_path)],
          "--protocol auto reads one port"),
         (["--port", "/dev/null", "--port", "/dev/zero", "-o", str(a_file)], "names a directory"),

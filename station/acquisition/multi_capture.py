@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers import DEFAULT_BAUDRATE, DriverError, LinkStats, NoSamples
+from drivers import DEFAULT_BAUDRATE, CommandRejected, DriverError, LinkStats, NoSamples
+from drivers.message_log import no_answer
 from drivers.polled_port import PolledPort
 from protocols import native
 from station.acquisition.file_syncer import FileSyncer
@@ -66,7 +67,7 @@ class UnitStatus:
     stats: LinkStats
     rows: int
     device_time_s: float
-    state: str  # "identifying", "recording", "done", or the error that ended it
+    state: str  # "preparing", "recording", "done", or "failed: " and the error that ended it
 
 
 StatusCallback = Callable[[Sequence[UnitStatus]], None]
@@ -102,10 +103,21 @@ def _port_stem(port: str) -> str:
     return file_stem(port.removeprefix("/dev/").replace("/", "-"))
 
 
-class _Unit:
-    """One port in the loop: asked who it is, then recorded until it is done."""
+@dataclass
+class _Ask:
+    """A command the unit is asked before its file opens, and how often it was sent."""
 
-    def __init__(self, index: int, port: PolledPort, now: float):
+    command_id: int
+    payload: bytes = b""
+    tries: int = 0
+    mark: int = 0  # the port's message count when it was last sent
+    due: float = 0.0  # when to send it again
+
+
+class _Unit:
+    """One port in the loop: asked who it is (and to set its rate), then recorded until it is done."""
+
+    def __init__(self, index: int, port: PolledPort, now: float, rate_hz: int | None):
         self.index = index
         self.port = port
         self.opened_at = now
@@ -114,8 +126,13 @@ class _Unit:
         self.note = ""
         self.recorder: Recorder | None = None
         self.batch: list[np.ndarray] = []
-        self.info_tries = 0
-        self.info_due = now
+        # What prepare_device asks of a single unit: who it is, and with a rate, to set it and who it
+        # is then (the file records the unit's info at the new rate).
+        self.asks: list[_Ask] = []
+        if port.protocol == "native":
+            self.asks.append(_Ask(native.GET_INFO))
+            if rate_hz is not None:
+                self.asks += [_Ask(native.SET_RATE, rate_hz.to_bytes(2, "little")), _Ask(native.GET_INFO)]
         self.done = False
         self.ended_by = "stopped"
         self.error: DriverError | None = None
@@ -139,7 +156,7 @@ class _Unit:
         if self.done:
             state = "done" if self.error is None else f"failed: {self.error}"
         else:
-            state = "recording" if rec is not None else "identifying"
+            state = "recording" if rec is not None else "preparing"
         return UnitStatus(self.port.port, self.stem or self.port.port, self.port.stats,
                           rec.rows if rec is not None else 0, rec.device_time_s if rec is not None else 0.0,
                           state)
@@ -171,16 +188,50 @@ class _Session:
         """Every port's line: those that did not open, then the units."""
         return self.unopened + [u.status() for u in self.units]
 
-    def identify(self, unit: _Unit, now: float) -> None:
-        """Name the unit's file once it said its serial, or once it did not answer in time."""
+    def prepare(self, unit: _Unit, now: float) -> None:
+        """Ask the unit's questions in turn, each sent up to ``INFO_TRIES`` times, then open its file.
+
+        An unanswered GET_INFO leaves the unit unnamed (recorded anyway: a unit streams from
+        power-up); a refused or unanswered SET_RATE ends the unit with that error, as it ends a
+        capture of one unit. Samples before the rate's ACK are at the old rate: not recorded.
+        """
+        port = unit.port
+        while unit.asks:
+            ask = unit.asks[0]
+            try:
+                answered = ask.tries > 0 and port.answer_since(ask.command_id, ask.mark) is not None
+            except CommandRejected as exc:
+                self.fail(unit, exc)
+                return
+            if answered:
+                if ask.command_id == native.SET_RATE:
+                    unit.batch = []
+                unit.asks.pop(0)
+            elif now < ask.due:
+                return
+            elif ask.tries < INFO_TRIES:
+                ask.tries, ask.mark, ask.due = ask.tries + 1, port.message_count, now + INFO_TIMEOUT_S
+                port.send(ask.command_id, ask.payload)
+                return
+            elif ask.command_id == native.SET_RATE:
+                self.fail(unit, no_answer(port.port, port.protocol, native.SET_RATE, INFO_TRIES,
+                                          INFO_TIMEOUT_S))
+                return
+            else:
+                unit.asks.pop(0)
+        self.open_file(unit)
+
+    @staticmethod
+    def fail(unit: _Unit, error: DriverError) -> None:
+        """End a unit that could not be prepared: nothing it sent is recorded."""
+        unit.asks.clear()
+        unit.batch = []
+        unit.error, unit.ended_by, unit.done = error, "link error", True
+
+    def open_file(self, unit: _Unit) -> None:
+        """Name the unit's file by the serial it said (else by its port) and start recording it."""
         port = unit.port
         serial = port.info.get("serial")
-        if serial is None and port.protocol == "native" and unit.info_tries < INFO_TRIES:
-            if now >= unit.info_due:
-                unit.info_tries += 1
-                unit.info_due = now + INFO_TIMEOUT_S
-                port.send(native.GET_INFO)
-            return
         if serial is not None:
             unit.serial = printable(serial)
             stem = file_stem(str(serial))
@@ -243,14 +294,14 @@ class _Session:
         """Write what is left, close the file and the port, and keep the unit's result."""
         port = unit.port
         try:
-            if unit.recorder is None:  # the capture ends before the unit said who it is
-                unit.info_tries = INFO_TRIES
-                self.identify(unit, time.monotonic())
+            if unit.recorder is None:  # the capture ends before the unit was prepared
+                unit.asks.clear()
+                self.open_file(unit)
             self.write(unit)
         finally:
             port.close()
         rec = unit.recorder
-        assert rec is not None  # identify() made it
+        assert rec is not None  # open_file() made it
         rec.close(_link(port, rec))
         if rec.rows == 0:
             unit.error, unit.ended_by = _no_rows(port, rec, unit.error, unit.ended_by), "link error"
@@ -261,9 +312,9 @@ class _Session:
 
 
 def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", protocol: str = "native",
-                 duration_s: float | None = None, baudrate: int = DEFAULT_BAUDRATE,
-                 status: StatusDisplay | None = None, stop: threading.Event | None = None,
-                 handle_sigint: bool = True) -> list[UnitOutcome]:
+                 duration_s: float | None = None, rate_hz: int | None = None,
+                 baudrate: int = DEFAULT_BAUDRATE, status: StatusDisplay | None = None,
+                 stop: threading.Event | None = None, handle_sigint: bool = True) -> list[UnitOutcome]:
     """Record every unit at ``ports`` into its own file in ``directory`` until each has ``duration_s``
     of device clock, or Ctrl-C, or ``stop``; a unit that fails ends alone.
 
@@ -279,6 +330,8 @@ def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", 
         Decoder name, with its option if any, for every port.
     duration_s : float, optional
         Seconds of device clock to record from each unit; None: until Ctrl-C or ``stop``.
+    rate_hz : int, optional
+        Output rate to set each unit to first (SET_RATE; native units only).
     baudrate : int
         Line speed of real serial ports.
     status : callable, optional
@@ -316,10 +369,10 @@ def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", 
                 outcomes[index] = UnitOutcome(name, None, None, exc)
                 session.unopened.append(UnitStatus(name, name, LinkStats(), 0, 0.0, f"failed: {exc}"))
                 continue
-            unit = _Unit(index, port, now)
+            unit = _Unit(index, port, now, rate_hz)
             session.units.append(unit)
             selector.register(port, selectors.EVENT_READ, unit)
-            session.identify(unit, now)
+            session.prepare(unit, now)
         wall_deadline = None if duration_s is None else now + duration_s * 1.5 + 5.0
         display = (status([u.port for u in session.statuses()], duration_s) if status is not None
                    else nullcontext(None))
@@ -361,8 +414,8 @@ def _serve(session: _Session, selector: selectors.BaseSelector, interrupted: thr
             for unit in units:
                 if unit.result is not None:
                     continue
-                if unit.stem is None:
-                    session.identify(unit, now)
+                if unit.recorder is None and not unit.done:
+                    session.prepare(unit, now)
                 if unit.done or (turn + unit.index) % write_every == 0:
                     session.write(unit)
                 if not unit.done:

@@ -225,14 +225,11 @@ def run_many(args: argparse.Namespace) -> int:
 
     if args.protocol == "auto":
         raise StationError("--protocol auto reads one port; with several, name the protocol (native, ...)")
-    if args.rate is not None:
-        raise StationError("--rate takes one --port; to record several units at another rate, set each "
-                           "unit's rate first (a capture of that port with --rate) and leave --rate out")
     if args.output.exists() and not args.output.is_dir():
         raise StationError(f"-o {args.output}: with several --port, -o names a directory, and this is a file")
-    protocol = resolve_protocol(args.port[0], args.protocol, args.baud, args.columns, sys.stderr)
+    protocol = resolve_protocol(args.port[0], args.protocol, args.baud, args.columns, sys.stderr, args.rate)
     outcomes = capture_many(args.port, args.output, fmt=args.format or "csv", protocol=protocol,
-                            duration_s=args.duration, baudrate=args.baud,
+                            duration_s=args.duration, rate_hz=args.rate, baudrate=args.baud,
                             status=lambda ports, duration_s: UnitStatusLines(sys.stderr, ports, duration_s))
     failed = interrupted = with_file = 0
     for outcome in outcomes:
