@@ -37,7 +37,7 @@ def mag_report_dict(cal: MagCalibration, source: str, field_source: str) -> dict
         "dip_deg": cal.dip_deg,
         "alignment_deg": cal.alignment_deg() if cal.frame == "accel" else None,
         "coverage": cal.coverage.share, "missing_directions": list(cal.coverage.missing),
-        "samples": cal.samples, "still_samples": cal.still, "start": cal.start,
+        "samples": cal.samples, "still_poses": cal.still, "start": cal.start,
         "disturbances": [{"t0": d.t0, "t1": d.t1, "peak_ut": d.peak_ut} for d in cal.disturbances],
         "warnings": cal.warnings,
     })
@@ -86,7 +86,7 @@ def print_mag_report(cal: MagCalibration, field_source: str, console: Console) -
         console.print(f"rotation to the accelerometer: {cal.alignment_deg():.3f} deg (1-sigma per axis "
                       f"{', '.join(f'{v:.2g}' for v in align_sd)} deg); dip "
                       f"{_pm(float(cal.dip_deg or 0.0), float(np.asarray(dip_sd)), 3)} deg")
-    dip_text = "" if cal.dip_rms is None else f"; dip {cal.dip_rms:.3g} uT RMS over {cal.still} still samples"
+    dip_text = "" if cal.dip_rms is None else f"; dip {cal.dip_rms:.3g} uT RMS over {cal.still} still poses"
     console.print(f"residuals: |true| - F {cal.residual_rms:.3g} uT RMS over {cal.samples} samples{dip_text}")
     for w in cal.warnings:
         console.print(f"[yellow]warning:[/] {w}")

@@ -8,12 +8,13 @@ The steps:
    ``ELLIPSOID_COVERAGE`` of the sphere, the algebraic ellipsoid (eq. (6)) instead, since on a
    partial cover the quadric is poorly determined and may not even be an ellipsoid; refuse
    directions in a plane or covering less than ``MIN_COVERAGE``;
-3. the still samples give the down direction d = -a / |a|; the rotation that best satisfies the dip
-   constraint is solved linearly (``initial_rotation``);
+3. the still poses (stretches of still samples) give the down direction d = -a / |a| of their mean
+   accelerometer reading, and their mean magnetometer reading, one dip residual each (``_Gravity``);
+   the rotation that best satisfies the dip constraint is solved linearly (``initial_rotation``);
 4. a first fit with the soft-L1 loss (iteratively reweighted, ``JointProblem.reweighted``), whose
    magnitude residuals show the disturbed stretches (eq. (1) of ``mag_inputs``) and whose dip
-   residuals show still samples that were not (an acceleration the detector missed): both are
-   left out;
+   residuals show poses that were not still (an acceleration the detector missed): both are left
+   out, and so is a pose in a disturbed stretch;
 5. the final Levenberg-Marquardt fit, each residual set weighted by its own scatter, and its
    covariance s^2 (J^T J)^-1 (``calibration_common.covariance``) propagated to every reported value.
 
@@ -42,6 +43,7 @@ from station.engines.mag_inputs import (
     gravity_spread,
     still_noise,
     still_samples,
+    still_stretches,
     usable_rows,
 )
 from station.errors import EngineInputError
@@ -54,9 +56,9 @@ MIN_COVERAGE = 0.15
 ELLIPSOID_COVERAGE = 0.6
 # Below this share the result carries a warning naming the missing directions.
 WARN_COVERAGE = 0.5
-# Still samples the dip constraint needs, and the least spread of their down directions (deg):
-# with one pose only, the rotation about the field is free.
-MIN_STILL, MIN_DOWN_SPREAD_DEG = 20, 10.0
+# Still poses the dip constraint needs, and the least spread of their down directions (deg): with
+# one attitude only, the rotation about the field is free.
+MIN_POSES, MIN_DOWN_SPREAD_DEG = 4, 10.0
 # A dip residual beyond this many robust sigmas is a sample that was not still after all.
 DIP_OUTLIER_SIGMAS = 6.0
 # Differences between the estimated dip and the geomagnetic model's worth a warning (deg).
@@ -70,6 +72,8 @@ MAX_DISTURBED = 0.25
 # The magnitude residual may exceed the noise at the still poses by this factor (the noise of moving
 # samples, quantization and rounding add a little) before the fit is said not to describe the data.
 MAX_NOISE_RATIO = 3.0
+# ... and by this factor before the result is refused: no calibration describes such data.
+REFUSE_NOISE_RATIO = 10.0
 # Outlier-resistant first pass: rounds of reweighting, residuals beyond this share of F weighed down.
 ROBUST_SHARE, ROBUST_ROUNDS = 0.02, 3
 
@@ -136,7 +140,7 @@ class MagCalibration:
     residual_rms : float
         RMS of |true| - F over the samples used, microtesla.
     dip_rms : float or None
-        RMS of the dip residual (eq. (3) of ``mag_fit``) over the still samples, microtesla.
+        RMS of the dip residual (eq. (3) of ``mag_fit``) over the still poses, microtesla.
     coverage : MagCoverage
         Field directions visited (corrected field).
     dip_deg : float or None
@@ -147,7 +151,7 @@ class MagCalibration:
     start : str
         ``ellipsoid`` or ``sphere``.
     samples, still : int
-        Samples in the magnitude fit and in the dip fit.
+        Samples in the magnitude fit, and still poses in the dip fit.
     disturbances : list of Disturbance
         Stretches left out.
     warnings : list of str
@@ -276,7 +280,7 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
     gravity = _gravity_reference(data, rows, settings, warnings)
     field_fit = settings.field_ut if settings.field_ut is not None else float(
         np.linalg.det(start.correction) ** (-1.0 / 3.0))
-    problem = JointProblem(m, m[gravity.still], gravity.down, field_fit)
+    problem = JointProblem(m, gravity.m_pose, gravity.down, field_fit)
     correction0 = field_fit * start.correction
     sin0 = 0.0
     if problem.joint:
@@ -291,7 +295,7 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
     r_norm, r_dip = problem.residual_parts(p)
     left_out, disturbances = disturbed(t_m, r_norm, field_fit)
     keep_norm = ~left_out
-    keep_dip = ~left_out[gravity.still]
+    keep_dip = np.array([not left_out[a:b].any() for a, b in gravity.stretches], bool)
     if problem.joint:
         keep_dip &= np.abs(r_dip - np.median(r_dip)) <= DIP_OUTLIER_SIGMAS * max(_robust_sigma(r_dip), 1e-12)
     if left_out.mean() > MAX_DISTURBED:
@@ -314,21 +318,32 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
         p = final.solve(p)
         r_norm, r_dip = final.residual_parts(p)
     cov, _ = covariance(final.jacobian(p), final.residual(p))
-    if gravity.noise is not None and _rms(r_norm) > MAX_NOISE_RATIO * gravity.noise:
-        warnings.append(f"the magnitude residual ({_rms(r_norm):.2g} uT RMS) is "
-                        f"{_rms(r_norm) / gravity.noise:.0f} times the magnetometer's noise at the still "
-                        f"poses ({gravity.noise:.2g} uT): the field changed during the session in a way no "
-                        "calibration describes (a disturbance that moved with the unit, steel nearby); "
-                        "check the surroundings and capture again")
+    ratio = _rms(r_norm) / gravity.noise if gravity.noise else 0.0
+    misfit = (f"the magnitude residual ({_rms(r_norm):.2g} uT RMS) is {ratio:.0f} times the magnetometer's "
+              f"noise at the still poses ({gravity.noise or 0.0:.2g} uT): the field changed during the "
+              "session in a way no calibration describes (magnets, motors or steel near the unit, or moving "
+              "with it)")
+    if ratio > REFUSE_NOISE_RATIO:
+        raise EngineInputError(f"{misfit}; capture again away from them (a wooden table, a metre from "
+                               "computers and desk frames)")
+    if ratio > MAX_NOISE_RATIO:
+        warnings.append(f"{misfit}; check the surroundings and capture again")
     return _result(final, p, cov, settings, start, disturbances, warnings)
 
 
 @dataclass(frozen=True)
 class _Gravity:
-    """Step 3: the still samples (of the magnetometer's rows) used for eq. (3), their down
-    directions, and the magnetometer's noise there."""
+    """Step 3: the still stretches ([start, stop) of the magnetometer's rows) of eq. (3), each one's
+    mean reading and down direction, and the magnetometer's noise there.
 
-    still: np.ndarray
+    One dip residual per still pose, not per sample: the down direction's errors (the
+    accelerometer's own bias, scale and misalignment, a tilt while held) are the pose's, the same
+    for all its samples, so the poses are the independent observations; per sample, thousands of
+    residuals sharing one error would outweigh the magnitude residuals and bend the ellipsoid.
+    """
+
+    stretches: list[tuple[int, int]]
+    m_pose: np.ndarray
     down: np.ndarray
     noise: float | None
 
@@ -336,7 +351,7 @@ class _Gravity:
 def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings,
                        warnings: list[str]) -> _Gravity:
     """Step 3: the down directions at the still samples, or none (the plain fit), saying why."""
-    none = _Gravity(np.zeros(int(rows.sum()), bool), np.zeros((0, 3)), None)
+    none = _Gravity([], np.zeros((0, 3)), np.zeros((0, 3)), None)
     if not settings.joint:
         return none
     if data.acc is None:
@@ -348,12 +363,16 @@ def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings
     rate = 1.0 / float(np.median(np.diff(t)))
     still = still_samples(acc, gyro, rate, settings.window_s) & np.isfinite(acc).all(axis=1)
     noise = still_noise(np.asarray(data.mag, float)[rows], still)
-    if still.sum() < MIN_STILL:
-        warnings.append(f"only {int(still.sum())} still samples: the rotation to the accelerometer needs "
-                        "still poses (hold the unit still for a second at each); fitted in the "
+    stretches = still_stretches(still)
+    mag = np.asarray(data.mag, float)[rows]
+    m_pose = np.array([mag[a:b].mean(axis=0) for a, b in stretches]).reshape(-1, 3)
+    a_pose = np.array([acc[a:b].mean(axis=0) for a, b in stretches]).reshape(-1, 3)
+    down = -a_pose / np.linalg.norm(a_pose, axis=1)[:, None]
+    if len(stretches) < MIN_POSES:
+        warnings.append(f"only {len(stretches)} still poses: the rotation to the accelerometer needs at "
+                        f"least {MIN_POSES} (hold the unit still for a second at each); fitted in the "
                         "magnetometer's own axes instead")
         return replace(none, noise=noise)
-    down = -acc[still] / np.linalg.norm(acc[still], axis=1)[:, None]
     if _spread_deg(down) < MIN_DOWN_SPREAD_DEG:
         warnings.append("the unit was held still in one attitude only: the rotation to the accelerometer "
                         "needs still poses at several tilts; fitted in the magnetometer's own axes instead")
@@ -364,7 +383,7 @@ def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings
                         "looks uncalibrated, and its errors tilt the down direction the alignment is solved "
                         "against; calibrate it first (imu-station calibrate --method free -o PARAMS) and "
                         "run this again with the same PARAMS")
-    return _Gravity(still, down, noise)
+    return _Gravity(stretches, m_pose, down, noise)
 
 
 def _normalised(problem: JointProblem, p: np.ndarray, given: bool) -> tuple[np.ndarray, np.ndarray, float]:

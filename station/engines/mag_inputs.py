@@ -198,14 +198,24 @@ def gravity_spread(acc: np.ndarray, still: np.ndarray) -> float | None:
     float or None
         None with fewer than three stretches of at least ``MIN_STRETCH`` samples.
     """
-    means = [float(np.linalg.norm(acc[a:b], axis=1).mean()) for a, b in _stretches(still)]
+    means = [float(np.linalg.norm(acc[a:b], axis=1).mean()) for a, b in still_stretches(still)]
     if len(means) < 3:
         return None
     return float(np.std(means) / np.median(means))
 
 
-def _stretches(still: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of the runs of ``still`` at least ``MIN_STRETCH`` samples long."""
+def still_stretches(still: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of the runs of ``still`` at least ``MIN_STRETCH`` samples long.
+
+    Parameters
+    ----------
+    still : ndarray of bool, (N,)
+        :func:`still_samples`.
+
+    Returns
+    -------
+    list of (int, int)
+    """
     edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= MIN_STRETCH]
 
@@ -226,7 +236,7 @@ def still_noise(mag: np.ndarray, still: np.ndarray) -> float | None:
     float or None
         None without a still stretch.
     """
-    sds = [float(np.sqrt(np.mean(np.var(mag[a:b], axis=0, ddof=1)))) for a, b in _stretches(still)]
+    sds = [float(np.sqrt(np.mean(np.var(mag[a:b], axis=0, ddof=1)))) for a, b in still_stretches(still)]
     return float(np.median(sds)) if sds else None
 
 
