@@ -11,7 +11,10 @@ Lines end in ``\\n``, ``\\r`` or both. Each line is recognised by its start:
   ``$VNIMU,mx,my,mz,ax,ay,az,gx,gy,gz,temp,pressure*CS`` (temp degC), where CS is the XOR of
   the bytes between ``$`` and ``*`` as two hex digits, or their CRC-16 (XMODEM) as four;
   a counter or status the device appends (``,T...``, ``,S...``) is ignored;
-- any other line is CSV in the configured columns (``parse_columns``).
+- any other line is CSV in the configured columns (``parse_columns``); columns ``mx,my,mz`` (all
+  three or none, in uT, mG or G) carry a magnetometer: the batches are then ``MAG_SAMPLE_DTYPE``
+  (a ``nan`` field, or a MotionCal or VectorNav line, is a sample without one; the field those
+  lines carry is not read).
 
 These formats carry no sample counter and, except CSV with a time column, no device clock:
 ``seq`` counts the samples and ``t_us`` is ``seq / rate_hz`` at the nominal rate given.
@@ -33,8 +36,9 @@ from typing import TypedDict
 
 import numpy as np
 
-from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase, has_mag
 from protocols.crc import crc16_ccitt_false
+from protocols.mag_batches import rows_to_batch
 from protocols.units import STANDARD_GRAVITY
 
 MAX_LINE_RATE_HZ = 65535.0  # as SET_RATE's 16 bits; no text link carries more lines a second
@@ -52,10 +56,13 @@ UNITS = {
     "acc": {"m/s^2": 1.0, "mps2": 1.0, "g": STANDARD_GRAVITY, "mg": STANDARD_GRAVITY * 1e-3},
     "gyro": {"rad/s": 1.0, "rads": 1.0, "dps": math.pi / 180.0, "deg/s": math.pi / 180.0, "mrad/s": 1e-3},
     "temp": {"degc": 1.0, "c": 1.0, "cdegc": 0.01},
+    "mag": {"ut": 1.0, "nt": 1e-3, "mg": 0.1, "mgauss": 0.1, "g": 100.0, "gauss": 100.0},
     "seq": {"": 1.0},
 }
 FIELDS = {"t": "t", "seq": "seq", "ax": "acc", "ay": "acc", "az": "acc", "gx": "gyro", "gy": "gyro",
-          "gz": "gyro", "temp": "temp"}
+          "gz": "gyro", "temp": "temp", "mx": "mag", "my": "mag", "mz": "mag"}
+MAG_NAMES = ("mx", "my", "mz")
+_NAN3 = (math.nan, math.nan, math.nan)
 SKIP = "_"
 DEFAULT_COLUMNS = "t,ax,ay,az,gx,gy,gz,temp"
 
@@ -68,6 +75,11 @@ class CsvColumns:
     scales: tuple[float, ...]
     delimiter: str = ","
 
+    @property
+    def has_mag(self) -> bool:
+        """True when the columns carry a magnetometer (mx, my, mz)."""
+        return "mx" in self.names
+
     def describe(self) -> str:
         """The columns as one line, each field's factor to SI after ``*`` where it is not 1."""
         return self.delimiter.join(n if s == 1.0 else f"{n}*{s:g}" for n, s in zip(self.names, self.scales,
@@ -77,9 +89,11 @@ class CsvColumns:
 def parse_columns(spec: str, delimiter: str = ",") -> CsvColumns:
     """Read a column spec: comma-separated ``name[:unit]``, ``_`` for a field to ignore.
 
-    Names: t, seq, ax, ay, az, gx, gy, gz, temp. Units: t in s, ms, us; accelerations in m/s^2
-    (or mps2), g, mg; rates in rad/s (or rads), dps (or deg/s), mrad/s; temp in degC, cdegC;
-    or a number, the factor to SI. Example: ``t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``.
+    Names: t, seq, ax, ay, az, gx, gy, gz, temp, and mx, my, mz (all three or none). Units: t in s,
+    ms, us; accelerations in m/s^2 (or mps2), g, mg; rates in rad/s (or rads), dps (or deg/s),
+    mrad/s; temp in degC, cdegC; the magnetic field in uT (the default), nT, mG (or mgauss), G (or
+    gauss); or a number, the factor to SI (to uT for the field). Example:
+    ``t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps,mx:mG,my:mG,mz:mG``.
     Raises ``ValueError`` naming the item it cannot read.
     """
     names, scales = [], []
@@ -110,6 +124,10 @@ def parse_columns(spec: str, delimiter: str = ",") -> CsvColumns:
     missing = [n for n in ("ax", "ay", "az", "gx", "gy", "gz") if n not in names]
     if missing:
         raise ValueError(f"column spec {spec!r} lacks {', '.join(missing)}")
+    mag = [n for n in MAG_NAMES if n in names]
+    if mag and len(mag) < len(MAG_NAMES):
+        raise ValueError(f"column spec {spec!r} has {', '.join(mag)} but not "
+                         f"{', '.join(n for n in MAG_NAMES if n not in names)}: the field needs all three")
     return CsvColumns(tuple(names), tuple(scales), delimiter)
 
 
@@ -170,8 +188,10 @@ class AsciiDecoder(StreamDecoderBase):
         max_acc: float = 40 * STANDARD_GRAVITY,
         max_gyro: float = 40.0,
         temp_range: tuple[float, float] = (-60.0, 150.0),
+        max_mag: float = 5000.0,
     ) -> None:
         super().__init__()
+        self.max_mag = max_mag  # uT: beyond any magnetometer's range
         self.columns = parse_columns(columns) if isinstance(columns, str) else columns
         self.rate_hz = rate_hz
         self.max_line = max_line
@@ -241,7 +261,7 @@ class AsciiDecoder(StreamDecoderBase):
                 self._line(line, rows, messages)
         if pos:
             del buf[:pos]
-        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        samples = rows_to_batch(rows, self.columns.has_mag)
         if fast is not None:
             samples = np.concatenate([fast[1], samples])
         self.stats.samples += len(samples)
@@ -281,10 +301,15 @@ class AsciiDecoder(StreamDecoderBase):
         for name, limit in (("seq", _MAX_SEQ), ("t", _MAX_T_S)):
             if name in got:
                 ok = ok and bool(((got[name] >= 0) & (got[name] < limit)).all())
+        if cols.has_mag:
+            mag = np.column_stack([got["mx"], got["my"], got["mz"]])
+            ok = ok and not (np.isinf(mag) | (np.abs(mag) > self.max_mag)).any()  # NaN: no field
         if not ok:
             return None
         n = len(lines)
-        out = np.zeros(n, dtype=SAMPLE_DTYPE)
+        out = np.zeros(n, dtype=MAG_SAMPLE_DTYPE if cols.has_mag else SAMPLE_DTYPE)
+        if cols.has_mag:
+            out["mag"] = mag
         counts = self._count + np.arange(n)
         out["seq"] = (got["seq"].astype(np.int64) if "seq" in got else counts) & 0xFFFFFFFF
         if "t" in got:
@@ -310,7 +335,7 @@ class AsciiDecoder(StreamDecoderBase):
             self.stats.garbage_bytes += len(self._buf)
         self._buf.clear()
         self._discarding = False
-        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        samples = rows_to_batch(rows, self.columns.has_mag)
         self.stats.samples += len(samples)
         return Decoded(samples, messages)
 
@@ -458,10 +483,15 @@ class AsciiDecoder(StreamDecoderBase):
         t = got.get("t")
         if t is not None and not 0 <= t < _MAX_T_S:
             raise _Reject("bad_payloads")
+        mag = (got["mx"], got["my"], got["mz"]) if cols.has_mag else None
         return (None if seq is None else int(seq), t, [got["ax"], got["ay"], got["az"]],
-                [got["gx"], got["gy"], got["gz"]], got.get("temp", math.nan))
+                [got["gx"], got["gy"], got["gz"]], got.get("temp", math.nan), mag)
 
-    def _row(self, seq: int | None, t: float | None, acc, gyro, temp: float) -> tuple:
+    def _row(self, seq: int | None, t: float | None, acc, gyro, temp: float,
+             mag: tuple[float, ...] | None = None) -> tuple:
+        """A sample row; with mx, my, mz columns its field (or NaN) as a sixth element."""
+        if mag is not None and any(math.isinf(m) or abs(m) > self.max_mag for m in mag):
+            raise _Reject("bad_payloads")
         if not all(math.isfinite(a) and abs(a) <= self.max_acc for a in acc):
             raise _Reject("bad_payloads")
         if not all(math.isfinite(g) and abs(g) <= self.max_gyro for g in gyro):
@@ -476,6 +506,8 @@ class AsciiDecoder(StreamDecoderBase):
         else:
             t_us = round(t * 1e6)
             self.clock_lines += 1
+        if self.columns.has_mag:
+            return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp, _NAN3 if mag is None else mag)
         return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp)
 
 
@@ -491,9 +523,12 @@ def _is_number(text: str) -> bool:
 
 
 def encode_csv(samples: np.ndarray, columns: str | CsvColumns = DEFAULT_COLUMNS) -> bytes:
-    """CSV lines of a ``SAMPLE_DTYPE`` batch in the given columns (values divided by their scale)."""
+    """CSV lines of a ``SAMPLE_DTYPE`` batch in the given columns (values divided by their scale);
+    mx, my, mz from a ``MAG_SAMPLE_DTYPE`` batch (NaN without)."""
     cols = parse_columns(columns) if isinstance(columns, str) else columns
+    field = samples["mag"] if has_mag(samples) else np.full((len(samples), 3), np.nan)
     values = {
+        "mx": field[:, 0], "my": field[:, 1], "mz": field[:, 2],
         "seq": samples["seq"].astype(np.float64), "t": samples["t_us"].astype(np.float64) / 1e6,
         "ax": samples["acc"][:, 0], "ay": samples["acc"][:, 1], "az": samples["acc"][:, 2],
         "gx": samples["gyro"][:, 0], "gy": samples["gyro"][:, 1], "gz": samples["gyro"][:, 2],
@@ -542,7 +577,8 @@ def encode_vectornav(samples: np.ndarray, sentence: str = "VNYMR", crc16: bool =
 
 def encode_samples(samples: np.ndarray, kind: str = "csv") -> bytes:
     """Lines of one kind: ``csv`` (the default columns), ``motioncal``, ``vnymr`` or ``vnimu``."""
-    samples = np.asarray(samples, dtype=SAMPLE_DTYPE)
+    if not has_mag(samples):  # a nine-axis batch keeps its dtype: these lines leave the field out
+        samples = np.asarray(samples, dtype=SAMPLE_DTYPE)
     if kind == "csv":
         return encode_csv(samples)
     if kind == "motioncal":

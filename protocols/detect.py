@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocols.ascii_lines import AsciiDecoder
-from protocols.base import EMPTY_SAMPLES, Decoded, DecoderStats, Message, StreamDecoderBase
+from protocols.base import Decoded, DecoderStats, Message, StreamDecoderBase
+from protocols.mag_batches import join_batches
 from protocols.mavlink import MavlinkDecoder, pymavlink_available
 from protocols.native import DEVICE_INFO, NativeDecoder
 from protocols.xsens import MESSAGE_NAMES, XsensDecoder
@@ -190,7 +191,7 @@ class _Candidate:
         return self._samples
 
     def decoded(self) -> Decoded:
-        samples = np.concatenate(self._batches) if self._batches else EMPTY_SAMPLES
+        samples = join_batches(self._batches)
         return Decoded(samples, list(self._messages))
 
 

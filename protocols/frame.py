@@ -15,6 +15,10 @@ their range is a step back, not a wrap). A board without a clock is timed by ``r
 counter when it has one, else by the count of samples. Without a counter, the counter is made from
 the clock: a step of more than 1.5 sample periods counts the samples missing in it.
 
+A description with all three of ``mx``, ``my``, ``mz`` is a unit with a magnetometer: its samples are
+``MAG_SAMPLE_DTYPE``, the field in microtesla as the fields' scales make it. With only some of them
+the samples carry no field (they stay in :attr:`FrameDecoder.last_values`).
+
 The station reads description files (``station.frame_file``) and registers its reader here with
 :func:`set_description_reader`, so ``make_decoder("frame:board.yaml")`` works wherever a protocol is
 named; this layer reads no files itself.
@@ -27,7 +31,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from protocols.base import SAMPLE_DTYPE, Decoded, StreamDecoderBase
+from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, StreamDecoderBase
 from protocols.errors import StationError
 from protocols.frame_checksums import RowChecksum, checksum_rows
 from protocols.frame_description import FieldSpec, FrameDescription
@@ -292,6 +296,9 @@ class FrameDecoder(StreamDecoderBase):
         # acc, gyro and temp lie side by side in a sample record: 7 float32 from byte 12.
         imu = [desc.field(n) for n in ("ax", "ay", "az", "gx", "gy", "gz", "temp")]
         self._imu = _Extractor(desc, [f for f in imu if f is not None])
+        mag = [f for f in (desc.field(n) for n in ("mx", "my", "mz")) if f is not None]
+        self._mag = _Extractor(desc, mag) if len(mag) == 3 else None
+        self._out_dtype = SAMPLE_DTYPE if self._mag is None else MAG_SAMPLE_DTYPE
         seq = self._seq_spec = desc.field("seq")
         # A counter of 32 bits or more is read as it is: the sample's seq wraps at 2^32 anyway.
         self._seq = _Unwrapper(8 * seq.size) if seq is not None and seq.size < 4 else None
@@ -394,7 +401,7 @@ class FrameDecoder(StreamDecoderBase):
             del buf[:pos]
         if not runs:
             self._last_records = self._last_records[:0]
-            return Decoded()
+            return Decoded(np.zeros(0, self._out_dtype))
         # Joined as bytes: numpy would pack the records' type (dropping the bytes between fields).
         records = runs[0] if len(runs) == 1 else \
             np.concatenate([r.view(np.uint8) for r in runs]).view(self._dtype)
@@ -414,7 +421,7 @@ class FrameDecoder(StreamDecoderBase):
             self.stats.truncated += candidates
             self.stats.garbage_bytes += len(buf)
             buf.clear()
-        return Decoded()
+        return Decoded(np.zeros(0, self._out_dtype))
 
     # -- values --------------------------------------------------------------------------------
 
@@ -426,11 +433,14 @@ class FrameDecoder(StreamDecoderBase):
     def _samples(self, records: np.ndarray) -> np.ndarray:
         self._last_records = records
         n = len(records)
-        out = np.empty(n, dtype=SAMPLE_DTYPE)
-        floats = out.view(np.uint8).reshape(n, SAMPLE_DTYPE.itemsize)[:, 12:40].view(np.float32)
+        out = np.empty(n, dtype=self._out_dtype)
+        # acc, gyro, temp (and the field) lie side by side from byte 12: 7 (10) float32.
+        floats = out.view(np.uint8).reshape(n, self._out_dtype.itemsize)[:, 12:].view(np.float32)
         self._imu(records, out=floats[:, : self._imu.width])
         if self._imu.width == 6:
             floats[:, 6] = np.nan
+        if self._mag is not None:
+            self._mag(records, out=floats[:, 7:10])
         seq = self._counter(records)
         out["t_us"] = self._time_us(records, seq)
         if seq is None:

@@ -39,3 +39,17 @@ def join_batches(batches: Sequence[np.ndarray]) -> np.ndarray:
     if any(has_mag(b) for b in batches):
         return np.concatenate([with_mag(b) for b in batches])
     return np.concatenate(batches)
+
+
+def rows_to_batch(rows: list[tuple], with_field: bool) -> np.ndarray:
+    """Sample rows ``(seq, t_us, acc, gyro, temp, mag)`` of a decoder as one batch.
+
+    ``with_field``: the stream has carried a field, so the batch is ``MAG_SAMPLE_DTYPE``;
+    otherwise ``SAMPLE_DTYPE`` and the sixth element (NaN) is dropped. Rows of five elements
+    (a decoder that reads no field) make ``SAMPLE_DTYPE`` batches.
+    """
+    if with_field:
+        return np.array(rows, dtype=MAG_SAMPLE_DTYPE) if rows else np.zeros(0, MAG_SAMPLE_DTYPE)
+    if not rows:
+        return EMPTY_SAMPLES
+    return np.array([r[:5] for r in rows] if len(rows[0]) > 5 else rows, dtype=SAMPLE_DTYPE)

@@ -10,13 +10,17 @@ it, and each error lands in one counter); message definitions, CRC extras and pa
 decoding come from pymavlink (the optional extra ``mavlink``), with the ArduPilot dialect,
 a superset of the common one. Unit conversions:
 
-- HIGHRES_IMU: m/s^2, rad/s, degC as sent; ``t_us`` = time_usec.
+- HIGHRES_IMU: m/s^2, rad/s, degC as sent, magnetic field gauss x 100 -> uT (when
+  fields_updated flags xmag, ymag and zmag: bits 6-8); ``t_us`` = time_usec.
 - SCALED_IMU, SCALED_IMU2, SCALED_IMU3: mG x 9.80665e-3 -> m/s^2, mrad/s x 1e-3 -> rad/s,
-  cdegC x 0.01 -> degC (0 means "no temperature": NaN); ``t_us`` = time_boot_ms x 1000,
-  unwrapped past 2^32 ms.
-- RAW_IMU: the standard leaves the units to the sender; ArduPilot sends mG and mrad/s like
-  SCALED_IMU, the default scales here (``raw_acc_scale``, ``raw_gyro_scale``); ``t_us`` =
-  time_usec.
+  cdegC x 0.01 -> degC (0 means "no temperature": NaN), magnetic field mgauss x 0.1 -> uT;
+  ``t_us`` = time_boot_ms x 1000, unwrapped past 2^32 ms.
+- RAW_IMU: the standard leaves the units to the sender; ArduPilot sends mG, mrad/s and mgauss
+  like SCALED_IMU, the default scales here (``raw_acc_scale``, ``raw_gyro_scale``, the field as
+  mgauss); ``t_us`` = time_usec.
+
+A field of exactly (0, 0, 0) is "no magnetometer" (what an autopilot without one sends). From
+the first sample with a field on, batches are ``MAG_SAMPLE_DTYPE`` (NaN where a message has none).
 
 One IMU makes the samples: the first IMU message seen (or the first of ``source``) fixes the
 message name, system, component and IMU id; other IMU messages are returned as messages and
@@ -31,8 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase, has_mag
 from protocols.errors import StationError
+from protocols.mag_batches import join_batches, rows_to_batch, with_mag
 from protocols.units import STANDARD_GRAVITY
 
 STX_V1 = 0xFE
@@ -42,6 +47,10 @@ HEADER_V2 = 10
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
 MILLI_G = STANDARD_GRAVITY * 1e-3
+UT_PER_GAUSS = 100.0
+UT_PER_MILLIGAUSS = 0.1
+HIGHRES_MAG_UPDATED = 0x1C0  # fields_updated bits 6-8: xmag, ymag, zmag
+_NAN3 = (math.nan, math.nan, math.nan)
 
 IMU_MESSAGES = ("HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU")
 _STX = re.compile(rb"[\xfd\xfe]")
@@ -97,6 +106,7 @@ class MavlinkDecoder(StreamDecoderBase):
         self._key: tuple | None = None
         self._count = 0
         self._boot_ms: int | None = None  # unwrapped time_boot_ms
+        self._mag = False  # a field came: batches are MAG_SAMPLE_DTYPE from then on
 
     # -------------------------------------------------------------- framing
 
@@ -134,12 +144,18 @@ class MavlinkDecoder(StreamDecoderBase):
         body.append(msgtype.crc_extra)
         return self._dialect.x25crc(body).crc == crc
 
-    def _valid_frame_inside(self, start: int, end: int) -> bool:
-        """Whether a complete frame with a good CRC starts in ``buf[start:end]``."""
+    def _valid_frame_inside(self, start: int, end: int, final: bool = True) -> bool | None:
+        """Whether a complete frame with a good CRC starts in ``buf[start:end]``; None (not ``final``)
+        while a frame starting there is not complete yet: the answer must not depend on how the
+        stream was cut into reads."""
         for m in _STX.finditer(self._buf, start, end):
             p = m.start()
             length = self._frame_length(p)
-            if length > 0 and p + length <= len(self._buf) and self._crc_ok(p, length):
+            if length < 0 or (length > 0 and p + length > len(self._buf)):
+                if not final:
+                    return None
+                continue
+            if length > 0 and self._crc_ok(p, length):
                 return True
         return False
 
@@ -179,8 +195,10 @@ class MavlinkDecoder(StreamDecoderBase):
                 after = pos + length
                 if after == len(buf) and not final:
                     break
-                if (after < len(buf) and buf[after] not in (STX_V1, STX_V2)) or self._valid_frame_inside(
-                        pos + 1, after):
+                inside = self._valid_frame_inside(pos + 1, after, final)
+                if inside is None:
+                    break
+                if (after < len(buf) and buf[after] not in (STX_V1, STX_V2)) or inside:
                     pos = self._skip(pos)
                     continue
                 stats.frames += 1
@@ -195,7 +213,11 @@ class MavlinkDecoder(StreamDecoderBase):
                 if self._crc_ok(pos, length):
                     stats.bad_payloads += 1
                     pos += length
-                elif self._valid_frame_inside(pos + 1, pos + length):
+                    continue
+                inside = self._valid_frame_inside(pos + 1, pos + length, final)
+                if inside is None:
+                    break
+                if inside:
                     stats.truncated += 1
                     pos = self._skip(pos)
                 else:
@@ -216,7 +238,7 @@ class MavlinkDecoder(StreamDecoderBase):
                 rows.append(row)
         if pos:
             del buf[:pos]
-        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        samples = rows_to_batch(rows, self._mag)
         stats.samples += len(samples)
         return Decoded(samples, messages)
 
@@ -238,7 +260,8 @@ class MavlinkDecoder(StreamDecoderBase):
             out = self._decode(b"", final=True)
             batches.append(out.samples)
             messages += out.messages
-        return Decoded(np.concatenate(batches), messages)
+        samples = join_batches(batches)
+        return Decoded(with_mag(samples) if self._mag else samples, messages)
 
     # -------------------------------------------------------------- IMU messages
 
@@ -259,6 +282,8 @@ class MavlinkDecoder(StreamDecoderBase):
             gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
             temp = float(msg.temperature)
             t_us = int(msg.time_usec)
+            has_field = (int(msg.fields_updated) & HIGHRES_MAG_UPDATED) == HIGHRES_MAG_UPDATED
+            mag_scale = UT_PER_GAUSS
         else:
             if name == "RAW_IMU":
                 acc_scale, gyro_scale = self.raw_acc_scale, self.raw_gyro_scale
@@ -273,9 +298,15 @@ class MavlinkDecoder(StreamDecoderBase):
             gyro = (msg.xgyro * gyro_scale, msg.ygyro * gyro_scale, msg.zgyro * gyro_scale)
             cdeg = getattr(msg, "temperature", 0)
             temp = cdeg * 0.01 if cdeg else math.nan
+            has_field = (msg.xmag, msg.ymag, msg.zmag) != (0, 0, 0)
+            mag_scale = UT_PER_MILLIGAUSS
         seq = self._count & 0xFFFFFFFF
         self._count += 1
-        return (seq, t_us, acc, gyro, temp)
+        if not has_field:
+            return (seq, t_us, acc, gyro, temp, _NAN3)
+        self._mag = True
+        field = (msg.xmag * mag_scale, msg.ymag * mag_scale, msg.zmag * mag_scale)
+        return (seq, t_us, acc, gyro, temp, field)
 
     def _unwrap_boot_ms(self, ms: int) -> int | None:
         """time_boot_ms unwrapped past 2^32 ms by a signed step from the last sample's: a frame
@@ -300,7 +331,8 @@ def _i16(values) -> list[int]:
 
 def encode_samples(samples: np.ndarray, message: str = "HIGHRES_IMU", system: int = 1, component: int = 1,
                    mavlink1: bool = False, heartbeat_every: int = 0) -> bytes:
-    """MAVLink frames of one IMU message per ``SAMPLE_DTYPE`` record, as an autopilot sends them.
+    """MAVLink frames of one IMU message per ``SAMPLE_DTYPE`` record, as an autopilot sends them:
+    with the field of ``MAG_SAMPLE_DTYPE`` records (gauss or mgauss), else none (zeros, not flagged).
 
     ``heartbeat_every`` > 0 puts a HEARTBEAT before every that many samples (and the first).
     """
@@ -314,24 +346,30 @@ def encode_samples(samples: np.ndarray, message: str = "HIGHRES_IMU", system: in
         out.extend(msg.pack(mav, force_mavlink1=mavlink1))
         mav.seq = (mav.seq + 1) % 256
 
-    for i, s in enumerate(np.asarray(samples, dtype=SAMPLE_DTYPE)):
+    with_mag = has_mag(samples)
+    for i, s in enumerate(np.asarray(samples, dtype=MAG_SAMPLE_DTYPE if with_mag else SAMPLE_DTYPE)):
         if heartbeat_every and i % heartbeat_every == 0:
             pack(mav.heartbeat_encode(dialect.MAV_TYPE_QUADROTOR, dialect.MAV_AUTOPILOT_ARDUPILOTMEGA,
                                       0, 0, 0))
         acc, gyro, temp, t_us = s["acc"], s["gyro"], float(s["temp"]), int(s["t_us"])
         known = math.isfinite(temp)
+        field = s["mag"].astype(float) if with_mag and np.isfinite(s["mag"]).all() else None
         if message == "HIGHRES_IMU":
             updated = 0x1FFF if known else 0x0FFF  # bit 12: temperature
-            pack(mav.highres_imu_encode(t_us, *map(float, acc), *map(float, gyro), 0.2, 0.0, -0.4, 1013.25,
+            gauss = (0.0, 0.0, 0.0) if field is None else tuple(field / UT_PER_GAUSS)
+            if field is None:
+                updated &= ~HIGHRES_MAG_UPDATED
+            pack(mav.highres_imu_encode(t_us, *map(float, acc), *map(float, gyro), *gauss, 1013.25,
                                         0.0, 0.0, temp if known else 0.0, updated))
             continue
         a = _i16(acc / MILLI_G)
         g = _i16(gyro * 1000.0)
+        m = [0, 0, 0] if field is None else _i16(field / UT_PER_MILLIGAUSS)
         cdeg = (round(temp * 100) or 1) if known else 0  # 0 means "no temperature"; 0.00 degC is sent as 1
         if message == "RAW_IMU":
-            pack(mav.raw_imu_encode(t_us, *a, *g, 200, 0, -400, 0, cdeg))
+            pack(mav.raw_imu_encode(t_us, *a, *g, *m, 0, cdeg))
         else:
             encode = getattr(mav, message.lower() + "_encode")
-            pack(encode((t_us // 1000) & 0xFFFFFFFF, *a, *g, 200, 0, -400, cdeg))
+            pack(encode((t_us // 1000) & 0xFFFFFFFF, *a, *g, *m, cdeg))
     return bytes(out)
 

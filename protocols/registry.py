@@ -24,11 +24,12 @@ DECODERS: dict[str, Callable[[], StreamDecoderBase]] = {
 # Decoders that take one option, given as ``name:option``: the CSV column spec and/or the rate of
 # lines without a clock for ``ascii`` (``ascii:t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps``,
 # ``ascii:@50``), the IMU message of ``mavlink`` (``mavlink:SCALED_IMU2``), the packets of ``xsens``
-# that make the samples (``xsens:hr`` for AccelerationHR / RateOfTurnHR, ``xsens:normal``), the
+# that make the samples (``xsens:hr`` for AccelerationHR / RateOfTurnHR, ``xsens:normal``) and/or the
+# local field that scales its normalised MagneticField to microtesla (``xsens:field=49.5``), the
 # description file of a board's own frames for ``frame`` (``frame:board.yaml``, read by station.frame_file).
 DECODER_OPTIONS: dict[str, Callable[[str], StreamDecoderBase]] = {
     "ascii": AsciiDecoder.from_option,
-    "xsens": lambda source: XsensDecoder(source=source),
+    "xsens": XsensDecoder.from_option,
     "mavlink": lambda source: MavlinkDecoder(source=source),
     "frame": decoder_from_option,
 }

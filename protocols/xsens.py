@@ -25,6 +25,14 @@ the other rate) consume counter values too: they show as gaps in ``seq`` and are
 ``stats.seq_skipped``, which the link statistics take off their ``lost``. ``t_us`` is the
 unwrapped SampleTimeFine (10 kHz ticks) in microseconds; ``temp`` is the last Temperature item
 seen (NaN before the first).
+
+MagneticField is **normalised**: an MTi reports the field in arbitrary units (a.u.), 1.0 being the
+magnitude of the field where the unit's magnetometer was last calibrated (by Xsens, or by the
+user's Magnetic Field Mapper), not microtesla. With ``field_ut`` (``--field UT``, or the protocol
+option ``xsens:field=UT``: the local field magnitude) the decoder scales it to microtesla and
+returns ``MAG_SAMPLE_DTYPE`` batches from the first packet that carries one on (NaN in samples
+whose packet has none); without, the field is left out and the packets that carried one are
+counted in ``mag_unscaled``. In all four precisions, like the inertial items.
 """
 
 from __future__ import annotations
@@ -35,7 +43,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.base import EMPTY_SAMPLES, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase
+from protocols.base import (
+    MAG_SAMPLE_DTYPE,
+    SAMPLE_DTYPE,
+    Decoded,
+    Message,
+    StreamDecoderBase,
+    has_mag,
+)
+from protocols.mag_batches import join_batches, rows_to_batch, with_mag
 
 SYNC = b"\xfa\xff"
 PREAMBLE = 0xFA
@@ -76,6 +92,7 @@ ACCELERATION_HR = 0x4040
 RATE_OF_TURN = 0x8020
 DELTA_Q = 0x8030
 RATE_OF_TURN_HR = 0x8040
+MAGNETIC_FIELD = 0xC020
 
 DATA_NAMES = {
     TEMPERATURE: "Temperature", UTC_TIME: "UTCTime", PACKET_COUNTER: "PacketCounter",
@@ -90,7 +107,7 @@ DATA_NAMES = {
 # Items the decoder reads, with the number of values of the chosen precision each holds.
 _VALUE_COUNTS = {
     TEMPERATURE: 1, DELTA_V: 3, ACCELERATION: 3, ACCELERATION_HR: 3, RATE_OF_TURN: 3, DELTA_Q: 4,
-    RATE_OF_TURN_HR: 3,
+    RATE_OF_TURN_HR: 3, MAGNETIC_FIELD: 3,
 }
 
 TICKS_PER_SECOND = 10_000  # SampleTimeFine
@@ -186,16 +203,19 @@ def encode_samples(
     deltas: bool = False,
     coordinate_system: str = "enu",
     temperature: bool = True,
+    field_ut: float = 50.0,
 ) -> bytes:
     """MTData2 messages for a batch of ``SAMPLE_DTYPE`` records, as an MTi would send them.
 
     Each message carries PacketCounter (seq mod 2^16), SampleTimeFine (t_us / 100 mod 2^32),
     Acceleration and RateOfTurn (or, with ``deltas``, DeltaV and DeltaQ over the interval to the
-    previous sample) and Temperature, in the given precision and coordinate-system flag.
+    previous sample) and Temperature, in the given precision and coordinate-system flag; for
+    ``MAG_SAMPLE_DTYPE`` records MagneticField too (where finite), normalised: mag / ``field_ut``.
     """
     prec = PRECISIONS[precision]
     flags = prec | COORDINATE_SYSTEMS[coordinate_system]
-    samples = np.asarray(samples, dtype=SAMPLE_DTYPE)
+    with_mag = has_mag(samples)
+    samples = np.asarray(samples, dtype=MAG_SAMPLE_DTYPE if with_mag else SAMPLE_DTYPE)
     out = bytearray()
     t_s = samples["t_us"].astype(np.float64) / 1e6
     for i, s in enumerate(samples):
@@ -213,6 +233,9 @@ def encode_samples(
             payload += encode_item(RATE_OF_TURN | flags, _encode_values(gyro, prec))
         if temperature and not math.isnan(float(s["temp"])):
             payload += encode_item(TEMPERATURE | prec, _encode_values([float(s["temp"])], prec))
+        if with_mag and np.isfinite(s["mag"]).all():
+            normalised = [float(v) / field_ut for v in s["mag"]]
+            payload += encode_item(MAGNETIC_FIELD | prec, _encode_values(normalised, prec))
         out += encode_frame(MID_MTDATA2, payload)
     return bytes(out)
 
@@ -256,6 +279,7 @@ class MTData2Packet:
     acc_hr: tuple[float, ...] | None = None
     gyro_hr: tuple[float, ...] | None = None
     temp: float | None = None
+    mag: tuple[float, ...] | None = None  # normalised (a.u.), as sent
 
     @property
     def source(self) -> str | None:
@@ -326,6 +350,8 @@ def parse_mtdata2(payload: bytes, seen: dict[str, int] | None = None) -> MTData2
                 packet.gyro = values
             elif kind == RATE_OF_TURN_HR:
                 packet.gyro_hr = values
+            elif kind == MAGNETIC_FIELD:
+                packet.mag = values
             else:
                 packet.delta_q = values
     return packet
@@ -335,13 +361,20 @@ class XsensDecoder(StreamDecoderBase):
     """Incremental decoder of Xbus messages; MTData2 packets with inertial data become samples.
 
     ``nominal_rate_hz`` dates packets that carry neither SampleTimeFine nor SampleTimeCoarse
-    (``t_us = seq / rate``). ``items_seen`` counts the MTData2 items met, by name.
+    (``t_us = seq / rate``). ``items_seen`` counts the MTData2 items met, by name. ``field_ut``
+    scales the normalised MagneticField to microtesla (see the module docstring).
     """
 
     name = "xsens"
 
-    def __init__(self, source: str | None = None, nominal_rate_hz: float = 100.0) -> None:
+    def __init__(self, source: str | None = None, nominal_rate_hz: float = 100.0,
+                 field_ut: float | None = None) -> None:
         super().__init__()
+        if field_ut is not None and not 0.0 < field_ut < 1000.0:
+            raise ValueError(f"local field {field_ut} uT is outside 0..1000 uT (the Earth's is 22-67 uT)")
+        self.field_ut = field_ut
+        self.mag_unscaled = 0  # packets whose MagneticField was left out for want of field_ut
+        self._mag = False  # a field was returned: batches are MAG_SAMPLE_DTYPE from then on
         if source not in (None, "normal", "hr"):
             raise ValueError(f"unknown Xsens sample source {source!r}; use normal (Acceleration, RateOfTurn, "
                              f"DeltaV, DeltaQ) or hr (AccelerationHR, RateOfTurnHR)")
@@ -356,6 +389,30 @@ class XsensDecoder(StreamDecoderBase):
         self._last_inertial_ticks: int | None = None
         self._temp = math.nan
         self._pending: list[tuple[int, int, MTData2Packet]] = []  # delta packets waiting for an interval
+
+    @classmethod
+    def from_option(cls, option: str) -> XsensDecoder:
+        """The decoder of ``xsens:OPTION``: ``normal`` or ``hr`` (the packets that make the samples),
+        ``field=UT`` (the local field, for MagneticField in microtesla), or both, comma separated.
+
+        Raises
+        ------
+        ValueError
+            An option that is neither, or a field that is not a number in range.
+        """
+        source: str | None = None
+        field_ut: float | None = None
+        for part in filter(None, (p.strip() for p in option.split(","))):
+            key, is_field, value = part.partition("=")
+            if is_field and key.strip() == "field":
+                try:
+                    field_ut = float(value)
+                except ValueError:
+                    raise ValueError(f"xsens option field={value!r}: give the local field in uT, e.g. "
+                                     f"field=49.5") from None
+            else:
+                source = part
+        return cls(source=source, field_ut=field_ut)
 
     def feed(self, data: bytes) -> Decoded:
         """Decode ``data`` after what is buffered (``StreamDecoderBase.feed``)."""
@@ -419,7 +476,7 @@ class XsensDecoder(StreamDecoderBase):
                 messages.append(Message(msg_id, payload))
         if pos:
             del buf[:pos]
-        samples = np.array(rows, dtype=SAMPLE_DTYPE) if rows else EMPTY_SAMPLES
+        samples = rows_to_batch(rows, self._mag)
         stats.samples += len(samples)
         return Decoded(samples, messages)
 
@@ -594,6 +651,18 @@ class XsensDecoder(StreamDecoderBase):
         return _SAMPLE
 
     def _row(self, seq: int, ticks: int, packet: MTData2Packet, dt: float | None) -> tuple:
+        """The sample of a packet; with ``field_ut``, its field in microtesla as a sixth element."""
+        row = self._inertial_row(seq, ticks, packet, dt)
+        if packet.mag is not None and self.field_ut is None:
+            self.mag_unscaled += 1
+        if self.field_ut is None:
+            return row
+        if packet.mag is None:
+            return (*row, _NAN3)
+        self._mag = True
+        return (*row, tuple(v * self.field_ut for v in packet.mag))
+
+    def _inertial_row(self, seq: int, ticks: int, packet: MTData2Packet, dt: float | None) -> tuple:
         if self.source == "hr":
             return (seq, ticks * _US_PER_TICK, packet.acc_hr or _NAN3, packet.gyro_hr or _NAN3, self._temp)
         acc = packet.acc
@@ -627,4 +696,5 @@ class XsensDecoder(StreamDecoderBase):
         if self._pending:
             self.stats.bad_payloads += len(self._pending)
             self._pending.clear()
-        return Decoded(np.concatenate(batches), messages)
+        samples = join_batches(batches)
+        return Decoded(with_mag(samples) if self._mag else samples, messages)

@@ -34,6 +34,7 @@ from protocols.base import SAMPLE_DTYPE, StreamDecoderBase
 from protocols.detect import AutoDecoder
 from protocols.frame import FrameDecoder
 from protocols.frame_description import FrameDescription, describe
+from protocols.mag_batches import join_batches, with_mag
 from protocols.native import NativeDecoder
 from protocols.xsens import XsensDecoder
 
@@ -67,6 +68,35 @@ def _native_frames(samples: np.ndarray) -> list[bytes]:
     data = native.encode_samples(samples)
     size = native.SAMPLE_FRAME_SIZE
     return [data[i : i + size] for i in range(0, len(data), size)]
+
+
+def nine_axis(samples: np.ndarray) -> np.ndarray:
+    """The samples of a unit with a magnetometer: a field of about 50 uT, different in each sample."""
+    out = with_mag(samples).copy()
+    out["mag"] = samples["acc"] * 4.0 + np.array([10.0, -20.0, 30.0])
+    return out
+
+
+def _native_mag_frames(samples: np.ndarray) -> list[bytes]:
+    data = native.encode_samples(nine_axis(samples))
+    size = native.MAG_FRAME_SIZE
+    return [data[i : i + size] for i in range(0, len(data), size)]
+
+
+def _xsens_mag_frames(samples: np.ndarray) -> list[bytes]:
+    return _xsens_frames(nine_axis(samples), field_ut=50.0)
+
+
+def _mavlink_mag_frames(samples: np.ndarray, message: str) -> list[bytes]:
+    return _mavlink_frames(nine_axis(samples), message)
+
+
+_MAG_COLUMNS = ascii_lines.DEFAULT_COLUMNS + ",mx:mG,my:mG,mz:mG"
+
+
+def _line_mag_frames(samples: np.ndarray) -> list[bytes]:
+    mag = nine_axis(samples)
+    return [ascii_lines.encode_csv(mag[i : i + 1], _MAG_COLUMNS) for i in range(len(mag))]
 
 
 def _mavlink_frames(samples: np.ndarray, message: str) -> list[bytes]:
@@ -136,6 +166,14 @@ CASES: list[Case] = [
          partial(_frame_frames, describe(SPEC_EXAMPLE)), _any_garbage, b"\xaa\x55", _BINARY),
     Case("auto-xsens", AutoDecoder, _xsens_frames, _any_garbage, xsens.SYNC, _XSENS,
          allowed_losses=_xsens_losses),
+    # Nine-axis units: the same framing, sample records that carry the magnetic field.
+    Case("native-mag", NativeDecoder, _native_mag_frames, _any_garbage, native.SYNC, _BINARY),
+    Case("xsens-mag", partial(XsensDecoder, field_ut=50.0), _xsens_mag_frames, _any_garbage, xsens.SYNC,
+         _XSENS, allowed_losses=_xsens_losses),
+    Case("mavlink-scaled-mag", mavlink.MavlinkDecoder, partial(_mavlink_mag_frames, message="SCALED_IMU"),
+         _any_garbage, b"\xfd", _BINARY, needs_pymavlink=True),
+    Case("ascii-csv-mag", partial(AsciiDecoder, _MAG_COLUMNS), _line_mag_frames, _line_garbage, b"\n", _LINES,
+         lines=True),
 ]
 
 
@@ -164,7 +202,7 @@ def feed_chunks(decoder: StreamDecoderBase, data: bytes, cuts: list[int]) -> np.
             out.append(decoder.feed(data[start:cut]).samples)
             start = cut
     out.append(decoder.flush().samples)
-    return np.concatenate(out)
+    return join_batches(out)  # a nine-axis stream's batches before its first field are six-axis
 
 
 def sample_keys(samples: np.ndarray) -> list[bytes]:

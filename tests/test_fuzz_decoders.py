@@ -20,7 +20,7 @@ from fuzz_cases import Case, available_cases, feed_chunks, lost_frames, make_sam
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from protocols.base import SAMPLE_DTYPE
+from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE
 
 CASES = available_cases()
 IDS = [c.name for c in CASES]
@@ -32,7 +32,8 @@ cuts = st.lists(st.integers(0, 2000), max_size=12).map(sorted)
 def _check_counters(case: Case, data: bytes, chunk_at: list[int]) -> None:
     decoder = case.decoder()
     out = feed_chunks(decoder, data, chunk_at)
-    assert out.dtype == SAMPLE_DTYPE
+    # A nine-axis case's stream may never carry a field the decoder can read (wild values).
+    assert out.dtype in ((SAMPLE_DTYPE, MAG_SAMPLE_DTYPE) if case.name.endswith("-mag") else (SAMPLE_DTYPE,))
     stats = decoder.stats
     assert stats.samples == len(out) and stats.errors >= 0 and stats.garbage_bytes <= len(data)
 
