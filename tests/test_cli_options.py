@@ -24,6 +24,8 @@ CASES = [
     (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--rate", "70000"),
     (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--duration", "0"),
     (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--duration", "inf"),
+    (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--field", "0"),
+    (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--field", "nan"),
     (["tui"], "--hold", "0"),
     (["tui"], "--hold", "1e9"),
     (["tui"], "--rotation-rate", "-90"),

@@ -293,3 +293,34 @@ def test_simulate_command_serves_a_mag_unit(tmp_path: Path) -> None:
     truth = mag_from_options({"mag": "1", "field": "40", "dip": "70"}, 7)
     assert truth is not None and cap.mag is not None
     assert abs(np.linalg.norm(truth.correct(cap.mag), axis=1).mean() - 40.0) < 0.1
+
+
+def test_capture_field_scales_an_xsens_units_field(tmp_path: Path) -> None:
+    cli = [str(Path(sys.executable).with_name("imu-station"))]
+    link = tmp_path / "mti"
+    sim = subprocess.Popen(cli + ["simulate", "--mag", "--protocol", "xsens", "--seed", "8", "--speed", "5",
+                                  "--link", str(link), "--duration", "60"],
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        for _ in range(3):
+            sim.stdout.readline()
+        out = tmp_path / "mti.h5"
+
+        def capture(*options: str) -> subprocess.CompletedProcess:
+            return subprocess.run(cli + ["capture", "--port", str(link), *options], capture_output=True,
+                                  text=True, timeout=60)
+
+        done = capture("--protocol", "xsens", "--field", "50", "--duration", "2", "-o", str(out))
+        assert done.returncode == 0, done.stderr
+        plain = capture("--protocol", "xsens", "--duration", "1", "-o", str(tmp_path / "plain.csv"))
+        assert plain.returncode == 0 and "recorded only with --field UT" in plain.stderr
+        refused = capture("--field", "50", "--duration", "1", "-o", str(tmp_path / "n.csv"))
+        assert refused.returncode == 4 and "--field scales the normalised magnetic field" in refused.stderr
+    finally:
+        sim.terminate()
+        sim.wait(timeout=10)
+    cap = read_capture(out)
+    truth = mag_from_options({"mag": "1"}, 8)
+    assert truth is not None and cap.mag is not None and len(cap) > 100
+    assert abs(np.linalg.norm(truth.correct(cap.mag), axis=1).mean() - 50.0) < 0.1
+    assert read_capture(tmp_path / "plain.csv").mag is None

@@ -37,6 +37,7 @@ examples:
   imu-station capture --port /dev/ttyUSB0 --duration 60 -o still.csv
   imu-station capture --port sim:// --rate 400 --duration 10 -o sim.h5
   imu-station capture --port /dev/ttyUSB0 --protocol auto --baud 115200 --duration 60 -o mti.csv
+  imu-station capture --port /dev/ttyUSB0 --protocol xsens --field 49.8 --duration 120 -o mti-mag.h5
   imu-station capture --port /dev/ttyACM0 --protocol ascii \\
       --columns t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps --duration 30 -o arduino.csv
   imu-station capture --port /dev/ttyUSB0 --port /dev/ttyUSB1 --port /dev/ttyUSB2 --duration 60 -o tray/"""
@@ -44,6 +45,8 @@ examples:
 
 # SET_RATE carries the rate as an unsigned 16-bit number of Hz (specs/native-protocol.md).
 RATE_HZ = number(int, 1, 0xFFFF, unit="Hz")
+# The local field --field accepts: the Earth's is 22 to 67 uT; a lab's coil more.
+FIELD_UT = number(float, 1.0, 1000.0, unit="uT")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,6 +65,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_output_option(parser, required=True, metavar="FILE",
                       help="capture file to write: .csv, or .h5/.hdf5 for the HDF5 capture file; with "
                            "several --port, the directory the units' files go in")
+    parser.add_argument("--field", type=FIELD_UT, metavar="UT",
+                        help="with an Xsens unit: the local magnetic field's magnitude, which scales its "
+                             "normalised MagneticField to microtesla (default: the field is not recorded)")
     parser.add_argument("--format", choices=("csv", "h5"), default=None,
                         help="with several --port: the files' format, SERIAL.csv or SERIAL.h5 (default: csv)")
 
@@ -137,7 +143,7 @@ def sniff_protocol(port: str, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float
 
 
 def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | None, err: IO[str],
-                     rate_hz: int | None = None) -> str:
+                     rate_hz: int | None = None, field_ut: float | None = None) -> str:
     """The decoder name for ``--protocol`` and ``--columns``; ``auto`` sniffs the port and says what
     it found.
 
@@ -155,16 +161,19 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
         Where what ``auto`` found is said.
     rate_hz : int, optional
         ``--rate``: with ``ascii``, the rate of lines that carry no clock.
+    field_ut : float, optional
+        ``--field``: with ``xsens``, the local field that scales its normalised MagneticField to uT.
 
     Returns
     -------
     str
-        The decoder name with its option (``ascii:COLUMNS@HZ``).
+        The decoder name with its option (``ascii:COLUMNS@HZ``, ``xsens:field=UT``).
 
     Raises
     ------
     StationError
-        ``--columns`` without ``ascii`` or unreadable, or MAVLink without pymavlink.
+        ``--columns`` without ``ascii`` or unreadable, ``--field`` without ``xsens``, or MAVLink
+        without pymavlink.
     NoSamples
         ``auto`` recognised no protocol.
     """
@@ -189,6 +198,15 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
         protocol = found.protocol
     if protocol == "ascii" and (columns is not None or rate_hz is not None):
         protocol = f"ascii:{columns or ''}" + (f"@{rate_hz}" if rate_hz is not None else "")
+    base, _, option = protocol.partition(":")
+    if field_ut is not None:
+        if base != "xsens":
+            raise StationError(f"--field scales the normalised magnetic field of an Xsens unit; {protocol} "
+                               f"reports it in physical units, or not at all: leave --field out")
+        protocol = f"xsens:{option + ',' if option else ''}field={field_ut:g}"
+    elif base == "xsens":
+        print("note: an Xsens unit reports its magnetic field normalised to the field where it was last "
+              "calibrated; it is recorded only with --field UT (the local field's magnitude)", file=err)
     return protocol
 
 
@@ -203,7 +221,8 @@ def run(args: argparse.Namespace) -> int:
         raise StationError("--format applies to several --port; with one, the suffix of -o FILE decides "
                            "(.csv, or .h5/.hdf5)")
     args.port = args.port[0]
-    protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr, args.rate)
+    protocol = resolve_protocol(args.port, args.protocol, args.baud, args.columns, sys.stderr, args.rate,
+                                args.field)
     result = capture_to_file(args.port, args.output, protocol=protocol, duration_s=args.duration,
                              rate_hz=args.rate, baudrate=args.baud,
                              status=lambda duration_s: CaptureStatusLine(sys.stderr, duration_s))
@@ -227,7 +246,8 @@ def run_many(args: argparse.Namespace) -> int:
         raise StationError("--protocol auto reads one port; with several, name the protocol (native, ...)")
     if args.output.exists() and not args.output.is_dir():
         raise StationError(f"-o {args.output}: with several --port, -o names a directory, and this is a file")
-    protocol = resolve_protocol(args.port[0], args.protocol, args.baud, args.columns, sys.stderr, args.rate)
+    protocol = resolve_protocol(args.port[0], args.protocol, args.baud, args.columns, sys.stderr, args.rate,
+                                args.field)
     outcomes = capture_many(args.port, args.output, fmt=args.format or "csv", protocol=protocol,
                             duration_s=args.duration, rate_hz=args.rate, baudrate=args.baud,
                             status=lambda ports, duration_s: UnitStatusLines(sys.stderr, ports, duration_s))
