@@ -187,6 +187,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1, help="runs; medians are printed (default 1)")
     args = parser.parse_args()
 
+    load_before = os.getloadavg()[0]
     runs = []
     for _ in range(args.repeats):
         with tempfile.TemporaryDirectory() as tmp:
@@ -196,7 +197,8 @@ def main() -> None:
         return statistics.median(r[key] for r in runs)
 
     print(f"{args.units} units + {args.old_units} old-design units at {args.rate} Hz, {args.seconds:g} s of "
-          f"device clock, {args.format}; medians of {len(runs)} run(s); a 2-core machine shared with others")
+          f"device clock, {args.format}; medians of {len(runs)} run(s); a 2-core machine shared with others "
+          f"(load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after)")
     print(f"  one process, {args.units} units:  {med('new_cores'):.3f} cores in the steady window "
           f"({med('new_cores_per_unit'):.4f} per unit), {med('new_total_cpu_s'):.2f} CPU-s in all for "
           f"{med('new_wall_s'):.1f} s wall (start-up included), exit {int(med('new_returncode'))}")
