@@ -108,6 +108,10 @@ def scenario_timeline(scenario: str | Sequence[Segment], seed: int = 0, loop: bo
 class SimDevice:
     """The simulated unit behind a serial link. Thread-safe: one lock around the state.
 
+    Times given to :meth:`produce` and returned by :meth:`next_due_s` and the live-motion methods are
+    the server's clock since the first power-up; after a RESTART the unit's own clock (``t_us``)
+    starts again from 0 at the restart.
+
     Parameters
     ----------
     truth : the unit (default ``UnitTruth.random(seed)``).
@@ -121,10 +125,6 @@ class SimDevice:
     temp_noise_degc : standard deviation of the temperature sensor's noise.
     chamber : the programme of the ``chamber`` scenario (default ``mocks.chamber.scenario_sweep()``).
     restartable : False: RESTART is answered ACK status 1, as by a unit that cannot restart itself.
-
-    Times given to :meth:`produce` and returned by :meth:`next_due_s` and the live-motion methods are
-    the server's clock since the first power-up; after a RESTART the unit's own clock (``t_us``)
-    starts again from 0 at the restart.
     """
 
     def __init__(self, truth: UnitTruth | None = None, *, seed: int = 0, rate_hz: float = 200.0,

@@ -163,7 +163,7 @@ def _thermal_rows(doc: dict[str, Any]) -> list[Row]:
         slope = np.polyfit(temp, b, 1)[0]
         rows.append(Row(f"{sensor} bias temperature sensitivity", unit, (slope * factor).tolist(),
                         [None, None, None],
-                        f"slope of the thermal model over {bias.t_min:g}..{bias.t_max:g} degC (thermal)"))
+                        f"slope of the thermal model over {bias.t_min:.1f}..{bias.t_max:.1f} degC (thermal)"))
     return rows
 
 
