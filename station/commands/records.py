@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace, url: str) -> int:
     """The fleet report: the page (-o), its PDF (--pdf) and the statistics (--json)."""
-    from station.report.certificate import CERTIFICATE_NAME
+    from station.report.attachments import CERTIFICATE_NAME
     from station.report.fleet import collect, fleet_json, render_fleet
 
     if args.output is None and not args.json:

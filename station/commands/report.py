@@ -132,10 +132,10 @@ def run(args: argparse.Namespace) -> int:
     cert = _from_params(args) if args.params is not None else _from_record(args)
     cert.station = args.station or os.environ.get("IMU_STATION_ID") or cert.station
     cert.operator = args.operator or ""
-    write_certificate(cert, args.output)
+    notes = write_certificate(cert, args.output)
     serial = cert.record.serial if cert.record is not None else cert.params.device.get("serial", "?")
     print(f"{args.output}: calibration certificate of unit {serial}")
-    for note in cert.notes:
+    for note in notes:
         print(f"imu-station report: note: {note}", file=sys.stderr)
     if args.pdf is not None:
         from station.report.pdf import html_to_pdf

@@ -10,6 +10,10 @@ Phases, in order (each a phase of the record, OpenHTF style)::
     calibrate  the engine on the capture; parameters measured against the plan's limits
     export     params.yaml and the plan's export formats, beside the record
 
+Whatever the outcome, a run that got as far as the unit's folder ends by writing the unit's
+calibration certificate there (``certificate.html``, ``station.report``), attached to the record
+with its SHA-256 like every other file.
+
 Outcome and exit code: PASS 0, FAIL 1 (a measurement outside its limits, or the unit reports
 another serial), ABORTED 2 (a step kept failing its checks, the calibration could not be
 determined, Ctrl-C), ERROR 3 (device, table or link error), TIMEOUT 5 (the plan's run or step
@@ -56,6 +60,8 @@ from station.factory.records import (
 )
 from station.factory.simrig import SimulatedUnit, simulated_rig
 from station.files import atomic_write_text
+from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT, RAW_CAPTURE
+from station.report.certificate import CaptureFile, from_record, write_certificate
 from station.text import printable
 
 log = logging.getLogger("imu_station.factory")
@@ -67,7 +73,7 @@ CALIBRATION_QUANTITIES = [
 ]
 MIMETYPES = {".csv": "text/csv", ".yaml": "application/yaml", ".json": "application/json",
              ".h": "text/x-c", ".c": "text/x-c", ".bin": "application/octet-stream",
-             ".params": "text/plain", ".param": "text/plain"}
+             ".params": "text/plain", ".param": "text/plain", ".html": "text/html"}
 _SAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -209,6 +215,7 @@ class UnitRun:
                                 plan={"name": plan.name, "path": str(plan.path), "sha256": plan.sha256,
                                       "sequence": plan.sequence.name})
         self.deadline = time.monotonic() + plan.timeout_s
+        self.capture: Any = None  # the sequence's labelled capture, for the certificate's residuals
         self.device: Device | None = None
         self.table: Turntable | None = None
         self.files: Path | None = None
@@ -287,11 +294,31 @@ class UnitRun:
             self.record.finish(outcome, reason)
             self._close()
             if self.files is not None:
+                self._certify()
                 atomic_write_text(self.files / "record.json",
                                   json.dumps(self.record.to_dict(), indent=1, allow_nan=False) + "\n")
         log.info("outcome %s%s", outcome, f": {reason}" if reason else "")
         self._event(event="outcome", outcome=outcome, exit_code=self.record.exit_code, reason=reason)
         return self.record
+
+    def _certify(self) -> None:
+        """Write the certificate beside the record and attach it to the last phase; a certificate that
+        cannot be written is logged and noted, never the run's failure."""
+        assert self.files is not None
+        if not self.record.phases:
+            return
+        captures = []
+        raw = next((a for a in self.record.attachments() if a.name == RAW_CAPTURE), None)
+        if self.capture is not None and raw is not None:
+            captures.append(CaptureFile(str(self.files / raw.path), raw.sha256, self.capture))
+        path = self.files / "certificate.html"
+        try:
+            write_certificate(from_record(self.record, captures), path)
+        except (StationError, OSError, ValueError) as exc:
+            log.warning("the calibration certificate was not written: %s", exc)
+            self.record.phases[-1].notes.append(f"calibration certificate not written: {exc}")
+            return
+        self._attach(self.record.phases[-1], path, CERTIFICATE_NAME)
 
     def _phase_broke(self) -> None:
         """The phase under way when the run was cut short did not pass."""
@@ -426,7 +453,7 @@ class UnitRun:
         finally:
             # The link with the clock guard's counts (outliers left out, jumps), not the device's alone.
             recorder.close(runner.link_stats().as_dict())
-            self._attach(phase, capture_path, "raw capture")
+            self._attach(phase, capture_path, RAW_CAPTURE)
         link = runner.link_stats().as_dict()
         accepted = sum(1 for s in result.steps if s.status == "accepted")
         phase.measurements.append(Measurement("sequence.steps_accepted", float(accepted), "",
@@ -439,6 +466,7 @@ class UnitRun:
         phase.notes += [f"{s.label}: {s.status} after {s.attempts} attempt(s)"
                         + (f" ({'; '.join(s.problems)})" if s.problems else "") for s in result.steps]
         self._link = link
+        self.capture = result.capture
         return result
 
     def _relay(self, event: dict[str, Any]) -> None:
@@ -487,7 +515,7 @@ class UnitRun:
         params.accel = report.accel
         params.gyro = report.gyro
         params.save(params_path)
-        self._attach(phase, params_path, "parameter file")
+        self._attach(phase, params_path, PARAMS_ATTACHMENT)
         params = ParamsFile.load(params_path)  # exported as saved, as `imu-station export` would read it
         for fmt in plan.export:
             target = self.files / ("c" if fmt == "c" else DEFAULT_NAMES[fmt])

@@ -19,13 +19,12 @@ from station.export.params_file import SECTIONS, ParamsFile
 from station.factory.records import Measurement, RunRecord
 from station.files import atomic_write_text, sha256_file
 from station.report import cert_plots, parameters
+from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT
 from station.report.cert_plots import Samples
 from station.report.html import render
 
 REPORTED_SECTIONS = (*SECTIONS, "mag", "characterisation")
 """The parameter file's sections a certificate shows; one absent is named as absent."""
-CERTIFICATE_NAME = "calibration certificate"
-"""The attachment name of a certificate a factory run writes beside its record."""
 
 
 @dataclass
@@ -251,8 +250,13 @@ def render_certificate(cert: Certificate) -> str:
     return render("certificate.html.j2", **certificate_context(cert))
 
 
-def write_certificate(cert: Certificate, path: str | Path) -> None:
+def write_certificate(cert: Certificate, path: str | Path) -> list[str]:
     """Write the certificate's HTML to ``path`` atomically.
+
+    Returns
+    -------
+    list of str
+        What the page says it does not show (absent sections, missing files, plots without data).
 
     Raises
     ------
@@ -261,7 +265,9 @@ def write_certificate(cert: Certificate, path: str | Path) -> None:
     """
     if cert.params is None and cert.record is None:
         raise StationError("a certificate needs a parameter file or a factory record")
-    atomic_write_text(path, render_certificate(cert))
+    context = certificate_context(cert)
+    atomic_write_text(path, render("certificate.html.j2", **context))
+    return list(context["notes"])
 
 
 def capture_file(path: str | Path, samples: Samples) -> CaptureFile:
@@ -279,10 +285,6 @@ def capture_file(path: str | Path, samples: Samples) -> CaptureFile:
     CaptureFile
     """
     return CaptureFile(str(path), sha256_file(path), samples)
-
-
-PARAMS_ATTACHMENT = "parameter file"
-"""The attachment name of the parameter file a factory run writes (``station.factory.run``)."""
 
 
 def from_record(record: RunRecord, captures: list[CaptureFile] | None = None) -> Certificate:

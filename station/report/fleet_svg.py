@@ -3,8 +3,8 @@ beside the individuals control chart.
 
 Matplotlib takes about 0.2 s a figure, so thirty measurements over 10,000 records would take more
 than the report's whole budget (5 s); these two panels are simple enough to write as SVG elements,
-in matplotlib's default look (its colours, DejaVu Sans, light grid, ticks from its own
-``MaxNLocator``) so they sit beside the station's other plots without a seam. A long series is
+in matplotlib's default look (its colours, DejaVu Sans, light grid, ticks at its steps) so they
+sit beside the station's other plots without a seam. A long series is
 drawn through per-pixel minimum and maximum, which looks the same as every point.
 """
 
@@ -24,11 +24,16 @@ COLUMNS = 425  # the chart's width in SVG units: one minimum-maximum pair per co
 MAX_DOTS = 400  # up to this many runs each point is drawn as a dot too
 
 
-def _ticks(lo: float, hi: float) -> np.ndarray:
-    from matplotlib.ticker import MaxNLocator
-
-    ticks = MaxNLocator(nbins=5).tick_values(lo, hi)
-    return ticks[(ticks >= lo - 1e-12 * abs(hi - lo)) & (ticks <= hi + 1e-12 * abs(hi - lo))]
+def _ticks(lo: float, hi: float, most: int = 6) -> np.ndarray:
+    """Tick positions inside [lo, hi] at a 1, 2, 2.5 or 5 times a power of ten step, at most ``most``
+    of them (the steps matplotlib's ``MaxNLocator`` picks; importing matplotlib would cost more than
+    drawing every chart)."""
+    raw = (hi - lo) / (most - 1)
+    scale = 10.0 ** math.floor(math.log10(raw))
+    step = next(m * scale for m in (1.0, 2.0, 2.5, 5.0, 10.0) if m * scale >= raw)
+    first = math.ceil(lo / step) * step
+    ticks = np.arange(first, hi + 1e-9 * step, step)
+    return np.where(np.abs(ticks) < 1e-12 * step, 0.0, ticks)  # a clean zero, not -1e-17
 
 
 def _fmt(v: float) -> str:

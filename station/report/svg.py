@@ -54,7 +54,8 @@ def to_svg(fig: Any) -> str:
     buf = io.StringIO()
     # ids stay random (no svg.hashsalt): several SVGs share one page and their clip paths must not clash
     with matplotlib.rc_context({"svg.fonttype": "none"}):
-        fig.savefig(buf, format="svg")
+        # no <metadata>: its RDF names web addresses, and a page that prints offline wants none of them
+        fig.savefig(buf, format="svg", metadata={"Creator": None, "Date": None, "Format": None, "Type": None})
     text = buf.getvalue()
     text = text[text.index("<svg"):]
     # The page sets the width; a fixed size in points would overflow a phone or an A4 margin.
