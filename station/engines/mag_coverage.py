@@ -114,17 +114,12 @@ def cell_centres(cells: int = CELLS) -> np.ndarray:
     ndarray, (cells, 3)
         Row k is the centre of cell k; the caps' centres are the poles.
     """
-    part = _partition(cells)
-    out = np.empty((cells, 3))
-    for zone, count in enumerate(part.counts):
-        z = 0.5 * (part.cos_edges[zone] + part.cos_edges[zone + 1])
-        if zone == 0 or zone == len(part.counts) - 1:
-            z = float(np.sign(z))                                      # a cap's centre is its pole
-        lon = (np.arange(count) + 0.5) * 2.0 * np.pi / count
-        r = np.sqrt(max(1.0 - z * z, 0.0))
-        rows = slice(part.first[zone], part.first[zone] + count)
-        out[rows] = np.column_stack([r * np.cos(lon), r * np.sin(lon), np.full(count, z)])
-    return out
+    bounds = cell_bounds(cells)
+    lon = 0.5 * (bounds[:, 0] + bounds[:, 1])
+    z = 0.5 * (bounds[:, 2] + bounds[:, 3])
+    z[[0, -1]] = np.sign(z[[0, -1]])                                   # a cap's centre is its pole
+    r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    return np.column_stack([r * np.cos(lon), r * np.sin(lon), z])
 
 
 def cell_bounds(cells: int = CELLS) -> np.ndarray:
