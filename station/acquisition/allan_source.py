@@ -17,8 +17,10 @@ silently: the report goes to the user and into the outputs.
 from __future__ import annotations
 
 import math
+import os
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -185,9 +187,12 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
                      on_rows: Callable[[int], None] | None = None) -> IntegratedRecord:
     """Stream (t, acc, gyro) chunks into cumulative sums on disk (two passes, bounded memory).
 
-    Pass 1 appends each axis as float64 behind a leading zero and sums it; pass 2 replaces the values in
-    place, chunk by chunk, by ``cumsum(y - mean) / rate`` carrying the running sum across chunks, which is
-    exactly the sequential float64 sum of the whole record.
+    Pass 1 checks the timestamps and sums each axis; pass 2 writes ``cumsum(y - mean) / rate`` chunk by
+    chunk, carrying the running sum across chunks, which is exactly the sequential float64 sum of the whole
+    record. An input that can be read twice (``chunks`` an iterable that is not its own iterator, such as a
+    capture file's :class:`H5Chunks`) is read twice and the sums written once; a one-shot stream is
+    appended to the files as float64 in pass 1 and replaced in place in pass 2 (the record is written
+    twice and read once more: on a day-long record that I/O costs more than reading the input again).
 
     Parameters
     ----------
@@ -216,59 +221,110 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
     tmp = tempfile.TemporaryDirectory(prefix="imu-allan-", dir=workdir)
     try:
         paths = [Path(tmp.name) / f"{axis}.f64" for axis in AXES]
-        files = [open(p, "wb") for p in paths]
         checker = TimingChecker(rate_hz)
-        sums = np.zeros(6)
-        try:
+        sums = np.zeros(len(AXES))
+        twice = iter(chunks) is not chunks
+        dropped: dict[int, np.ndarray] = {}  # keep masks of the chunks that lose samples (read twice)
+        with ExitStack() as stack:
+            files = [stack.enter_context(open(p, "wb")) for p in paths]
             for f in files:
                 f.write(np.zeros(1).tobytes())
-            for t, acc, gyro in _merge_first(chunks):
-                t = np.asarray(t, dtype=np.float64)
-                keep = checker.check(t)
-                block = np.column_stack([np.asarray(gyro, np.float64), np.asarray(acc, np.float64)])[keep]
-                bad = np.argwhere(~np.isfinite(block))
-                if len(bad):
-                    i, j = (int(v) for v in bad[0])
-                    raise EngineInputError(f"{source}: the sample at t = {t[keep][i]:.6f} s has a non-finite "
-                                           f"{AXES[j]} ({block[i, j]}); cut the record before it or repair")
-                sums += block.sum(axis=0)
-                for j, f in enumerate(files):
-                    f.write(np.ascontiguousarray(block[:, j]).tobytes())
+            for index, (t, acc, gyro) in enumerate(_merge_first(chunks)):
+                keep, columns = _checked(t, acc, gyro, checker, source)
+                if keep is not None:
+                    dropped[index] = keep
+                for j, y in enumerate(columns):
+                    sums[j] += np.sum(y, dtype=np.float64)
+                    if not twice:
+                        files[j].write(np.ascontiguousarray(y, dtype=np.float64).data)
                 if on_rows is not None:
                     on_rows(len(t))
-        finally:
-            for f in files:
-                f.close()
-        report = checker.report
-        if report.samples < 2:
-            raise EngineInputError(f"{source}: {report.samples} usable samples; an Allan deviation needs a "
-                                   "long still recording")
-        means = sums / report.samples
-        tau0 = 1.0 / report.rate_hz
-        phase = []
-        buf = np.empty(PASS2_ROWS + 1)
-        for j, p in enumerate(paths):
-            # plain reads and writes, not a writable map: dirty mapped pages would count against the
-            # process for the whole file
-            with open(p, "r+b") as f:
-                carry = 0.0
-                for a in range(report.samples // PASS2_ROWS + 1):
-                    f.seek((1 + a * PASS2_ROWS) * 8)
-                    raw = np.fromfile(f, dtype=np.float64, count=PASS2_ROWS)
-                    if len(raw) == 0:
-                        break
-                    part = buf[:len(raw) + 1]
-                    part[0] = carry
-                    np.subtract(raw, means[j], out=part[1:])
-                    np.cumsum(part, out=part)
-                    carry = float(part[-1])
-                    f.seek((1 + a * PASS2_ROWS) * 8)
-                    f.write((part[1:] * tau0).tobytes())
-            phase.append(_map(p))
-        return IntegratedRecord(phase, report.rate_hz, report, means, source, device or {}, tmp)
+            report = checker.report
+            if report.samples < 2:
+                raise EngineInputError(f"{source}: {report.samples} usable samples; an Allan deviation needs "
+                                       "a long still recording")
+            means = sums / report.samples
+            if twice:
+                for f in files:
+                    f.flush()
+                    # the whole length at once: ext4 allocates it in one go rather than page by page
+                    os.posix_fallocate(f.fileno(), 0, (report.samples + 1) * 8)
+                _write_sums(chunks, dropped, means, 1.0 / report.rate_hz, files)
+        if not twice:
+            for j, p in enumerate(paths):
+                _sums_in_place(p, report.samples, means[j], 1.0 / report.rate_hz)
+        return IntegratedRecord([_map(p) for p in paths], report.rate_hz, report, means, source, device or {},
+                                tmp)
     except BaseException:
         tmp.cleanup()
         raise
+
+
+def _checked(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, checker: TimingChecker,
+             source: str) -> tuple[np.ndarray | None, list[np.ndarray]]:
+    """One chunk's timestamps checked: the keep mask (None when every sample is kept) and the kept
+    columns gx..az as float64 (views where no sample is dropped)."""
+    keep = checker.check(np.asarray(t, dtype=np.float64))
+    whole = bool(keep.all())
+    columns = _columns(acc, gyro)
+    if not whole:
+        columns = [c[keep] for c in columns]
+    if not all(np.isfinite(c).all() for c in columns):
+        block = np.column_stack(columns)
+        i, j = (int(v) for v in np.argwhere(~np.isfinite(block))[0])
+        t_kept = np.asarray(t, dtype=np.float64)[keep]
+        raise EngineInputError(f"{source}: the sample at t = {t_kept[i]:.6f} s has a non-finite {AXES[j]} "
+                               f"({block[i, j]}); cut the record before it or repair")
+    return (None if whole else keep), columns
+
+
+def _columns(acc: np.ndarray, gyro: np.ndarray) -> list[np.ndarray]:
+    """gx..az as views of the chunk, in its own float type (a capture file's float32 is widened where the
+    sums are formed, not copied first)."""
+    arrays = [np.asarray(a) for a in (gyro, acc)]
+    return [a[:, j] for a in arrays for j in range(3)]
+
+
+def _write_sums(chunks: Iterable[Chunk], dropped: dict[int, np.ndarray], means: np.ndarray, tau0: float,
+                files: list) -> None:
+    """Pass 2 of a record read twice: each axis's ``cumsum(y - mean) tau0`` appended to its file."""
+    carry = np.zeros(len(means))
+    buf = np.empty(0)
+    for index, (_, acc, gyro) in enumerate(_merge_first(chunks)):
+        keep = dropped.get(index)
+        for j, y in enumerate(_columns(acc, gyro)):
+            if keep is not None:
+                y = y[keep]
+            if len(buf) < len(y) + 1:
+                buf = np.empty(len(y) + 1)
+            part = buf[:len(y) + 1]
+            part[0] = carry[j]
+            np.subtract(y, means[j], out=part[1:], dtype=np.float64)
+            np.cumsum(part, out=part)
+            carry[j] = part[-1]
+            part *= tau0
+            files[j].write(part[1:].data)
+
+
+def _sums_in_place(path: Path, samples: int, mean: float, tau0: float) -> None:
+    """Pass 2 of a one-shot stream: the file's values replaced by ``cumsum(y - mean) tau0``, a piece at a
+    time (plain reads and writes, not a writable map: dirty mapped pages would count against the process
+    for the whole file)."""
+    buf = np.empty(PASS2_ROWS + 1)
+    with open(path, "r+b") as f:
+        carry = 0.0
+        for a in range(samples // PASS2_ROWS + 1):
+            f.seek((1 + a * PASS2_ROWS) * 8)
+            raw = np.fromfile(f, dtype=np.float64, count=PASS2_ROWS)
+            if len(raw) == 0:
+                break
+            part = buf[:len(raw) + 1]
+            part[0] = carry
+            np.subtract(raw, mean, out=part[1:])
+            np.cumsum(part, out=part)
+            carry = float(part[-1])
+            f.seek((1 + a * PASS2_ROWS) * 8)
+            f.write((part[1:] * tau0).tobytes())
 
 
 def _map(path: Path) -> np.ndarray:
@@ -290,7 +346,7 @@ def _merge_first(chunks: Iterable[Chunk], rows: int = FIRST_ROWS) -> Iterator[Ch
     yield from it
 
 
-def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterator[Chunk], dict[str, Any], int]:
+def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterable[Chunk], dict[str, Any], int]:
     """Chunks of a capture CSV, station capture file or ROS bag; the unit's info; the size in bytes.
 
     Parameters
@@ -302,7 +358,8 @@ def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterator
     Returns
     -------
     tuple
-        Chunk iterator, the unit's info, the size in bytes.
+        The chunks (a capture file's can be read twice, see :class:`H5Chunks`), the unit's info, the size
+        in bytes.
 
     Raises
     ------
@@ -322,7 +379,7 @@ def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterator
         return rosbag_reader.iter_imu_chunks(path, topic), {}, size
     name = path.name.lower()
     if name.endswith((".h5", ".hdf5")):
-        return _h5_chunks(path), _h5_device(path), size
+        return H5Chunks(path), _h5_device(path), size
     from station.acquisition.capture_csv import iter_csv_chunks
 
     return ((c.t, c.acc, c.gyro) for c in iter_csv_chunks(path)), {}, size
@@ -354,10 +411,18 @@ def _h5_device(path: Path) -> dict[str, Any]:
         return json.loads(f.attrs.get("device", "{}"))
 
 
-def _h5_chunks(path: Path, rows: int = 200_000) -> Iterator[Chunk]:
-    """Slices of a station capture file: memory bounded by ``rows`` whatever the file's length."""
-    with _h5_file(path) as f:
-        t_us, acc, gyro = f["t_us"], f["acc"], f["gyro"]
-        for a in range(0, len(t_us), rows):
-            yield (t_us[a:a + rows].astype(np.float64) * 1e-6, acc[a:a + rows].astype(np.float64),
-                   gyro[a:a + rows].astype(np.float64))
+class H5Chunks:
+    """Slices of a station capture file, ``rows`` at a time: memory bounded whatever the file's length.
+    Each ``iter()`` reads the file afresh, so :func:`integrate_stream` reads it twice rather than writing
+    the record to disk twice. Samples stay in the file's float32; times are seconds."""
+
+    def __init__(self, path: Path, rows: int = 1 << 19):
+        self.path = path
+        self.rows = rows
+
+    def __iter__(self) -> Iterator[Chunk]:
+        with _h5_file(self.path) as f:
+            t_us, acc, gyro = f["t_us"], f["acc"], f["gyro"]
+            for a in range(0, len(t_us), self.rows):
+                b = a + self.rows
+                yield t_us[a:b].astype(np.float64) * 1e-6, acc[a:b], gyro[a:b]
