@@ -7,12 +7,15 @@ from typing import IO
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
+from rich.table import Column
 
 from station.acquisition.multi_capture import UnitStatus
 from station.status_line import status_text
 
 # Fewer redraws than the single line's: 32 lines redrawn 10 times a second cost more than the units.
 REFRESH_PER_SECOND = 2
+# A failed unit's line shows the start of its error (the summary has all of it): the bars keep their room.
+STATUS_WIDTH = 60
 
 
 def unit_text(unit: UnitStatus) -> str:
@@ -50,18 +53,22 @@ class UnitStatusLines:
     """
 
     def __init__(self, err: IO[str], ports: Sequence[str], duration_s: float | None):
+        # The unit's name keeps its width; the figures after it are cut first on a narrow terminal.
+        self._width = max([len(p) for p in ports] + [12])
         self._progress = Progress(
-            TextColumn("{task.fields[unit]}"), BarColumn(bar_width=20), TextColumn("{task.fields[status]}"),
+            TextColumn("{task.fields[unit]}", table_column=Column(no_wrap=True, min_width=self._width)),
+            BarColumn(bar_width=16),
+            TextColumn("{task.fields[status]}",
+                       table_column=Column(no_wrap=True, overflow="ellipsis", max_width=STATUS_WIDTH)),
             TimeElapsedColumn(), console=Console(file=err), transient=False,
             refresh_per_second=REFRESH_PER_SECOND,
         )
-        width = max((len(p) for p in ports), default=0)
-        self._width = max(width, 12)
         self._tasks: dict[str, TaskID] = {
             port: self._progress.add_task(port, total=duration_s, unit=port.ljust(self._width),
                                           status="opening")
             for port in ports
         }
+        self._stopped: set[TaskID] = set()
 
     def __enter__(self) -> Callable[[Sequence[UnitStatus]], None]:
         self._progress.start()
@@ -79,5 +86,9 @@ class UnitStatusLines:
             Every unit, as the capture sees it now.
         """
         for unit in units:
-            self._progress.update(self._tasks[unit.port], completed=unit.device_time_s,
-                                  unit=unit.name.ljust(self._width), status=unit_text(unit))
+            task = self._tasks[unit.port]
+            self._progress.update(task, completed=unit.device_time_s, unit=unit.name.ljust(self._width),
+                                  status=unit_text(unit))
+            if unit.state not in ("recording", "preparing") and task not in self._stopped:
+                self._progress.stop_task(task)  # its clock stops where the unit ended
+                self._stopped.add(task)
