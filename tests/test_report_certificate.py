@@ -85,9 +85,18 @@ def six_pose_capture(accel: SensorCalibration, gyro: SensorCalibration, with_mag
     )
 
 
-def full_params(tmp: Path, capture_path: Path) -> Path:
+def still_capture(seconds: float = 300.0) -> Capture:
+    """A still unit: white noise of the noise section's N on every axis (the measured Allan curve)."""
+    n = int(seconds * RATE)
+    acc = np.array([0, 0, STANDARD_GRAVITY]) + 1e-3 * np.sqrt(RATE) * RNG.standard_normal((n, 3))
+    gyro = 2e-4 * np.sqrt(RATE) * RNG.standard_normal((n, 3))
+    return Capture(np.arange(n) / RATE, acc, gyro)
+
+
+def full_params(tmp: Path, capture_path: Path, still_path: Path) -> Path:
     """A parameter file with every section the certificate draws (accel, gyro, noise, thermal, mag,
-    characterisation), its accel and mag sections naming the capture by SHA-256."""
+    characterisation), its accel and mag sections naming the six-pose capture by SHA-256, its noise
+    section the still one."""
     params = ParamsFile(device={"serial": "CERT-1", "model": "imu-sim-mems", "firmware": "1.0.0"})
     source = {"capture": str(capture_path), "sha256": sha256_file(capture_path), "serial": "CERT-1"}
     params.set_section("accel", ACCEL, source)
@@ -117,6 +126,7 @@ def full_params(tmp: Path, capture_path: Path) -> Path:
             },
             "record": {"tau_range_s": [0.01, 2000.0]},
         },
+        {"capture": str(still_path), "sha256": sha256_file(still_path)},
     )
     coeffs = np.zeros((3, 7))
     coeffs[:, 2] = [1e-3, -2e-3, 5e-4]  # linear in T - T_ref
@@ -214,13 +224,17 @@ def test_residuals_per_pose_recover_an_injected_bias_error() -> None:
 def test_a_whole_certificate_with_every_section_and_a_failed_limit(tmp_path: Path) -> None:
     capture_path = tmp_path / "six-pose.csv"
     write_csv(capture_path, six_pose_capture(ACCEL, GYRO, with_mag=True))
-    params = full_params(tmp_path, capture_path)
+    still_path = tmp_path / "still.csv"
+    write_csv(still_path, still_capture())
+    params = full_params(tmp_path, capture_path, still_path)
     (tmp_path / "plan.yaml").write_text(TIGHT_PLAN)
     done = cli(
         "report",
         str(params),
         "--capture",
         str(capture_path),
+        "--capture",
+        str(still_path),
         "--plan",
         "plan.yaml",
         "--operator",
@@ -262,6 +276,8 @@ def test_a_whole_certificate_with_every_section_and_a_failed_limit(tmp_path: Pat
     ):
         assert title in text
     assert text.count("<svg") == 4
+    assert "measured curve with its 68 % interval from " + str(still_path) in text
+    assert "Datasheet figures" in text and "angle random walk" in text
     assert "has no section" not in text  # every section is there
     assert "hard iron" in text and "bias repeatability" in text
     not_blank(screenshot(tmp_path / "unit.html", tmp_path))

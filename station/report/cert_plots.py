@@ -148,8 +148,8 @@ def allan_svg(noise: dict[str, Any], curve: Any = None) -> str:
                 ax.loglog(curve.tau, curve.adev[:, k], ".-", color=colour, lw=1.0, ms=3,
                           label=f"{axis} measured")
         unit = "rad/s" if sensor == "gyro" else "m/s$^2$"
-        ax.set_title(f"{'gyroscope' if sensor == 'gyro' else 'accelerometer'}: model -- with 1-sigma band, "
-                     "terms ..", fontsize=9)
+        ax.set_title(f"{'gyroscope' if sensor == 'gyro' else 'accelerometer'}: dashed the model with its "
+                     "1-sigma band, dotted each term", fontsize=9)
         ax.set_xlabel("averaging time tau [s]")
         ax.set_ylabel(f"Allan deviation [{unit}]")
         ax.grid(True, which="both", alpha=0.3)

@@ -15,13 +15,14 @@ from typing import Any
 
 import station
 from station.errors import StationError
+from station.export.datasheet import datasheet_rows
 from station.export.params_file import SECTIONS, ParamsFile
 from station.factory.records import Measurement, RunRecord
 from station.files import atomic_write_text, sha256_file
 from station.report import cert_plots, parameters
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT
 from station.report.cert_plots import Samples
-from station.report.html import render
+from station.report.html import number, render
 
 REPORTED_SECTIONS = (*SECTIONS, "mag", "characterisation")
 """The parameter file's sections a certificate shows; one absent is named as absent."""
@@ -121,11 +122,26 @@ def _sections(cert: Certificate) -> list[dict[str, Any]]:
     if params.thermal is not None:
         out.append({"name": "thermal", "title": "temperature compensation (thermal)", "method": "",
                     "rows": parameters.thermal_rows(params)})
-    character = params.other.get("characterisation")
-    if isinstance(character, dict):
-        out.append({"name": "characterisation", "title": "characterisation (datasheet figures)", "method": "",
-                    "rows": parameters.characterisation_rows(character)})
     return out
+
+
+def _datasheet(params: ParamsFile | None) -> list[dict[str, Any]]:
+    """The unit's datasheet figures (``station.export.datasheet``): per axis value and 1-sigma or interval."""
+    if params is None:
+        return []
+    rows = []
+    for row in datasheet_rows(params.to_dict()):
+        cells = []
+        for value, unc in zip(row.values, row.uncertainty, strict=True):
+            if value is None:
+                cells.append(number(None))
+            elif isinstance(unc, list | tuple):
+                cells.append(f"{number(value)} [{number(unc[0], 3)}, {number(unc[1], 3)}]")
+            else:
+                cells.append(number(value) + (f" \u00b1 {number(unc, 2)}" if unc is not None else ""))
+        rows.append({"figure": row.figure, "unit": row.unit, "cells": cells,
+                     "measured_by": row.measured_by + (f" [{row.interval}]" if row.interval else "")})
+    return rows
 
 
 def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
@@ -230,6 +246,7 @@ def certificate_context(cert: Certificate) -> dict[str, Any]:
         "other_measurements": [m for m in cert.measurements if m.outcome not in ("PASS", "FAIL")],
         "verdict": verdict,
         "sections": _sections(cert),
+        "datasheet": _datasheet(params),
         "plots": plots,
         "notes": notes,
     }

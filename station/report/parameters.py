@@ -126,24 +126,6 @@ def noise_rows(section: dict[str, Any]) -> list[Row]:
     return rows
 
 
-def characterisation_rows(section: dict[str, Any]) -> list[Row]:
-    """The ``characterisation`` keys present: repeatability in mg and deg/h, the ppm figures as they are."""
-    rows = []
-    known = {"accel_bias_repeatability": ("accelerometer bias repeatability", "mg"),
-             "gyro_bias_repeatability": ("gyroscope bias repeatability", "deg/h"),
-             "gyro_scale_nonlinearity_ppm": ("gyroscope scale non-linearity", "ppm-as-is"),
-             "gyro_scale_asymmetry_ppm": ("gyroscope scale asymmetry", "ppm-as-is")}
-    for key, value in section.items():
-        if key in known and isinstance(value, list):
-            label, unit = known[key]
-            factor = 1.0 if unit == "ppm-as-is" else PEOPLE[unit]
-            rows += [Row(label, AXES[i], _scaled(_at(value, i), factor), None, unit.removesuffix("-as-is"))
-                     for i in range(3)]
-        elif isinstance(value, int | float) and not isinstance(value, bool):
-            rows.append(Row(key.replace("_", " "), "", float(value), None, ""))
-    return rows
-
-
 def thermal_rows(params: ParamsFile) -> list[Row]:
     """The thermal model's reference, calibrated range and segments per triad."""
     model = params.thermal
