@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from mag_helpers import calibrated_acc, errors, polar
 
-from mocks.mag_sessions import mag_capture
+from mocks.mag_sessions import mag_capture, nine_axis_unit
+from mocks.magnetometer import EarthField
 from mocks.truth import UnitTruth
 from station.engines.calibration_mag import MagCalibration, MagCapture, MagSettings, calibrate_mag
 from station.engines.mag_coverage import CELLS, cell_bounds, cell_centres, cell_index, field_coverage
@@ -92,6 +93,18 @@ def test_joint_fit_recovers_the_truth(kind: str, seed: int, target: dict[str, fl
     assert np.all(np.abs(result.bias - truth.mag.hard_iron) < 5 * result.stddev["bias"] + 1e-3)
     assert result.residual_rms < 0.3
     assert not result.disturbances
+
+
+def test_south_of_the_magnetic_equator_with_permuted_axes() -> None:
+    """Negative dip and a magnetometer mounted with x and y swapped and z reversed: the linear start
+    finds the rotation and the sign of the dip."""
+    unit = nine_axis_unit(5, EarthField(55.0, -50.0, 10.0))
+    unit.mag.rotation = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    cap, truth = mag_capture("sphere", 5, truth=unit)
+    result = calibrate_mag(MagCapture(cap.t, cap.mag, calibrated_acc(cap.acc, truth), cap.gyro))
+    err = errors(result.matrix, result.bias, truth)
+    assert all(err[k] < FULL[k] for k in FULL), err
+    assert result.dip_deg == pytest.approx(-50.0, abs=0.1)
 
 
 def test_desk_session_warns_with_the_missing_directions() -> None:
