@@ -156,3 +156,13 @@ def test_mag_section_is_checked_on_read(tmp_path: Path) -> None:
         ParamsFile(other={"mag": good | bad}).save(path)
         with pytest.raises(InputFileError, match=where.replace(".", r"\.")):
             ParamsFile.load(path)
+
+
+def test_world_magnetic_model_matches_its_published_test_values() -> None:
+    """WMM2020 technical report (NOAA/NCEI, BGS), test values: 2020.0, height 0 km, 80 N 0 E:
+    F 54999.4 nT, I 83.14 deg, D -1.28 deg."""
+    model = field_at(80.0, 0.0, 0.0, datetime.date(2020, 1, 1))
+    assert model.magnitude_ut == pytest.approx(54.9994, abs=0.01)
+    assert model.dip_deg == pytest.approx(83.14, abs=0.01)
+    assert model.declination_deg == pytest.approx(-1.28, abs=0.01)
+    assert model.model == "WMM 2020, 2020-01-01"
