@@ -1,9 +1,9 @@
 """The fleet report over 10,000 records, on SQLite and on PostgreSQL: the target is under 5 s.
 
-Generates N synthetic records (``tests/fleet_records.py``: 27 measurements with limits and one
+Generates N synthetic records (``tests/fleet_records.py``: 26 measurements with limits and one
 without, four stations, some units failing), stores them once (``RecordStore.save_many``), then
 times what ``imu-station records report -o fleet.html --json`` does after the process has started:
-the selection (SQL), every statistic, the page with its 27 charts and the JSON. The peer is
+the selection (SQL), every statistic, the page with its 26 charts and the JSON. The peer is
 the path ``imu-station records`` takes for the same selection: every record read back from its
 JSON (``RecordStore.query``) with no statistic at all. One whole ``records report`` process is timed
 too (interpreter start and imports included). PostgreSQL is a private cluster started for the run
