@@ -59,7 +59,7 @@ WARN_COVERAGE = 0.5
 # Still poses the dip constraint needs, and the least spread of their down directions (deg): with
 # one attitude only, the rotation about the field is free.
 MIN_POSES, MIN_DOWN_SPREAD_DEG = 4, 10.0
-# A dip residual beyond this many robust sigmas is a sample that was not still after all.
+# A dip residual beyond this many robust sigmas is a pose that was not still after all.
 DIP_OUTLIER_SIGMAS = 6.0
 # Differences between the estimated dip and the geomagnetic model's worth a warning (deg).
 DIP_WARN_DEG = 3.0
@@ -74,6 +74,8 @@ MAX_DISTURBED = 0.25
 MAX_NOISE_RATIO = 3.0
 # ... and by this factor before the result is refused: no calibration describes such data.
 REFUSE_NOISE_RATIO = 10.0
+# Samples in the magnitude fit at the most (a longer capture is taken at a stride).
+MAX_FIT_SAMPLES = 50_000
 # Outlier-resistant first pass: rounds of reweighting, residuals beyond this share of F weighed down.
 ROBUST_SHARE, ROBUST_ROUNDS = 0.02, 3
 
@@ -280,7 +282,11 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
     gravity = _gravity_reference(data, rows, settings, warnings)
     field_fit = settings.field_ut if settings.field_ut is not None else float(
         np.linalg.det(start.correction) ** (-1.0 / 3.0))
-    problem = JointProblem(m, gravity.m_pose, gravity.down, field_fit)
+    # consecutive samples of a fast magnetometer repeat one another: a stride keeps the magnitude
+    # fit's size bounded (the still poses' means use every sample)
+    step = -(-len(m) // MAX_FIT_SAMPLES)
+    m_fit, t_fit = m[::step], t_m[::step]
+    problem = JointProblem(m_fit, gravity.m_pose, gravity.down, field_fit)
     correction0 = field_fit * start.correction
     sin0 = 0.0
     if problem.joint:
@@ -293,9 +299,12 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
 
     # Step 4: disturbances and still samples that moved, by the first fit's residuals.
     r_norm, r_dip = problem.residual_parts(p)
-    left_out, disturbances = disturbed(t_m, r_norm, field_fit)
+    left_out, disturbances = disturbed(t_fit, r_norm, field_fit)
     keep_norm = ~left_out
-    keep_dip = np.array([not left_out[a:b].any() for a, b in gravity.stretches], bool)
+    spoiled = np.zeros(len(t_m), bool)
+    for d in disturbances:
+        spoiled |= (t_m >= d.t0) & (t_m <= d.t1)
+    keep_dip = np.array([not spoiled[a:b].any() for a, b in gravity.stretches], bool)
     if problem.joint:
         keep_dip &= np.abs(r_dip - np.median(r_dip)) <= DIP_OUTLIER_SIGMAS * max(_robust_sigma(r_dip), 1e-12)
     if left_out.mean() > MAX_DISTURBED:
@@ -310,7 +319,8 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
 
     # Step 5: the final fit, each residual set weighted by its scatter, twice: the second time with
     # the scatter at the optimum, so that s^2 of the covariance is about 1 for both sets.
-    final = replace(problem, m=m[keep_norm], m_still=problem.m_still[keep_dip], down=problem.down[keep_dip])
+    final = replace(problem, m=m_fit[keep_norm], m_still=problem.m_still[keep_dip],
+                    down=problem.down[keep_dip])
     r_norm, r_dip = r_norm[keep_norm], r_dip[keep_dip]
     for _ in range(2):
         final = replace(final, w_norm=max(_rms(r_norm), 1e-9 * field_fit),
