@@ -107,6 +107,17 @@ def test_south_of_the_magnetic_equator_with_permuted_axes() -> None:
     assert result.dip_deg == pytest.approx(-50.0, abs=0.1)
 
 
+def test_magnetometer_slower_than_the_accelerometer() -> None:
+    # a magnetometer read at a quarter of the rate: the rows between hold NaN
+    data, truth = _session("desk", 1)
+    mag = data.mag.copy()
+    mag[np.arange(len(mag)) % 4 != 0] = np.nan
+    result = calibrate_mag(MagCapture(data.t, mag, data.acc, data.gyro))
+    err = errors(result.matrix, result.bias, truth)
+    assert all(err[k] < DESK[k] for k in DESK), err
+    assert result.samples == np.isfinite(mag).all(axis=1).sum()
+
+
 def test_desk_session_warns_with_the_missing_directions() -> None:
     data, _ = _session("desk", 0)
     result = calibrate_mag(data)
