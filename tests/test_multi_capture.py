@@ -23,10 +23,12 @@ from drivers.polled_port import PolledPort
 from mocks.device import SimDevice
 from mocks.pty_fleet import FleetUnit, PtyFleet
 from mocks.pty_server import PtyServer
+from station.acquisition import recorder
 from station.acquisition.capture import read_capture
 from station.acquisition.capture_h5 import read_samples
 from station.acquisition.multi_capture import capture_many, file_stem
 from station.cli import main
+from station.errors import OutputFileError
 
 CLI = [str(Path(sys.executable).with_name("imu-station"))]
 RATE_HZ = 200
@@ -103,6 +105,17 @@ def test_rate_set_on_every_unit_and_a_refused_rate_fails_the_unit(tmp_path: Path
     assert "refused SET_RATE: bad argument" in str(outcome.error)
     assert "no file was written" in str(outcome.error)
     assert not (tmp_path / "fast" / "SIM-000041.csv").exists()
+
+
+def test_a_full_disk_stops_the_capture_with_its_error(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    # The recorder's own disk-space guard, told that no disk has room: the writer thread's error
+    # reaches the caller, and every port and file is closed on the way.
+    monkeypatch.setattr(recorder, "MIN_FREE_BYTES", 1 << 62)
+    with PtyServer(seed=51, rate_hz=RATE_HZ) as a, PtyServer(seed=52, rate_hz=RATE_HZ) as b:
+        with pytest.raises(OutputFileError, match="the disk is almost full"):
+            capture_many([a.port_path, b.port_path], tmp_path, duration_s=5, handle_sigint=False)
+    assert list(tmp_path.iterdir()) == []  # no row was written: no file is left
 
 
 def test_ctrl_c_keeps_every_sample_received(tmp_path: Path) -> None:

@@ -6,6 +6,8 @@ bytes in one batch, so a unit costs a few system calls and one decoder call per 
 its rate (a reader thread per port wakes for every few bytes). Each unit's samples gather
 for ``WRITE_PERIOD_S`` and go to its :class:`~station.acquisition.recorder.Recorder` in one
 batch; the units take turns, so the writes are spread over the period, not all on one turn.
+The recorders write from a thread of their own, in order: a disk that stalls (writeback, a slow
+card) delays the files, never the reading of the ports, whose buffers hold well under a second.
 
 A unit is asked who it is (GET_INFO) as its port opens; its file is ``SERIAL.csv`` (or ``.h5``)
 in the directory, with the serial it reports. A unit that does not answer (twice), or speaks a
@@ -27,6 +29,7 @@ import selectors
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,7 +139,8 @@ class _Unit:
         self.done = False
         self.ended_by = "stopped"
         self.error: DriverError | None = None
-        self.result: CaptureResult | None = None
+        self.result: CaptureResult | None = None  # set by the writer thread once the file is closed
+        self.finishing = False  # the loop is done with it: port closed, the file's close queued
         self.received = 0  # samples read from the port
 
     def receive(self) -> None:
@@ -173,16 +177,22 @@ class _Session:
         self.stems: dict[str, str] = {}  # stem -> port that has it
         self.unopened: list[UnitStatus] = []  # ports that did not open, shown as failed
         self.syncer = FileSyncer() if suffix == ".csv" else None
+        self.writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
+        self.write_error: BaseException | None = None  # the writer thread's first error, for the loop
 
     def close(self) -> None:
-        """Finish every unit still open, then make the files durable a last time."""
+        """Finish every unit still open, wait for the writer thread, then make the files durable a last
+        time; raise what the writer failed with (a full disk)."""
         try:
             for unit in self.units:
-                if unit.result is None:
+                if not unit.finishing:
                     self.finish(unit)
         finally:
+            self.writer.shutdown(wait=True)
             if self.syncer is not None:
                 self.syncer.close()
+        if self.write_error is not None:
+            raise self.write_error
 
     def statuses(self) -> list[UnitStatus]:
         """Every port's line: those that did not open, then the units."""
@@ -268,15 +278,30 @@ class _Session:
         return stem
 
     def write(self, unit: _Unit) -> None:
-        """Give the unit's gathered samples to its recorder in one batch."""
+        """Queue the unit's gathered samples for its recorder, in one batch."""
         rec = unit.recorder
         if rec is None or not unit.batch:
             return
         batch = unit.batch[0] if len(unit.batch) == 1 else np.concatenate(unit.batch)
         unit.batch = []
-        rec.write(batch, _link(unit.port, rec))
-        if rec.full:
-            unit.ended_by, unit.done = "duration", True
+        self.writer.submit(self._guarded, self._record, unit.port, rec, batch)
+
+    @staticmethod
+    def _record(port: PolledPort, rec: Recorder, batch: np.ndarray) -> None:
+        """In the writer thread: one batch to the file, with the link statistics so far (a snapshot of
+        the loop's counters, each read whole)."""
+        rec.write(batch, _link(port, rec))
+
+    def _guarded(self, call: Callable[..., object], *args: object, closing: bool = False) -> None:
+        """Run ``call`` in the writer thread, keeping its first error for the loop to raise. After an
+        error (a full disk) no more samples are written, but every file is still ``closing``."""
+        if self.write_error is not None and not closing:
+            return
+        try:
+            call(*args)
+        except BaseException as exc:  # the loop raises it: nothing of the writer's may pass unseen
+            if self.write_error is None:
+                self.write_error = exc
 
     def check(self, unit: _Unit, now: float, wall_deadline: float | None) -> None:
         """End a unit that sent no sample in time, or ran past the wall-clock guard."""
@@ -291,16 +316,22 @@ class _Session:
             unit.ended_by, unit.done = "duration", True
 
     def finish(self, unit: _Unit) -> None:
-        """Write what is left, close the file and the port, and keep the unit's result."""
-        port = unit.port
+        """Close the unit's port and queue what is left of it: its last samples, then the file's close
+        and the unit's result."""
+        unit.finishing = True
         try:
             if unit.recorder is None:  # the capture ends before the unit was prepared
                 unit.asks.clear()
                 self.open_file(unit)
             self.write(unit)
         finally:
-            port.close()
-        rec = unit.recorder
+            unit.port.close()
+        self.writer.submit(self._guarded, self._close_file, unit, closing=True)
+
+    @staticmethod
+    def _close_file(unit: _Unit) -> None:
+        """In the writer thread: close the unit's file and keep its result."""
+        port, rec = unit.port, unit.recorder
         assert rec is not None  # open_file() made it
         rec.close(_link(port, rec))
         if rec.rows == 0:
@@ -411,16 +442,21 @@ def _serve(session: _Session, selector: selectors.BaseSelector, interrupted: thr
             for key, _ in selector.select(0):
                 key.data.receive()
             now = time.monotonic()
+            if session.write_error is not None:
+                raise session.write_error
             for unit in units:
-                if unit.result is not None:
+                if unit.finishing:
                     continue
-                if unit.recorder is None and not unit.done:
+                rec = unit.recorder
+                if rec is None and not unit.done:
                     session.prepare(unit, now)
+                elif rec is not None and rec.full and not unit.done:  # the writer reached --duration
+                    unit.ended_by, unit.done = "duration", True
                 if unit.done or (turn + unit.index) % write_every == 0:
                     session.write(unit)
                 if not unit.done:
                     session.check(unit, now, wall_deadline)
-                elif unit.result is None:
+                else:
                     selector.unregister(unit.port)
                     session.finish(unit)
             if on_status is not None and now - last_status >= STATUS_INTERVAL_S:
