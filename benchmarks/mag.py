@@ -5,7 +5,8 @@ Fit time on 20,000 samples (100 Hz, a simulated hand-held session, accelerometer
 against the plain algebraic ellipsoid (a linear least-squares quadric, eq. (6) of
 station.engines.mag_fit, the fit Magneto, magcal and the ground stations build on) and the
 station's own plain geometric fit (symmetric C, magnitude residual only: what the joint fit does
-without a gravity reference). Then the accuracy of all three, median over seeds, on full-sphere
+without a gravity reference), and Magneto's fit (Li & Griffiths' ellipsoid-specific least squares,
+written in tests/mag_helpers.py). Then the accuracy of all four, median over seeds, on full-sphere
 sessions, on desk-bound sessions (z axis within 45 deg of up) and near-level desk sessions (20
 deg), and of the joint fit on the raw accelerometer (not calibrated first: its bias and
 misalignment tilt the down direction), against the issue's targets: full sphere hard iron
@@ -28,7 +29,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
-from mag_helpers import calibrated_acc, errors  # noqa: E402
+from mag_helpers import calibrated_acc, errors, magneto  # noqa: E402
 from timing import median_wall_cpu  # noqa: E402
 
 from mocks.mag_sessions import mag_capture  # noqa: E402
@@ -63,6 +64,8 @@ def fits(data: MagCapture, raw_acc: np.ndarray) -> dict[str, tuple[np.ndarray, n
            "plain geometric ellipsoid": (plain.matrix, plain.bias)}
     if algebraic is not None:
         out["plain algebraic ellipsoid"] = (np.linalg.inv(algebraic.correction), algebraic.bias)
+    hard, correction = magneto(data.mag, 50.0)
+    out["Magneto (Li & Griffiths)"] = (np.linalg.inv(correction), hard)
     return out
 
 
@@ -79,12 +82,15 @@ def main() -> None:
     plain_wall, plain_cpu, _ = median_wall_cpu(lambda: calibrate_mag(data, MagSettings(joint=False)),
                                                args.repeats)
     alg_wall, alg_cpu, _ = median_wall_cpu(lambda: ellipsoid_fit(data.mag), args.repeats)
+    mag_wall, mag_cpu, _ = median_wall_cpu(lambda: magneto(data.mag, 50.0), args.repeats)
     print(f"  joint fit (checks, start, robust pass, disturbances, final fit, 1-sigma): "
           f"{joint_wall * 1e3:7.1f} / {joint_cpu * 1e3:7.1f} ms")
     print(f"  plain geometric ellipsoid (the same pipeline, no gravity):               "
           f"{plain_wall * 1e3:7.1f} / {plain_cpu * 1e3:7.1f} ms")
     print(f"  plain algebraic ellipsoid (one linear least squares):                   "
           f"{alg_wall * 1e3:7.1f} / {alg_cpu * 1e3:7.1f} ms")
+    print(f"  Magneto (Li & Griffiths' ellipsoid-specific fit, tests/mag_helpers.py):  "
+          f"{mag_wall * 1e3:7.1f} / {mag_cpu * 1e3:7.1f} ms")
     print(f"  ratio joint / algebraic: {joint_cpu / alg_cpu:.0f}x CPU; joint / plain geometric: "
           f"{joint_cpu / plain_cpu:.2f}x CPU")
 

@@ -48,3 +48,33 @@ def errors(matrix: np.ndarray, bias: np.ndarray, truth: UnitTruth) -> dict[str, 
 def calibrated_acc(acc: np.ndarray, truth: UnitTruth) -> np.ndarray:
     """The accelerometer corrected with the unit's true intrinsics (what a prior calibration gives)."""
     return (np.asarray(acc, float) - truth.accel.bias) @ np.linalg.inv(truth.accel.matrix).T
+
+
+def magneto(m: np.ndarray, field: float) -> tuple[np.ndarray, np.ndarray]:
+    """Li & Griffiths' ellipsoid-specific least squares (IEEE GMP 2004), as Magneto 1.2 applies it:
+    the quadric a x^2 + b y^2 + c z^2 + 2f yz + 2g xz + 2h xy + 2p x + 2q y + 2r z + d = 0 whose
+    first six coefficients are the eigenvector of C^-1 (S11 - S12 S22^-1 S21) with the positive
+    eigenvalue (C the constraint 4J - I^2 > 0 with k = 4); the calibration matrix is
+    F / sqrt(U^T Q^-1 U - d) sqrt(Q). Returns (hard iron, correction)."""
+    x, y, z = m.T
+    design = np.array([x * x, y * y, z * z, 2 * y * z, 2 * x * z, 2 * x * y, 2 * x, 2 * y, 2 * z,
+                       np.ones_like(x)])
+    s = design @ design.T
+    s11, s12, s22 = s[:6, :6], s[:6, 6:], s[6:, 6:]
+    constraint = np.zeros((6, 6))
+    constraint[:3, :3] = [[-1, 1, 1], [1, -1, 1], [1, 1, -1]]
+    constraint[3:, 3:] = -4 * np.eye(3)
+    w, v = np.linalg.eig(np.linalg.inv(constraint) @ (s11 - s12 @ np.linalg.solve(s22, s12.T)))
+    v1 = np.real(v[:, np.argmax(np.real(w))])
+    v2 = -np.linalg.solve(s22, s12.T @ v1)
+    a, b, c, f, g, h = v1
+    q = np.array([[a, h, g], [h, b, f], [g, f, c]])
+    u = v2[:3]
+    if a < 0:                                     # the eigenvector's sign is free: Q positive definite
+        q, u, d = -q, -u, -v2[3]
+    else:
+        d = v2[3]
+    centre = -np.linalg.solve(q, u)
+    wq, vq = np.linalg.eigh(q)
+    root = (vq * np.sqrt(wq)) @ vq.T
+    return centre, field / np.sqrt(u @ np.linalg.solve(q, u) - d) * root
