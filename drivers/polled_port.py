@@ -6,7 +6,9 @@ it, not by a reader thread of its own: it exposes the port's file descriptor for
 :meth:`PolledPort.send` writes a command without waiting for its answer. One loop can so serve
 many ports in one thread, decoding each port's bytes in one batch per turn (a thread per port
 wakes for every few bytes: that wake-up, not the decoding, is what a unit costs at 1 kHz).
-The blocking calls of the interface (``read(timeout)``, the commands) are built on the same two.
+The blocking calls of the interface (``read(timeout)``, the commands) are built on the same two;
+``read(timeout)`` returns as soon as bytes are there, so a loop that wants batches waits between
+its calls, as an event loop does.
 
 It needs a port with a file descriptor: a device path or a pty, not a pyserial URL such as
 ``sim://`` (served by a Python object, not by the kernel).
@@ -22,11 +24,7 @@ from typing import Any
 import numpy as np
 import serial
 
-from drivers.errors import (
-    DriverError,
-    PortError,
-    PortLost,
-)
+from drivers.errors import DriverError, PortError, PortLost
 from drivers.interface import Device
 from drivers.link_stats import LinkMonitor, LinkStats
 from drivers.message_log import MessageLog, no_answer, unsupported
