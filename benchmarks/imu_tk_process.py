@@ -30,7 +30,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +37,8 @@ import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+from process_timing import ProcessRun, run_process  # noqa: E402
 
 XSENS = REPO / "tests" / "data" / "xsens-imu_tk"
 BUILD = REPO.parent / "shared" / "peers" / "imu_tk" / "build.sh"
@@ -78,16 +79,6 @@ def inputs(folder: Path) -> tuple[Path, Path, Path]:
     return paths[0], paths[1], csv
 
 
-def wall(cmd: list[str], env: dict[str, str] | None = None) -> float:
-    """Wall seconds of one process, which must succeed."""
-    start = time.perf_counter()
-    done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
-    seconds = time.perf_counter() - start
-    if done.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}): {done.stderr[-1000:]}")
-    return seconds
-
-
 def imu_tk_parameters(binaries: Path, acc: Path, gyro: Path) -> dict[str, np.ndarray]:
     """acc_T, acc_K, acc_B, gyro_T, gyro_K, gyro_B from imu_tk's full-precision dump."""
     out = subprocess.run([str(binaries / "test_imu_calib_dump"), str(acc), str(gyro)], check=True,
@@ -112,6 +103,11 @@ def compare(params: Path, ref: dict[str, np.ndarray]) -> list[tuple[str, float]]
     return rows
 
 
+def median(runs: list[ProcessRun], what: str) -> float:
+    """Median wall or CPU seconds of some runs."""
+    return statistics.median(getattr(r, what) for r in runs)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -119,9 +115,9 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "imu-station" / "imu_tk")
     args = parser.parse_args()
 
-    helps = [wall([*STATION, "--help"]) for _ in range(args.repeats)]
-    print(f"start-up: imu-station --help {statistics.median(helps):.3f} s (median of {args.repeats}; "
-          "target under 0.15 s)")
+    helps = [run_process([*STATION, "--help"]) for _ in range(args.repeats)]
+    print(f"start-up: imu-station --help {median(helps, 'wall'):.3f} s wall, "
+          f"{median(helps, 'cpu'):.3f} s CPU (median of {args.repeats}; target under 0.15 s)")
     binaries = build_imu_tk(args.cache)
     with tempfile.TemporaryDirectory(prefix="imu-tk-bench-") as tmp:
         acc, gyro, csv = inputs(Path(tmp))
@@ -130,25 +126,28 @@ def main() -> None:
         two_threads = dict(os.environ, OPENBLAS_NUM_THREADS="2")
         if isinstance(binaries, str):
             print(f"imu_tk: skipped, {binaries}")
-            ours = [wall(station) for _ in range(args.repeats)]
+            ours = [run_process(station) for _ in range(args.repeats)]
             print(f"imu-station calibrate --method free --imu-tk, whole process: "
-                  f"{statistics.median(ours):.3f} s")
+                  f"{median(ours, 'wall'):.3f} s wall, {median(ours, 'cpu'):.3f} s CPU")
             return
         theirs, ours, ours_two = [], [], []
-        wall(station)  # compiled modules cached before the first timed run
+        run_process(station)  # compiled modules cached before the first timed run
         for _ in range(args.repeats):
-            theirs.append(wall([str(binaries / "test_imu_calib_quiet"), str(acc), str(gyro)]))
-            ours.append(wall(station))
-            ours_two.append(wall(station, env=two_threads))
-        t_ref, t_ours, t_two = (statistics.median(v) for v in (theirs, ours, ours_two))
-        print(f"imu_tk's Xsens session, whole processes, median of {args.repeats} alternating runs:")
-        print(f"  imu_tk (C++/Ceres, test_imu_calib_quiet):        {t_ref:.3f} s  "
-              f"(runs {' '.join(format(v, '.2f') for v in theirs)})")
-        print(f"  imu-station calibrate --method free --imu-tk:     {t_ours:.3f} s  "
-              f"(runs {' '.join(format(v, '.2f') for v in ours)})")
-        print(f"  ratio station / imu_tk: {t_ours / t_ref:.2f} ({'faster' if t_ours < t_ref else 'SLOWER'})")
-        print(f"  the station with OpenBLAS on two threads:        {t_two:.3f} s (one thread is the default: "
-              f"{t_two / t_ours:.2f}x its time)")
+            theirs.append(run_process([str(binaries / "test_imu_calib_quiet"), str(acc), str(gyro)]))
+            ours.append(run_process(station))
+            ours_two.append(run_process(station, env=two_threads))
+        print(f"imu_tk's Xsens session, whole processes, median of {args.repeats} alternating runs "
+              "(wall; CPU = user + system of the process):")
+        for name, runs in (("imu_tk (C++/Ceres, test_imu_calib_quiet)", theirs),
+                           ("imu-station calibrate --method free --imu-tk", ours),
+                           ("the same, OpenBLAS on two threads", ours_two)):
+            print(f"  {name:46s} {median(runs, 'wall'):.3f} s wall, {median(runs, 'cpu'):.3f} s CPU "
+                  f"(walls {' '.join(format(r.wall, '.2f') for r in runs)})")
+        print(f"  ratio station / imu_tk: wall {median(ours, 'wall') / median(theirs, 'wall'):.2f}, "
+              f"CPU {median(ours, 'cpu') / median(theirs, 'cpu'):.2f} (below 1: the station is faster)")
+        print(f"  two OpenBLAS threads against one: "
+              f"wall x{median(ours_two, 'wall') / median(ours, 'wall'):.2f}, "
+              f"CPU x{median(ours_two, 'cpu') / median(ours, 'cpu'):.2f}")
         print("parameters against imu_tk's (largest relative difference):")
         for name, diff in compare(params, imu_tk_parameters(binaries, acc, gyro)):
             print(f"  {name:16s} {diff:.1e}")

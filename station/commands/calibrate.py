@@ -273,9 +273,7 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
     CalibrationReport
         Both triads with their 1-sigma, per-pose residuals and warnings.
     """
-    from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
-    from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
-
+    # each method's engine loads only when it runs (the other costs 20 ms of start-up)
     gravity = local_gravity(args)
     has_labels = capture.step is not None and any(str(s).strip() for s in capture.step)
     method = args.method if args.method != "auto" else ("turntable" if has_labels else "free")
@@ -283,9 +281,17 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
     rate = args.rate if args.rate is not None else capture.device.get("rate_hz")
     rate = float(rate) if rate is not None else None
     if method == "turntable":
+        from station.engines.calibration_turntable import (
+            TurntableCapture,
+            TurntableSettings,
+            calibrate_turntable,
+        )
+
         latitude = None if args.no_earth_rate else args.latitude
         return calibrate_turntable(TurntableCapture(capture.t, capture.acc, capture.gyro, capture.step, rate),
                                    TurntableSettings(gravity=gravity, latitude_deg=latitude))
+    from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
+
     settings = FreeSettings.imu_tk() if args.imu_tk else FreeSettings(window_s=args.window)
     settings = dataclasses.replace(settings, gravity=gravity, convention=args.convention)
     if args.gyro_bias is not None:

@@ -50,9 +50,10 @@ def span(t: np.ndarray, sl: slice) -> str:
     return f"t = {t[sl.start]:.2f}..{t[sl.stop - 1]:.2f} s"
 
 
-def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label: str,
+def _check_saturation(x: np.ndarray, extremes: np.ndarray, name: str, t: np.ndarray, sl: slice, label: str,
                       noisy: np.ndarray) -> None:
-    """Refuse a step where an axis sits at the capture's extreme value for several samples.
+    """Refuse a step where an axis sits at the capture's extreme value (``extremes``: (2, 3), the
+    capture's maxima and minima, found once for every step) for several samples.
 
     Only axes that show noise in the static steps (``noisy``) are checked: there a run of
     identical samples at the extreme is a clipped signal, not a steady one.
@@ -61,7 +62,7 @@ def _check_saturation(x: np.ndarray, name: str, t: np.ndarray, sl: slice, label:
     for i, axis in enumerate("xyz"):
         if not noisy[i]:
             continue
-        for extreme in (x[:, i].max(), x[:, i].min()):
+        for extreme in extremes[:, i]:
             _, run = pinned_run(seg[:, i], extreme)
             if run >= SATURATION_RUN:
                 raise EngineInputError(
@@ -103,6 +104,7 @@ def check_steady_steps(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, statics
     level = float(np.median([np.linalg.norm(acc[sl].mean(axis=0)) for _, sl in statics]))
     acc_noisy = _shows_noise(acc, statics)
     gyro_noisy = _shows_noise(gyro, statics)
+    acc_extremes, gyro_extremes = (np.stack([x.max(axis=0), x.min(axis=0)]) for x in (acc, gyro))
     for (label, sl), s in zip(statics, spread, strict=True):
         if s > MOTION_FACTOR * typical and s > MOTION_FLOOR * level:
             raise EngineInputError(
@@ -114,9 +116,9 @@ def check_steady_steps(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, statics
                 f"the unit moved during static step '{label}' ({span(t, sl)}): its accelerometer scatter "
                 f"{s:.4g} is {s / level:.1%} of the gravity reading; repeat the step holding the unit still, "
                 "or check that the step labels cover only the holds (not the moves between them)")
-        _check_saturation(acc, "accelerometer", t, sl, label, acc_noisy)
+        _check_saturation(acc, acc_extremes, "accelerometer", t, sl, label, acc_noisy)
     for label, sl in rotations:
-        _check_saturation(gyro, "gyroscope", t, sl, label, gyro_noisy)
+        _check_saturation(gyro, gyro_extremes, "gyroscope", t, sl, label, gyro_noisy)
 
 
 def check_rotation_gaps(t: np.ndarray, rotations: Steps) -> None:

@@ -1,0 +1,35 @@
+"""Whole-process timing for the benchmarks that compare commands with other programs: wall and CPU seconds
+of a child process (CPU from its own rusage, so a run on a shared machine still compares the work done),
+and the child's peak resident memory."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import time
+from dataclasses import dataclass
+
+
+@dataclass
+class ProcessRun:
+    """One child process: wall seconds, CPU seconds (user + system), peak resident memory in bytes."""
+
+    wall: float
+    cpu: float
+    peak: int
+
+
+def run_process(cmd: list[str], env: dict[str, str] | None = None) -> ProcessRun:
+    """Run ``cmd`` to completion (it must succeed), output discarded; its wall time, CPU and peak RSS."""
+    start = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    assert proc.stderr is not None
+    err = proc.stderr.read()
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - start
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    proc.stderr.close()
+    if proc.returncode != 0:
+        message = err.decode(errors="replace")[-1000:]
+        raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}): {message}")
+    return ProcessRun(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024)
