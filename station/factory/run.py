@@ -10,9 +10,10 @@ Phases, in order (each a phase of the record, OpenHTF style)::
     calibrate  the engine on the capture; parameters measured against the plan's limits
     export     params.yaml and the plan's export formats, beside the record
 
-Whatever the outcome, a run that got as far as the unit's folder ends by writing the unit's
-calibration certificate there (``certificate.html``, ``station.report``), attached to the record
-with its SHA-256 like every other file.
+A run that got to its export phase (PASS or FAIL: the unit was calibrated) ends by writing the
+unit's calibration certificate beside the record (``certificate.html``, ``station.report``),
+attached to the export phase with its SHA-256 like every other file; a run cut short before has
+no calibration to certify.
 
 Outcome and exit code: PASS 0, FAIL 1 (a measurement outside its limits, or the unit reports
 another serial), ABORTED 2 (a step kept failing its checks, the calibration could not be
@@ -302,10 +303,11 @@ class UnitRun:
         return self.record
 
     def _certify(self) -> None:
-        """Write the certificate beside the record and attach it to the last phase; a certificate that
-        cannot be written is logged and noted, never the run's failure."""
+        """Write the certificate beside the record and attach it to the export phase; a certificate
+        that cannot be written is logged and noted, never the run's failure."""
         assert self.files is not None
-        if not self.record.phases:
+        export = next((p for p in self.record.phases if p.name == "export"), None)
+        if export is None:
             return
         captures = []
         raw = next((a for a in self.record.attachments() if a.name == RAW_CAPTURE), None)
@@ -316,9 +318,9 @@ class UnitRun:
             write_certificate(from_record(self.record, captures), path)
         except (StationError, OSError, ValueError) as exc:
             log.warning("the calibration certificate was not written: %s", exc)
-            self.record.phases[-1].notes.append(f"calibration certificate not written: {exc}")
+            export.notes.append(f"calibration certificate not written: {exc}")
             return
-        self._attach(self.record.phases[-1], path, CERTIFICATE_NAME)
+        self._attach(export, path, CERTIFICATE_NAME)
 
     def _phase_broke(self) -> None:
         """The phase under way when the run was cut short did not pass."""
