@@ -173,6 +173,14 @@ def test_without_accelerometer_the_fit_is_symmetric_in_the_sensor_frame() -> Non
     assert err["hard_ut"] < FULL["hard_ut"] and err["shape_pct"] < FULL["shape_pct"]
 
 
+def test_still_only_when_level_gives_the_plain_fit_and_says_why() -> None:
+    # the desk session's tilted holds cut to 0.1 s: the unit rests only when level
+    cap, truth = mag_capture("desk", 7, hold_s=0.1)
+    result = calibrate_mag(MagCapture(cap.t, cap.mag, calibrated_acc(cap.acc, truth), cap.gyro))
+    assert result.frame == "sensor"
+    assert any("within 10 deg of one tilt" in w and "several tilts" in w for w in result.warnings)
+
+
 def test_uncalibrated_accelerometer_is_warned_about() -> None:
     cap, _ = mag_capture("sphere", 0)
     result = calibrate_mag(MagCapture(cap.t, cap.mag, cap.acc, cap.gyro))

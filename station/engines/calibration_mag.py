@@ -384,8 +384,9 @@ def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings
                         "magnetometer's own axes instead")
         return replace(none, noise=noise)
     if _spread_deg(down) < MIN_DOWN_SPREAD_DEG:
-        warnings.append("the unit was held still in one attitude only: the rotation to the accelerometer "
-                        "needs still poses at several tilts; fitted in the magnetometer's own axes instead")
+        warnings.append(f"the still poses are all within {MIN_DOWN_SPREAD_DEG:g} deg of one tilt: the "
+                        "rotation to the accelerometer needs still poses at several tilts (hold the unit "
+                        "still for a second at each); fitted in the magnetometer's own axes instead")
         return replace(none, noise=noise)
     spread = gravity_spread(acc, still)
     if spread is not None and spread > GRAVITY_SPREAD:
