@@ -18,7 +18,6 @@ full pty refused).
 
 from __future__ import annotations
 
-import errno
 import fcntl
 import os
 import struct
@@ -30,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mocks.device import SimDevice
+from mocks.pty_server import read_host
 from mocks.raw_pty import open_raw_pty
 
 MODES = ("stream", "garbage", "silent", "vanish")
@@ -197,14 +197,7 @@ class PtyFleet:
 
     def _serve_one(self, feed: _Feed, now: float) -> None:
         unit, stats = feed.unit, feed.stats
-        try:
-            host_bytes = os.read(feed.master, 4096)
-        except BlockingIOError:
-            host_bytes = b""
-        except OSError as exc:
-            if exc.errno != errno.EIO:
-                raise
-            host_bytes = b""
+        host_bytes = read_host(feed.master)
         if host_bytes:
             if not stats.started:
                 stats.started, feed.t0 = True, now

@@ -61,6 +61,19 @@ class ServerStats:
         return self.samples / self.device_time_s if self.device_time_s > 0 else 0.0
 
 
+def read_host(master: int) -> bytes | None:
+    """What the host wrote to a non-blocking pty master (``b""`` when nothing), or None while nobody
+    has the port open (the master then reads EIO)."""
+    try:
+        return os.read(master, 4096)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        if exc.errno != errno.EIO:
+            raise
+        return None
+
+
 class PtyServer(PtyService):
     """A simulated unit on a pty: ``with PtyServer(seed=3) as srv: serial.Serial(srv.port_path)``.
 
@@ -208,13 +221,8 @@ class PtyServer(PtyService):
             self._read_host()
 
     def _read_host(self) -> None:
-        try:
-            data = os.read(self._master, 4096)
-        except BlockingIOError:
-            data = b""
-        except OSError as exc:
-            if exc.errno != errno.EIO:
-                raise
+        data = read_host(self._master)
+        if data is None:
             if self._host:
                 self._host = False
                 self._pending.clear()
