@@ -28,6 +28,8 @@ EXPORT_FORMATS = ("c", "bin", "json", "yaml", "px4", "ardupilot")
 """``station.export.writers.FORMATS``."""
 EXPORT_MAX_INSTANCE = {"px4": 3, "ardupilot": 2}
 """``station.export.writers.MAX_INSTANCE``: the highest sensor instance each autopilot has parameters for."""
+RECORD_OUTCOMES = ("PASS", "FAIL", "ABORTED", "TIMEOUT", "ERROR")
+"""``station.factory.records.OUTCOMES``: the outcomes a run record can have."""
 SIM_SCENARIOS = ("still", "chamber", "six-position", "twelve-position", "six-position-static", "handheld",
                  "mag-sphere", "mag-desk")
 """``mocks.device.SCENARIOS``: how the simulated unit moves."""

@@ -5,8 +5,10 @@ names --help shows without loading the registries are checked against the regist
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -15,19 +17,21 @@ from station import cli, cli_options
 HEAVY = ("numpy", "scipy", "matplotlib", "h5py", "textual", "serial", "yaml", "rich")
 
 PROBE = """
-import json, sys
+import json, os, sys
 from station.cli import main
 try:
     main(json.loads(sys.argv[1]))
 except SystemExit:
     pass
-print(json.dumps(sorted(m for m in sys.modules if '.' not in m)))
+print(json.dumps(sorted(m for m in sys.modules if sys.argv[2] == "all" or '.' not in m)))
 """
 
 
-def _loaded(argv: list[str]) -> tuple[set[str], str]:
-    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(argv)], capture_output=True, text=True,
-                          timeout=60, check=True)
+def _loaded(argv: list[str], every: bool = False, env: dict[str, str] | None = None) -> tuple[set[str], str]:
+    """The modules ``imu-station ARGV`` loaded in a fresh interpreter (top-level packages, or ``every``
+    module), and what it printed."""
+    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(argv), "all" if every else "top"],
+                          capture_output=True, text=True, timeout=60, check=True, env=env)
     *shown, modules = done.stdout.strip().splitlines()
     return set(json.loads(modules)), "\n".join(shown)
 
@@ -46,6 +50,50 @@ def test_a_command_still_loads_what_it_needs() -> None:
     assert {"numpy", "yaml"} <= modules
 
 
+def test_help_loads_no_record_store_nor_frame_reader() -> None:
+    modules, _ = _loaded(["--help"], every=True)
+    assert not modules & {"station.factory.records", "sqlite3", "station.frame_file", "protocols.frame"}
+
+
+def test_free_calibration_loads_only_what_it_uses(tmp_path) -> None:
+    # imu_tk's Xsens session through the whole command: no scipy (the fits are numpy's), not the turntable
+    # engine, not the frame-description reader; OpenBLAS held to one thread unless the user chose
+    import numpy as np
+
+    from station.acquisition.capture import Capture
+    from station.acquisition.capture_csv import write_csv
+
+    folder = Path(__file__).parent / "data" / "xsens-imu_tk"
+    acc, gyro = (np.loadtxt(folder / f"xsens_{name}.txt.gz") for name in ("acc", "gyro"))
+    csv = tmp_path / "xsens.csv"
+    write_csv(csv, Capture(acc[:, 0], acc[:, 1:], gyro[:, 1:]))
+    argv = ["calibrate", str(csv), "--method", "free", "--imu-tk", "--gravity", "9.81744", "--convention",
+            "upper", "--initial-still", "50", "--json"]
+    modules, shown = _loaded(argv, every=True)
+    assert '"method": "free' in shown
+    assert "numpy" in modules and "station.engines.calibration_free" in modules
+    unneeded = {"scipy", "station.engines.calibration_turntable", "station.frame_file", "protocols.frame",
+                "matplotlib", "h5py"}
+    assert not modules & unneeded, sorted(modules & unneeded)
+
+
+@pytest.mark.parametrize("preset", [None, "3"])
+def test_openblas_threads_default_to_one(preset: str | None) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if preset is not None:
+        env["OPENBLAS_NUM_THREADS"] = preset
+    code = ("import os, station.cli, numpy, threadpoolctl; "
+            "print(os.environ['OPENBLAS_NUM_THREADS'], "
+            "[i['num_threads'] for i in threadpoolctl.threadpool_info() if i['internal_api'] == 'openblas'])")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                          check=True, env=env)
+    value, threads = done.stdout.split(" ", 1)
+    # the user's setting is left alone (OpenBLAS caps it at the cores it finds)
+    assert value == (preset or "1")
+    if preset is None:
+        assert json.loads(threads) == [1]
+
+
 def test_the_names_help_shows_are_the_registries() -> None:
     import mocks.encoders_extra  # noqa: F401
     from drivers import DEFAULT_BAUDRATE
@@ -53,6 +101,7 @@ def test_the_names_help_shows_are_the_registries() -> None:
     from protocols.registry import DECODER_OPTIONS, DECODERS
     from station.engines import allan_fit, allan_terms
     from station.export.writers import FORMATS, MAX_INSTANCE
+    from station.factory.records import OUTCOMES
 
     assert cli_options.DEFAULT_BAUDRATE == DEFAULT_BAUDRATE
     assert cli_options.PROTOCOLS == tuple(sorted(DECODERS))
@@ -60,5 +109,6 @@ def test_the_names_help_shows_are_the_registries() -> None:
     assert cli_options.EXPORT_FORMATS == FORMATS
     assert cli_options.EXPORT_MAX_INSTANCE == MAX_INSTANCE
     assert cli_options.SIM_SCENARIOS == tuple(SCENARIOS)
+    assert cli_options.RECORD_OUTCOMES == OUTCOMES
     assert cli_options.SIM_ENCODERS == tuple(sorted(ENCODERS))
     assert allan_fit.TERMS is allan_terms.TERMS

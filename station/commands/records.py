@@ -9,14 +9,15 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import add_db_arguments, add_output_option, db_url
+from station.cli_options import RECORD_OUTCOMES, add_db_arguments, add_output_option, db_url
 from station.errors import ExitCode, StationError
-from station.factory.records import OUTCOMES, RecordStore, RunRecord, utc_now
 from station.files import atomic_write_text
 from station.text import printable
 
 if TYPE_CHECKING:
     from rich.table import Table
+
+    from station.factory.records import RunRecord
 
 NAME = "records"
 HELP = "list factory run records by serial and date, export a unit's history as JSON, verify files"
@@ -57,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_db_arguments(parser)
     parser.add_argument("--serial", metavar="SN", help="only this unit")
     parser.add_argument("--station", metavar="ID", help="only this station")
-    parser.add_argument("--outcome", type=str.upper, choices=OUTCOMES, help="only this outcome")
+    parser.add_argument("--outcome", type=str.upper, choices=RECORD_OUTCOMES, help="only this outcome")
     parser.add_argument("--since", metavar="DATE", help="started on or after (2026-11-22 or ISO date-time)")
     parser.add_argument("--until", metavar="DATE",
                         help="started on or before (a date includes the whole day)")
@@ -94,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
     """Query, print, export, plot and verify the records; exit 1 when --verify finds a problem."""
     from rich.console import Console
 
+    # the record store (sqlite3, uuid, hashlib) loads when a command runs, not for --help
+    from station.factory.records import RecordStore, utc_now
     from station.factory.trend_plot import left_out, write_trend_plot
 
     url = db_url(args)
@@ -144,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace, url: str) -> int:
     """The fleet report: the page (-o), its PDF (--pdf) and the statistics (--json)."""
+    from station.factory.records import RecordStore
     from station.report.attachments import CERTIFICATE_NAME
     from station.report.fleet import collect, fleet_json, render_fleet
 
