@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from report_helpers import check_page, cli, not_blank, pdf_pages, screenshot
+from report_helpers import check_page, chromium, cli, not_blank, pdf_pages, screenshot
 
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import Capture
@@ -222,6 +222,7 @@ def test_residuals_per_pose_recover_an_injected_bias_error() -> None:
 
 
 def test_a_whole_certificate_with_every_section_and_a_failed_limit(tmp_path: Path) -> None:
+    chromium()  # --pdf needs it: skipped, saying so, where it is not installed
     capture_path = tmp_path / "six-pose.csv"
     write_csv(capture_path, six_pose_capture(ACCEL, GYRO, with_mag=True))
     still_path = tmp_path / "still.csv"

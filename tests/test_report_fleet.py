@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fleet_records import OFF_STATION, fleet_records
-from report_helpers import check_page, cli, not_blank, pdf_pages, screenshot
+from report_helpers import check_page, chromium, cli, not_blank, pdf_pages, screenshot
 from test_factory_records import private_postgres
 
 from station.factory.records import RecordStore, RunRecord
@@ -133,6 +133,7 @@ def test_postgres_gives_the_same_statistics(line) -> None:
 
 
 def test_records_report_page_json_and_pdf(line, tmp_path: Path) -> None:
+    chromium()  # --pdf needs it: skipped, saying so, where it is not installed
     work, records = line
     done = cli("records", "report", "--db", str(work / "line.sqlite"), "-o", str(tmp_path / "fleet.html"),
                "--pdf", str(tmp_path / "fleet.pdf"), "--json", cwd=tmp_path)
@@ -169,3 +170,8 @@ def test_filters_select_and_an_empty_selection_is_refused(line, tmp_path: Path) 
     assert done.returncode == 4 and "-o FILE.html" in done.stderr
     done = cli("records", "--db", db, "-o", "x.html", cwd=tmp_path)
     assert done.returncode == 4 and "records report" in done.stderr
+    # no Chromium: the page is written, the PDF refused with what to install
+    done = cli("records", "report", "--db", db, "-o", "page.html", "--pdf", "page.pdf", cwd=tmp_path,
+               env={"IMU_STATION_CHROMIUM": "no-such-browser"})
+    assert done.returncode == 4 and "apt-get install chromium" in done.stderr
+    assert (tmp_path / "page.html").exists() and not (tmp_path / "page.pdf").exists()

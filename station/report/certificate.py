@@ -62,6 +62,17 @@ def _utc_now() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
+def _when(stamp: str) -> str:
+    """A stored UTC time (``2026-11-26T16:47:21.151209Z``) as people read it; as given when it is not one."""
+    try:
+        moment = _dt.datetime.fromisoformat(stamp.replace("Z", "+00:00"))
+    except ValueError:
+        return stamp or "not recorded"
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=_dt.UTC)
+    return moment.astimezone(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
 def _section_capture(cert: Certificate, section: str) -> CaptureFile | None:
     """The given capture the section was computed from: the one whose SHA-256 its ``sources`` entry names."""
     if cert.params is None:
@@ -234,7 +245,7 @@ def certificate_context(cert: Certificate) -> dict[str, Any]:
         "station": cert.station or (record.station if record is not None else "") or "not given",
         "operator": cert.operator or "not given",
         "version": station.__version__,
-        "calibrated": calibrated,
+        "calibrated": _when(calibrated),
         "issued": _utc_now(),
         "run_id": record.run_id if record is not None else "",
         "reason": record.reason if record is not None else "",
