@@ -30,6 +30,12 @@ or a factory plan's with --plan), and saves them to
 --out (and any --export format). Long recordings: an Allan recording with a live Allan
 deviation plot, and a temperature-sweep monitor for the thermal fit.
 
+The magnetometer step (key m, for a unit that reports a magnetometer): the two halves of the sphere
+of field directions are drawn with the directions seen so far; the screen says which way to turn
+the unit next and ends by itself at 80 % of the sphere (Enter ends it earlier, from 50 %). Its
+capture goes beside --capture FILE.csv as FILE-mag.csv (else PARAMS-mag-capture.csv beside --out),
+for calibrate --method mag. A unit without a magnetometer is told apart and the step says so.
+
 With --simulate a simulated operator places a simulated unit (served on a pseudo-terminal) as
 each step asks: Enter alone accepts every prompt and runs the whole flow.
 
@@ -51,6 +57,7 @@ examples:
   imu-station tui --port /dev/ttyUSB0 --out unit42.yaml --export c
   imu-station tui --simulate --sequence six-position --hold 2 --out sim.yaml
   imu-station tui --simulate --speed 4 --out sim.yaml          (a quick demonstration)
+  imu-station tui --simulate --mag --speed 4 --out sim.yaml    (then m: the magnetometer step)
   imu-station tui --port /dev/ttyACM0 --sequence my-fixture.yaml --no-rotations
   imu-station tui --port /dev/ttyUSB0 --plan line-a.yaml --out unit42.yaml  (the line's limits)"""
 
@@ -92,6 +99,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="judge the results against this factory plan's limits (imu-station run's plan) "
                         "instead of the built-in loose ones; the header and the results say which")
     parser.add_argument("--seed", type=SEED, default=0, help="--simulate: which simulated unit (default 0)")
+    parser.add_argument("--mag", action="store_true",
+                        help="--simulate: the simulated unit has a magnetometer (m: the magnetometer step)")
     parser.add_argument("--rate", type=positive("Hz", MAX_SIM_RATE_HZ), default=200.0, metavar="HZ",
                         help="--simulate: the simulated unit's sample rate (default 200)")
     parser.add_argument("--speed", type=SPEED, default=1.0, metavar="X",
@@ -130,7 +139,7 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
                      rotations=not args.no_rotations, out=args.out, capture=args.capture, export=args.export,
                      export_dir=args.export_dir, hold_s=args.hold, rotation_rate_dps=args.rotation_rate,
                      seed=args.seed, rate_hz=args.rate, speed=args.speed, allan_minutes=args.allan_minutes,
-                     plan=load_plan(args.plan) if args.plan is not None else None)
+                     plan=load_plan(args.plan) if args.plan is not None else None, mag=args.mag)
 
 
 def run(args: argparse.Namespace) -> int:

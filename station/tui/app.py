@@ -48,6 +48,7 @@ class StationApp(App[int]):
         Binding("w", "show('wizard')", "wizard", show=False),
         Binding("a", "show('allan')", "Allan", show=False),
         Binding("t", "show('thermal')", "thermal", show=False),
+        Binding("m", "show('mag')", "magnetometer", show=False),
     ]
 
     def __init__(self, config: TuiConfig) -> None:
@@ -114,6 +115,10 @@ class StationApp(App[int]):
             screen = AllanScreen()
         elif name == "thermal":
             screen = ThermalScreen()
+        elif name == "mag":
+            from station.tui.screens.mag import MagScreen
+
+            screen = MagScreen()
         else:
             raise ValueError(name)
         self.switch_screen(screen)

@@ -30,6 +30,7 @@ class TuiConfig:
     speed: float = 1.0
     allan_minutes: float = 60.0
     plan: Plan | None = None  # whose limits judge the results (None: the built-in ones)
+    mag: bool = False  # the simulated unit has a magnetometer
 
     def capture_path(self) -> Path | None:
         """Where the labelled capture goes: ``--capture``, else beside ``--out``."""
@@ -37,4 +38,13 @@ class TuiConfig:
             return self.capture
         if self.out is not None:
             return self.out.with_name(self.out.stem + "-capture.csv")
+        return None
+
+    def mag_capture_path(self) -> Path | None:
+        """Where the magnetometer step's capture goes: beside ``--capture`` (``NAME-mag.csv``), else
+        beside ``--out``."""
+        if self.capture is not None:
+            return self.capture.with_name(self.capture.stem + "-mag" + self.capture.suffix)
+        if self.out is not None:
+            return self.out.with_name(self.out.stem + "-mag-capture.csv")
         return None

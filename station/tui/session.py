@@ -49,7 +49,12 @@ def open_simulated(config: TuiConfig) -> Session:
     from mocks.device import SimDevice
     from mocks.pty_server import PtyServer
 
-    device = SimDevice(seed=config.seed, rate_hz=config.rate_hz, scenario="still")
+    truth = None
+    if config.mag:
+        from mocks.mag_sessions import nine_axis_unit
+
+        truth = nine_axis_unit(config.seed)
+    device = SimDevice(truth, seed=config.seed, rate_hz=config.rate_hz, scenario="still")
     server = PtyServer(device, speed=config.speed).start()
     try:
         port = open_device(server.port_path, protocol="native")

@@ -221,6 +221,8 @@ class WizardScreen(StationScreen):
         path = self.station.config.capture_path()
         if path is not None:
             text.append(f"\nCapture saved to {path}")
+        if result.capture.mag is not None:
+            text.append("\nThe unit has a magnetometer: m for the magnetometer step")
         text.append("\nEnter: compute the calibration and show the results · q: quit")
         self.query_one("#prompt", Static).update(text)
         self.query_one("#capture", ProgressBar).update(progress=0.0)
