@@ -12,9 +12,11 @@ white noise plus a random walk (N and K known), in chunks, so that making it nee
   same cluster sizes (``station.engines.allan.cluster_sizes``: 10 per decade up to N/4), its wall time.
 
 Prints the medians, the ratio of the command's time for six axes to allantools' for one, the peak memory
-against the 1 GiB budget, the largest relative difference of the two deviations on that axis, and N and
-K of every axis beside the injected ones. ``--also-hours 48`` does the command alone on a 48 h file (the
-allantools run would not fit in memory beside it). The files are deleted at the end.
+against the 1 GiB budget, the largest relative difference of the two deviations on that axis, N and
+K of every axis beside the injected ones, and where the command's time goes (reading and integrating,
+the deviation of six axes, the noise-model fit) in one more run. ``--also-hours 48`` does the command
+alone on a 48 h file (the allantools run would not fit in memory beside it). The files are deleted at
+the end.
 """
 
 from __future__ import annotations
@@ -80,7 +82,7 @@ def measured_child(args: list[str]) -> dict:
 
 
 def child_command(path: str, workdir: str) -> None:
-    """Measure one command run from a helper process of its own: ru_maxrss of its only child is exact."""
+    """Measure one command run from a helper process of its own: the rusage of its only child is exact."""
     import resource
 
     curve = Path(workdir) / "curve.csv"
@@ -90,11 +92,12 @@ def child_command(path: str, workdir: str) -> None:
     wall = time.perf_counter() - start
     if done.returncode != 0:
         raise SystemExit(f"imu-station allan failed ({done.returncode}): {done.stderr[-2000:]}")
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)  # of its only child: the command
     table = np.genfromtxt(curve, delimiter=",", names=True)
     curve.unlink()
-    print(json.dumps({"wall": wall, "peak": peak, "result": json.loads(done.stdout),
-                      "tau": table["tau"].tolist(), "gx": table["gx"].tolist()}))
+    print(json.dumps({"wall": wall, "cpu": usage.ru_utime + usage.ru_stime, "peak": usage.ru_maxrss * 1024,
+                      "result": json.loads(done.stdout), "tau": table["tau"].tolist(),
+                      "gx": table["gx"].tolist()}))
 
 
 def child_allantools(path: str) -> None:
@@ -107,10 +110,35 @@ def child_allantools(path: str) -> None:
     with h5py.File(path, "r") as f:
         y = f["gyro"][:, 0].astype(np.float64)
     m = cluster_sizes(len(y))
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     taus, adev, _, _ = allantools.oadev(y, rate=RATE, data_type="freq", taus=m / RATE)
-    wall = time.perf_counter() - start
-    print(json.dumps({"wall": wall, "m": m.tolist(), "taus": taus.tolist(), "adev": adev.tolist()}))
+    wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+    print(json.dumps({"wall": wall, "cpu": cpu, "m": m.tolist(), "taus": taus.tolist(),
+                      "adev": adev.tolist()}))
+
+
+def child_phases(path: str, workdir: str) -> None:
+    """The command's stages timed in one process: reading and integrating, the curve, the fit."""
+    from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
+    from station.engines.allan import allan_curve, cluster_sizes
+    from station.engines.allan_fit import identify_noise
+
+    times = {}
+    start, start_cpu = time.perf_counter(), time.process_time()
+
+    def lap(name: str) -> None:
+        nonlocal start, start_cpu
+        times[name] = (time.perf_counter() - start, time.process_time() - start_cpu)
+        start, start_cpu = time.perf_counter(), time.process_time()
+
+    chunks, _, _ = capture_chunks(path)
+    with integrate_stream(chunks, path, workdir=workdir) as record:
+        lap("read and integrate (allan_source)")
+        curve = allan_curve(record.phase, record.rate_hz, AXES, cluster_sizes(record.n_samples))
+        lap("Allan deviation, six axes (engines.allan)")
+        identify_noise(curve, record.phase)
+        lap("noise model fit (engines.allan_fit)")
+    print(json.dumps(times))
 
 
 def terms(result: dict) -> list[tuple[float | None, float | None]]:
@@ -133,12 +161,16 @@ def main() -> None:
     parser.add_argument("--dir", type=Path, default=None, help="folder for the files (default: temp)")
     parser.add_argument("--child-command", nargs=2, metavar=("FILE", "WORKDIR"), help=argparse.SUPPRESS)
     parser.add_argument("--child-allantools", metavar="FILE", help=argparse.SUPPRESS)
+    parser.add_argument("--child-phases", nargs=2, metavar=("FILE", "WORKDIR"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child_command:
         child_command(*args.child_command)
         return
     if args.child_allantools:
         child_allantools(args.child_allantools)
+        return
+    if args.child_phases:
+        child_phases(*args.child_phases)
         return
 
     with tempfile.TemporaryDirectory(prefix="allan-day-", dir=args.dir) as tmp:
@@ -156,8 +188,12 @@ def main() -> None:
             ours.append(run)
             result = run["result"]
             reference = measured_child(["--child-allantools", str(path)])
-            theirs.append(reference["wall"])
+            theirs.append(reference)
         report(ours, theirs, result, reference, args.repeats)
+        phases = measured_child(["--child-phases", str(path), str(folder)])
+        print("where the command's time goes (one run, in one process; wall, CPU):")
+        for name, (wall, cpu) in phases.items():
+            print(f"  {name:44s} {wall:6.1f} s {cpu:6.1f} s")
         path.unlink()
         if args.also_hours:
             path = folder / "long.h5"
@@ -174,18 +210,17 @@ def main() -> None:
     print(f"load average at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 
-def report(ours: list[dict], theirs: list[float], result: dict, reference: dict,
-           repeats: int) -> None:
-    """The figures of the 12 h comparison."""
-    wall = statistics.median(r["wall"] for r in ours)
+def report(ours: list[dict], theirs: list[dict], result: dict, reference: dict, repeats: int) -> None:
+    """The figures of the 12 h comparison (wall, and CPU: user + system of the processes)."""
+    wall, cpu = (statistics.median(r[k] for r in ours) for k in ("wall", "cpu"))
+    ref, ref_cpu = (statistics.median(r[k] for r in theirs) for k in ("wall", "cpu"))
     peak = max(r["peak"] for r in ours)
-    ref = statistics.median(theirs)
-    print(f"imu-station allan, six axes, whole process: {wall:.1f} s wall (median of {repeats}; "
-          f"runs {', '.join(format(r['wall'], '.1f') for r in ours)})")
-    print(f"allantools.oadev, ONE axis in memory:      {ref:.1f} s wall (median of {repeats}; "
-          f"runs {', '.join(format(t, '.1f') for t in theirs)})")
-    print(f"ratio six axes / allantools one axis: {wall / ref:.2f} (target < 1); "
-          f"per axis {wall / 6 / ref:.3f}")
+    print(f"imu-station allan, six axes, whole process: {wall:.1f} s wall, {cpu:.1f} s CPU (median of "
+          f"{repeats}; walls {', '.join(format(r['wall'], '.1f') for r in ours)})")
+    print(f"allantools.oadev, ONE axis in memory:      {ref:.1f} s wall, {ref_cpu:.1f} s CPU (median of "
+          f"{repeats}; walls {', '.join(format(r['wall'], '.1f') for r in theirs)})")
+    print(f"ratio six axes / allantools one axis: wall {wall / ref:.2f}, CPU {cpu / ref_cpu:.2f} "
+          "(target < 1)")
     print(f"peak memory of the command: {peak / GIB:.2f} GiB ({peak / 1e6:.0f} MB), "
           f"{'within' if peak <= GIB else 'OVER'} the 1 GiB budget")
     ours_gx, ref_gx = np.asarray(ours[-1]["gx"]), np.asarray(reference["adev"])
