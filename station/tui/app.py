@@ -49,6 +49,7 @@ class StationApp(App[int]):
         Binding("a", "show('allan')", "Allan", show=False),
         Binding("t", "show('thermal')", "thermal", show=False),
         Binding("m", "show('mag')", "magnetometer", show=False),
+        Binding("o", "show('turnons')", "turn-ons", show=False),
     ]
 
     def __init__(self, config: TuiConfig) -> None:
@@ -119,6 +120,10 @@ class StationApp(App[int]):
             from station.tui.screens.mag import MagScreen
 
             screen = MagScreen()
+        elif name == "turnons":
+            from station.tui.screens.turn_ons import TurnOnsScreen
+
+            screen = TurnOnsScreen()
         else:
             raise ValueError(name)
         self.switch_screen(screen)

@@ -16,6 +16,8 @@ HELP = """\
                                              unsaved results)
   l        live view              w          sequence wizard
   a        Allan recording        t          temperature sweep
+  o        turn-on repeatability (restarts the unit, or asks
+           you to power-cycle it)
 
 [b]Connect[/b]
   up/down  choose a port          Enter      connect, then the live view

@@ -1,0 +1,182 @@
+"""Turn-on repeatability: the unit recorded still over several power-ups, then the spread of its biases.
+
+Before each record but the first the unit is restarted with RESTART; a unit that answers ACK status 1
+cannot restart itself, and a prompt asks the operator to power-cycle it (its serial link stays open:
+a unit powered apart from its link, such as a board behind a USB-serial adapter) and press Enter.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+from rich.text import Text
+from textual import work
+from textual.widgets import Static
+from textual.worker import get_current_worker
+
+from drivers import CommandRejected, SerialDevice
+from drivers.errors import DriverError
+from protocols import native
+from station.engines.characterisation_turnon import reduce_record, turn_on_repeatability
+from station.errors import StationError
+from station.export.datasheet import datasheet_rows, format_table
+from station.export.params_characterisation import merged, repeatability_keys
+from station.export.params_file import ParamsFile
+from station.tui.messages import LinkFailed, Snapshot
+from station.tui.plot import Series, draw
+from station.tui.screens.ask import AskScreen
+from station.tui.screens.long_recording import LongRecordingScreen
+
+COLORS = ("red", "green", "blue")
+TURN_ONS = 5
+STILL_S = 30.0
+RESTART_SETTLE_S = 0.2  # after the ACK: the old power-up's samples are flushed
+UI_PERIOD_S = 0.25
+
+
+class TurnOnsScreen(LongRecordingScreen):
+    """``turn_ons`` still records of ``still_s`` device seconds, one per power-up; then eq. (1)-(3) of
+    ``characterisation_turnon`` and the ``characterisation`` section (its other keys kept)."""
+
+    HEADING = "Turn-on repeatability"
+    KIND = "turn-ons"
+    SECTION = "characterisation"
+    INTRO = "Keep the unit still in one pose: it is restarted between records."
+    FITTING = "computing the turn-on repeatability ..."
+
+    def __init__(self, turn_ons: int = TURN_ONS, still_s: float = STILL_S) -> None:
+        super().__init__()
+        self.turn_ons = turn_ons
+        self.still_s = still_s
+        self.records: list[np.ndarray] = []
+        self._powered = threading.Event()
+        self._abandoned = False
+
+    @work(thread=True, exclusive=True, group="reader")
+    def _read(self) -> None:
+        worker = get_current_worker()
+        device = self.session.device
+        try:
+            for k in range(self.turn_ons):
+                if k and not self._restart(device, k):
+                    break
+                batches: list[np.ndarray] = []
+                count, last = 0, 0.0
+                device.read(0)  # the old power-up's samples
+                while not worker.is_cancelled:
+                    batch = device.read(0.05)
+                    if len(batch):
+                        batches.append(batch)
+                        self.recording.add(batch)
+                        count += len(batch)
+                    got = np.concatenate(batches) if batches else batch
+                    elapsed = (float(got["t_us"][-1]) - float(got["t_us"][0])) * 1e-6 if count > 1 else 0.0
+                    if time.monotonic() - last >= UI_PERIOD_S or elapsed >= self.still_s:
+                        last = time.monotonic()
+                        self.post_message(Snapshot({"turn_on": k, "elapsed": elapsed, "count": count}))
+                    if elapsed >= self.still_s:
+                        self.records.append(got)
+                        break
+                if worker.is_cancelled:
+                    return
+            self.post_message(Snapshot({"done": True}))  # all recorded, or the operator stopped
+        except DriverError as exc:
+            self.post_message(LinkFailed(exc))
+
+    def _restart(self, device: Any, k: int) -> bool:
+        """Restart the unit for turn-on ``k``, or have the operator power-cycle it; False if abandoned."""
+        try:
+            if not isinstance(device, SerialDevice):
+                raise CommandRejected("the unit has no RESTART", "", native.ACK_UNKNOWN)
+            device.restart()
+            time.sleep(RESTART_SETTLE_S)
+            return True
+        except CommandRejected as exc:
+            if exc.status != native.ACK_UNKNOWN:
+                raise
+        self._powered.clear()
+        self.post_message(Snapshot({"power_cycle": k}))
+        self._powered.wait()
+        return not self._abandoned
+
+    def show_progress(self, d: dict[str, Any]) -> None:
+        """The turn-on being recorded, or the power-cycle prompt; the means so far."""
+        if d.get("done"):
+            self.action_stop()
+            return
+        if "power_cycle" in d:
+            self._ask_power_cycle(d["power_cycle"])
+            return
+        side = Text()
+        side.append(f"turn-on {d['turn_on'] + 1} of {self.turn_ons}  ", style="bold")
+        side.append(f"{d['elapsed']:.1f} s of {self.still_s:g} s still, {d['count']} samples\n")
+        side.append("Keep the unit still in one pose; it is restarted before each record.\n")
+        side.append("Enter: stop and compute from the turn-ons recorded · Escape: back", style="bold")
+        self.query_one("#side", Static).update(side)
+        self._draw_means()
+
+    def _ask_power_cycle(self, k: int) -> None:
+        def answered(reply: tuple[str, str] | None) -> None:
+            self._abandoned = reply is None or reply[0] != "c"
+            self._powered.set()
+
+        self.app.push_screen(AskScreen(
+            f"Turn-on {k + 1}: the unit cannot restart itself (RESTART answered status 1). Switch it off, "
+            "wait a few seconds, switch it on, then press Enter.",
+            [("c", "it is back on: record"), ("x", "stop here")]), answered)
+
+    def _draw_means(self) -> None:
+        if not self.records:
+            return
+        gyro = np.array([r["gyro"].astype(float).mean(axis=0) for r in self.records])
+        acc = np.array([r["acc"].astype(float).mean(axis=0) for r in self.records])
+        x = np.arange(1, len(self.records) + 1, dtype=float)
+        gyro_plot, acc_plot = self.plots()
+        draw(gyro_plot, [Series(f"g{a}", x, (gyro[:, j] - gyro[:, j].mean()) * 180 / np.pi, COLORS[j])
+                         for j, a in enumerate("xyz")],
+             title="gyro mean - its average", xlabel="turn-on", ylabel="deg/s")
+        draw(acc_plot, [Series(f"a{a}", x, acc[:, j] - acc[:, j].mean(), COLORS[j])
+                        for j, a in enumerate("xyz")],
+             title="accel mean - its average", xlabel="turn-on", ylabel="m/s^2")
+
+    def on_unmount(self) -> None:
+        """Leaving the screen abandons a pending power-cycle prompt (the reader must not wait on)."""
+        self._abandoned = True
+        self._powered.set()
+        super().on_unmount()
+
+    def action_stop(self) -> None:
+        """Enter: stop (a pending power-cycle prompt is abandoned) and compute."""
+        self._abandoned = True
+        self._powered.set()
+        super().action_stop()
+
+    @work(thread=True, exclusive=True, group="fit")
+    def _fit(self) -> None:
+        try:
+            reduced = []
+            for k, rec in enumerate(self.records):
+                t = (rec["t_us"].astype(np.float64) - float(rec["t_us"][0])) * 1e-6
+                reduced.append(reduce_record(f"turn-on {k + 1}", t, rec["acc"].astype(float),
+                                             rec["gyro"].astype(float)))
+            acc, gyro = turn_on_repeatability(reduced)
+            keys = repeatability_keys(acc, gyro, [r.source for r in reduced])
+            out = self.station.config.out
+            held = ParamsFile.load(out).other.get(self.SECTION) if out is not None and out.exists() else None
+            section = merged(held, keys)
+        except StationError as exc:
+            self.post_message(LinkFailed(exc))
+            return
+        self.post_message(Snapshot({"fit": keys, "section": section}))
+
+    def show_fit(self, fit: dict[str, Any]) -> None:
+        """The repeatability of both triads, as the datasheet shows it."""
+        self._draw_means()
+        text = Text(format_table(datasheet_rows({"characterisation": fit})))
+        if self.recording.path is not None:
+            text.append(f"\nrecording in {self.recording.path}")
+        self.query_one("#side", Static).update(text)
+
