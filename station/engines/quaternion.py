@@ -115,7 +115,33 @@ def left_matrix(p: np.ndarray) -> np.ndarray:
 
 def _pure(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, float)
-    return np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
+    out = np.zeros(v.shape[:-1] + (4,))
+    out[..., 1:] = v
+    return out
+
+
+def _times_pure(p: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """p (x) (0, v): ``qmul`` with the second factor's scalar part zero (12 products, not 16)."""
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    out = np.empty(np.broadcast_shapes(p.shape, v.shape[:-1] + (4,)))
+    out[..., 0] = -(px * vx + py * vy + pz * vz)
+    out[..., 1] = pw * vx + py * vz - pz * vy
+    out[..., 2] = pw * vy - px * vz + pz * vx
+    out[..., 3] = pw * vz + px * vy - py * vx
+    return out
+
+
+def _pure_times(v: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(0, v) (x) q: ``qmul`` with the first factor's scalar part zero."""
+    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(np.broadcast_shapes(v.shape[:-1] + (4,), q.shape))
+    out[..., 0] = -(vx * qx + vy * qy + vz * qz)
+    out[..., 1] = vx * qw + vy * qz - vz * qy
+    out[..., 2] = vy * qw - vx * qz + vz * qx
+    out[..., 3] = vz * qw + vx * qy - vy * qx
+    return out
 
 
 def rk4_step(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
@@ -151,12 +177,12 @@ def rk4_step(w0: np.ndarray, w1: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray
     w0 = np.asarray(w0, float)
     w1 = np.asarray(w1, float)
     dt = np.asarray(dt, float)[..., None]
-    h0 = _pure(0.5 * w0)
-    h1 = _pure(0.5 * w1)
-    hm = _pure(0.25 * (w0 + w1))
-    b2 = hm + 0.5 * dt * qmul(h0, hm)
-    b3 = hm + 0.5 * dt * qmul(b2, hm)
-    b4 = h1 + dt * qmul(b3, h1)
+    # h0, hm, h1 are pure: their products skip the zero scalar part
+    v0, vm, v1 = 0.5 * w0, 0.25 * (w0 + w1), 0.5 * w1
+    h0, hm, h1 = _pure(v0), _pure(vm), _pure(v1)
+    b2 = hm + 0.5 * dt * _pure_times(v0, hm)
+    b3 = hm + 0.5 * dt * _times_pure(b2, vm)
+    b4 = h1 + dt * _times_pure(b3, v1)
     a = dt / 6.0 * (h0 + 2.0 * b2 + 2.0 * b3 + b4)
     a[..., 0] += 1.0
     return a, (h0, hm, h1, b2, b3)
@@ -212,15 +238,17 @@ def rk4_step_gradients(u: np.ndarray, dt: np.ndarray, stages: tuple[np.ndarray, 
     tuple of ndarray
         u da/dw0 and u da/dw1, each (..., m, 3).
     """
-    # each stage broadcast over the m rows; u R(p) = u (x) p*, u L(p) = p* (x) u (see conjugate)
-    h0, hm, h1, b2, b3 = (conjugate(stage)[..., None, :] for stage in stages)
+    # each stage broadcast over the m rows; u R(p) = u (x) p*, u L(p) = p* (x) u (see conjugate); h0, hm
+    # and h1 are pure, their conjugates the negated vector parts
+    h0, hm, h1 = (-np.asarray(stage, float)[..., None, 1:] for stage in stages[:3])
+    b2, b3 = (conjugate(stage)[..., None, :] for stage in stages[3:])
     u = np.asarray(u, float)
     dt = np.asarray(dt, float)[..., None, None]
-    v3 = 2.0 * u + dt * qmul(u, h1)
-    v2 = 2.0 * u + 0.5 * dt * qmul(v3, hm)
+    v3 = 2.0 * u + dt * _times_pure(u, h1)
+    v2 = 2.0 * u + 0.5 * dt * _times_pure(v3, hm)
     common = (0.5 * u[..., 1:] + 0.25 * (v3[..., 1:] + v2[..., 1:])
-              + 0.125 * dt * (qmul(b2, v3)[..., 1:] + qmul(h0, v2)[..., 1:]))
-    g0 = dt / 6.0 * (common + 0.25 * dt * qmul(v2, hm)[..., 1:])
+              + 0.125 * dt * (qmul(b2, v3)[..., 1:] + _pure_times(h0, v2)[..., 1:]))
+    g0 = dt / 6.0 * (common + 0.25 * dt * _times_pure(v2, hm)[..., 1:])
     g1 = dt / 6.0 * (common + 0.5 * dt * qmul(b3, u)[..., 1:])
     return g0, g1
 
