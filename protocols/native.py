@@ -259,8 +259,9 @@ class NativeDecoder(StreamDecoderBase):
             if not found:
                 break
             samples, used = decode_sample_frames(memoryview(buf)[pos:])
-            if not used:
+            if not used and len(buf) - pos > 2 and buf[pos + 2] == IMU_MAG_SAMPLE:
                 samples, used = decode_mag_frames(memoryview(buf)[pos:])
+                self._mag = self._mag or bool(used)
             if used:
                 batches.append(samples)
                 pos += used
@@ -299,7 +300,11 @@ class NativeDecoder(StreamDecoderBase):
             pos = end
         if pos:
             del buf[:pos]
-        samples = self._joined(batches)
+        if self._mag:
+            samples = self._joined(batches)
+        else:  # a six-axis stream: IMU_SAMPLE records only, as fast as before the field existed
+            samples = batches[0] if len(batches) == 1 else (
+                np.concatenate(batches) if batches else EMPTY_SAMPLES)
         stats.frames += len(samples)
         stats.samples += len(samples)
         return Decoded(samples, messages)
