@@ -324,3 +324,30 @@ def test_capture_field_scales_an_xsens_units_field(tmp_path: Path) -> None:
     assert truth is not None and cap.mag is not None and len(cap) > 100
     assert abs(np.linalg.norm(truth.correct(cap.mag), axis=1).mean() - 50.0) < 0.1
     assert read_capture(tmp_path / "plain.csv").mag is None
+
+
+def test_sequence_runner_carries_the_field_to_its_capture_and_file(tmp_path: Path) -> None:
+    from station.acquisition.operator import ScriptedOperator, SimulatedOperator
+    from station.acquisition.recorder import Recorder
+    from station.acquisition.runner import RecorderSink, SequenceRunner
+    from station.acquisition.sequences import PoseStep, Sequence
+
+    truth = nine_axis_unit(9)
+    server = PtyServer(SimDevice(truth, seed=9, rate_hz=200.0, scenario="still"), speed=4.0).start()
+    try:
+        with open_device(server.port_path) as device:
+            device.get_info()
+            path = tmp_path / "run.h5"
+            recorder = Recorder(path, device=device.info, with_step=True, port=device.port, protocol="native")
+            seq = Sequence("two", (PoseStep("+z", 0.6), PoseStep("-x", 0.6)))
+            operator = SimulatedOperator(server.device, ScriptedOperator(), move_s=0.4)
+            result = SequenceRunner(device, seq, operator, sink=RecorderSink(recorder, device)).run()
+            recorder.close()
+    finally:
+        server.stop()
+    assert result.outcome == "completed"
+    for cap in (result.capture, read_capture(path)):
+        assert cap.mag is not None and len(cap.mag) == len(cap)
+        up = {label: truth.mag.correct(cap.mag[rows]).mean(axis=0) for label, rows in cap.segments()}
+        # lying flat the field's vertical part is on -z; on its side (-x up) on +x
+        assert up["+z"][2] < -30 and up["-x"][0] > 30
