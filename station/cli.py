@@ -9,7 +9,6 @@ Nothing but this module imports a command module.
 from __future__ import annotations
 
 import argparse
-import difflib
 import importlib
 import os
 import re
@@ -68,6 +67,8 @@ def _did_you_mean(message: str) -> str:
         return ""
     # Python 3.11 quotes the choices, later versions do not
     choices = [c.strip().strip("'") for c in found.group(2).split(",")]
+    import difflib  # only for a mistyped command: 5 ms of every start-up otherwise
+
     close = difflib.get_close_matches(found.group(1), choices, n=3, cutoff=0.6)
     return f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
 

@@ -17,10 +17,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import shutil
-import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -357,6 +354,11 @@ C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
 def export_firmware(ctx: DemoContext) -> None:
     """imu_calib.h/.c/.bin into ``out_dir/firmware`` as `export --format c` writes them; with gcc,
     compile them and check that the blob corrects a raw sample as the station does."""
+    # the compiler's tools load here, not at every start-up (--help included)
+    import shutil
+    import subprocess
+    import tempfile
+
     import numpy as np
 
     from station.engines.correction import apply_calibration
