@@ -25,7 +25,7 @@ from station.factory.plan import SCHEMA as PLAN_SCHEMA
 from station.factory.records import RecordStore
 from station.files import sha256_file
 from station.report import parameters
-from station.report.cert_plots import pose_residuals
+from station.report.cert_plots import pose_residuals, thermal_points
 
 RATE = 100.0
 POSES = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -43,6 +43,15 @@ GYRO = SensorCalibration.from_parts(
     np.zeros((3, 3)),
     np.array([0.01, -0.02, 0.005]),
     method="turntable: rotations",
+)
+_COEFFS = np.zeros((3, 7))
+_COEFFS[:, 2] = [1e-3, -2e-3, 5e-4]  # linear in T - T_ref
+_COEFFS[:, 1] = [2e-5, 1e-5, -1e-5]
+THERMAL = ThermalModel(
+    25.0,
+    DtempFilter(),
+    accel=ThermalBias([ThermalSegment(-10, 60, _COEFFS)]),
+    gyro=ThermalBias([ThermalSegment(-10, 60, _COEFFS * 1e-2)]),
 )
 MAG_MATRIX = np.diag([1.1, 0.95, 1.02])
 MAG_BIAS = np.array([12.0, -7.0, 30.0])
@@ -93,10 +102,44 @@ def still_capture(seconds: float = 300.0) -> Capture:
     return Capture(np.arange(n) / RATE, acc, gyro)
 
 
-def full_params(tmp: Path, capture_path: Path, still_path: Path) -> Path:
+def thermal_sweep(model: ThermalModel, factor: float = 1.0) -> Capture:
+    """Twenty minutes on +z, then on -z, at 10 Hz while the temperature climbs 0 -> 50 degC: the raw
+    readings carry the intrinsics and ``factor`` times the model's thermal bias."""
+    n = 12000
+    temp = np.linspace(0.0, 50.0, 2 * n)
+    up = np.repeat([[0, 0, 1.0], [0, 0, -1.0]], n, axis=0)
+    assert model.accel is not None and model.gyro is not None
+    thermal_a = model.accel.evaluate(temp, np.zeros_like(temp), model.reference_temp)
+    thermal_g = model.gyro.evaluate(temp, np.zeros_like(temp), model.reference_temp)
+    acc = STANDARD_GRAVITY * up @ ACCEL.matrix.T + ACCEL.bias + factor * thermal_a
+    gyro = GYRO.bias + factor * thermal_g + 1e-5 * RNG.standard_normal((2 * n, 3))
+    return Capture(
+        np.arange(2 * n) / 10.0,
+        acc + 2e-3 * RNG.standard_normal((2 * n, 3)),
+        gyro,
+        temp=temp,
+        step=np.array(["+z"] * n + ["-z"] * n),
+    )
+
+
+def test_thermal_points_follow_the_model_they_were_made_with() -> None:
+    params = ParamsFile(accel=ACCEL, gyro=GYRO, thermal=THERMAL)
+    points = thermal_points(thermal_sweep(THERMAL), params)
+    for name in ("accel", "gyro"):
+        temp, bias = points[name]
+        model = getattr(THERMAL, name).evaluate(temp, np.zeros_like(temp), THERMAL.reference_temp)
+        span = np.ptp(model, axis=0).max()
+        assert len(temp) == 80 and temp.min() < 1.0 and temp.max() > 49.0
+        assert np.abs(bias - model).max() < 0.02 * span, name  # within 2 % of the model's own range
+        # a sweep with twice the thermal bias does not follow the model: the plot would show it
+        doubled = thermal_points(thermal_sweep(THERMAL, 2.0), params)[name][1]
+        assert np.abs(doubled - model).max() > 0.15 * span, name  # each pose spans half the sweep
+
+
+def full_params(tmp: Path, capture_path: Path, still_path: Path, sweep_path: Path) -> Path:
     """A parameter file with every section the certificate draws (accel, gyro, noise, thermal, mag,
     characterisation), its accel and mag sections naming the six-pose capture by SHA-256, its noise
-    section the still one."""
+    section the still one, its thermal section the sweep."""
     params = ParamsFile(device={"serial": "CERT-1", "model": "imu-sim-mems", "firmware": "1.0.0"})
     source = {"capture": str(capture_path), "sha256": sha256_file(capture_path), "serial": "CERT-1"}
     params.set_section("accel", ACCEL, source)
@@ -128,18 +171,7 @@ def full_params(tmp: Path, capture_path: Path, still_path: Path) -> Path:
         },
         {"capture": str(still_path), "sha256": sha256_file(still_path)},
     )
-    coeffs = np.zeros((3, 7))
-    coeffs[:, 2] = [1e-3, -2e-3, 5e-4]  # linear in T - T_ref
-    coeffs[:, 1] = [2e-5, 1e-5, -1e-5]
-    params.set_section(
-        "thermal",
-        ThermalModel(
-            25.0,
-            DtempFilter(),
-            accel=ThermalBias([ThermalSegment(-10, 60, coeffs)]),
-            gyro=ThermalBias([ThermalSegment(-10, 60, coeffs * 1e-2)]),
-        ),
-    )
+    params.set_section("thermal", THERMAL, {"capture": str(sweep_path), "sha256": sha256_file(sweep_path)})
     params.set_section(
         "mag",
         {
@@ -227,7 +259,9 @@ def test_a_whole_certificate_with_every_section_and_a_failed_limit(tmp_path: Pat
     write_csv(capture_path, six_pose_capture(ACCEL, GYRO, with_mag=True))
     still_path = tmp_path / "still.csv"
     write_csv(still_path, still_capture())
-    params = full_params(tmp_path, capture_path, still_path)
+    sweep_path = tmp_path / "sweep.csv"
+    write_csv(sweep_path, thermal_sweep(THERMAL))
+    params = full_params(tmp_path, capture_path, still_path, sweep_path)
     (tmp_path / "plan.yaml").write_text(TIGHT_PLAN)
     done = cli(
         "report",
@@ -236,6 +270,8 @@ def test_a_whole_certificate_with_every_section_and_a_failed_limit(tmp_path: Pat
         str(capture_path),
         "--capture",
         str(still_path),
+        "--capture",
+        str(sweep_path),
         "--plan",
         "plan.yaml",
         "--operator",
@@ -279,6 +315,7 @@ def test_a_whole_certificate_with_every_section_and_a_failed_limit(tmp_path: Pat
     assert text.count("<svg") == 4
     assert "measured curve with its 68 % interval from " + str(still_path) in text
     assert "Datasheet figures" in text and "angle random walk" in text
+    assert "30 s block means of " + str(sweep_path) in text
     assert "has no section" not in text  # every section is there
     assert "hard iron" in text and "bias repeatability" in text
     not_blank(screenshot(tmp_path / "unit.html", tmp_path))

@@ -15,6 +15,7 @@ import numpy as np
 from station.engines.allan import allan_curve, integrate_rates
 from station.engines.allan_fit import TERMS, basis, model_avar
 from station.engines.calibration_common import pose_vector
+from station.engines.thermal_blocks import block_ids, still_poses
 from station.export.allan_plot import COLORS
 from station.export.allan_report import SENSOR_AXES
 from station.export.params_file import ParamsFile
@@ -22,13 +23,17 @@ from station.report.parameters import PEOPLE
 from station.report.svg import new_figure, to_svg
 
 MIN_ALLAN_SAMPLES = 1000  # below this a measured curve says nothing the model does not
+THERMAL_BLOCK_S = 30.0  # block means of the sweep drawn against the model: the bias moves slowly
 
 
 class Samples(Protocol):
     """What the plots read of a capture (``station.acquisition.capture.Capture`` is one): SI arrays."""
 
+    t: np.ndarray
     acc: np.ndarray
     gyro: np.ndarray
+    temp: np.ndarray | None
+    step: np.ndarray | None
     mag: np.ndarray | None
 
     @property
@@ -164,8 +169,59 @@ def _axis_value(values: Any, j: int) -> float | None:
     return float(values[j])
 
 
-def thermal_svg(params: ParamsFile) -> str:
-    """The thermal bias model at dT = 0 per triad and axis across its range (flat, dashed, where clamped)."""
+def thermal_points(sweep: Samples, params: ParamsFile) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The sweep's bias against temperature, as the model should follow it: per triad, block
+    temperatures (B,) and bias (B, 3) in SI.
+
+    Still samples (``thermal_blocks.still_poses``) are averaged in blocks of about
+    :data:`THERMAL_BLOCK_S`; the bias is the block mean less the calibration's bias, less a constant
+    per pose (gravity or the Earth's rate through the intrinsics) taken as the pose's mean departure
+    from the model, so every pose lines up on the model where the data agree with it.
+
+    Parameters
+    ----------
+    sweep : Samples
+        A capture with temperature (the thermal section's).
+    params : ParamsFile
+        Its ``thermal`` section, and ``accel``/``gyro`` for their static bias where present.
+
+    Returns
+    -------
+    dict
+        ``accel`` and/or ``gyro`` to (temperatures, bias); empty without temperature or still blocks.
+    """
+    model = params.thermal
+    if model is None or sweep.temp is None:
+        return {}
+    temp = np.asarray(sweep.temp, dtype=float)
+    pose, _ = still_poses(sweep.t, sweep.acc, sweep.gyro, sweep.step)
+    ids = block_ids(pose, np.isfinite(temp), max(int(THERMAL_BLOCK_S * sweep.rate_hz), 2))
+    used = ids >= 0
+    if not used.any():
+        return {}
+    count = np.bincount(ids[used])
+    block_temp = np.bincount(ids[used], weights=temp[used]) / count
+    block_pose = np.zeros(len(count), dtype=int)
+    block_pose[ids[used]] = pose[used]
+    out = {}
+    for name, raw in (("accel", sweep.acc), ("gyro", sweep.gyro)):
+        bias = getattr(model, name)
+        if bias is None:
+            continue
+        means = np.column_stack([np.bincount(ids[used], weights=raw[used, j]) / count for j in range(3)])
+        static = getattr(params, name)
+        if static is not None:
+            means = means - static.bias
+        departure = means - bias.evaluate(block_temp, np.zeros_like(block_temp), model.reference_temp)
+        for p in np.unique(block_pose):
+            means[block_pose == p] -= departure[block_pose == p].mean(axis=0)
+        out[name] = (block_temp, means)
+    return out
+
+
+def thermal_svg(params: ParamsFile, points: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> str:
+    """The thermal bias model at dT = 0 per triad and axis across its range (dashed where clamped),
+    with the sweep's block means (:func:`thermal_points`) where given."""
     model = params.thermal
     assert model is not None  # the caller draws this only for a file with a thermal section
     triads = [(name, bias) for name in ("accel", "gyro") if (bias := getattr(model, name)) is not None]
@@ -176,7 +232,11 @@ def thermal_svg(params: ParamsFile) -> str:
         grid = np.linspace(bias.t_min - pad, bias.t_max + pad, 300)
         curve = bias.evaluate(grid, np.zeros_like(grid), model.reference_temp) * PEOPLE[unit]
         inside = (grid >= bias.t_min) & (grid <= bias.t_max)
+        measured = (points or {}).get(name)
         for j, colour in enumerate(COLORS):
+            if measured is not None:
+                ax.plot(measured[0], measured[1][:, j] * PEOPLE[unit], "o", color=colour, ms=3.5, mfc="white",
+                        mew=1.0, zorder=3)  # open circles over the line: data and model both visible
             ax.plot(grid[inside], curve[inside, j], color=colour, lw=1.5, label="xyz"[j])
             for beyond in (grid < bias.t_min, grid > bias.t_max):
                 ax.plot(grid[beyond], curve[beyond, j], color=colour, lw=1, ls="--")

@@ -181,8 +181,16 @@ def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
         plots.append({"title": "Allan deviation", "svg": cert_plots.allan_svg(params.noise, curve),
                       "caption": caption})
     if params.thermal is not None and (params.thermal.accel is not None or params.thermal.gyro is not None):
-        plots.append({"title": "Bias against temperature", "svg": cert_plots.thermal_svg(params),
-                      "caption": "the fitted model as firmware evaluates it"})
+        sweep = _section_capture(cert, "thermal")
+        points = cert_plots.thermal_points(sweep.samples, params) if sweep is not None else {}
+        if points and sweep is not None:
+            caption = (f"the fitted model as firmware evaluates it; dots: {cert_plots.THERMAL_BLOCK_S:g} s "
+                       f"block means of {sweep.path}, each pose's constant removed")
+        else:
+            caption = "the fitted model as firmware evaluates it (the sweep the thermal section names, given "
+            caption += "with --capture, adds its block means)"
+        plots.append({"title": "Bias against temperature", "svg": cert_plots.thermal_svg(params, points),
+                      "caption": caption})
     mag = params.other.get("mag")
     if isinstance(mag, dict):
         source = _section_capture(cert, "mag") or next(
