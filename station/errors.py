@@ -14,6 +14,7 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
      ├── UnitMismatchError                a parameter file holds another unit's results (export)
      ├── DemoFailed                       a check of the demo did not hold
      ├── TurnOnError                      the unit's power-ups could not be recorded (acquisition)
+     ├── RateTableError                   a rate step never held its rate (acquisition)
      ├── MavlinkUnavailable               the MAVLink protocol needs pymavlink (protocols)
      ├── FrameDescriptionError            a frame description breaks its schema's rules (protocols)
      └── DriverError                      exit 3: device or link (drivers, see drivers.errors)

@@ -20,8 +20,10 @@ from mocks.device import SimDevice
 from mocks.pty_server import PtyServer
 from mocks.rig import ConstantRate, Static, sequence_segments, simulate
 from mocks.truth import NoiseSpec, UnitTruth
+from mocks.turntable_sim import TurntableSim
 from protocols import native
 from station import cli
+from station.acquisition.capture import read_capture
 from station.acquisition.capture_csv import write_csv
 from station.engines.calibration_turntable import TurntableCapture, calibrate_turntable
 from station.engines.calibration_turntable_gsens import fit_g_sensitivity
@@ -370,3 +372,48 @@ def test_a_unit_that_cannot_restart_without_a_terminal_is_an_error(tmp_path, cap
         code = cli.main(["characterise", "--port", server.port_path, "--turn-ons", "3", "--still", "1"])
     assert code == 4
     assert "cannot restart itself (RESTART answered status 1)" in capsys.readouterr().err
+
+
+def test_rate_steps_recorded_on_the_simulated_rate_table(tmp_path, capsys) -> None:
+    truth = unit()
+    truth.gyro.noise.N[:] = 0.003 * DEG  # quieter than the MEMS grade: short steps at x20 speed
+    device = SimDevice(truth, seed=SEED, rate_hz=200)
+    params = tmp_path / "unit.yaml"
+    with PtyServer(device, speed=20.0) as server, TurntableSim(server.device, rate_settle_s=0.5) as table:
+        code = cli.main(["characterise", "--port", server.port_path, "--table", table.port_path,
+                         "--rates", "50,200,400", "--axes", "z", "--hold", "2", "--keep", str(tmp_path),
+                         "-o", str(params)])
+        assert code == 0, capsys.readouterr().err
+        spins = [c for c in table.commands if c.startswith("SPIN")]
+    assert spins == ["SPIN +z 50 2", "SPIN +z 200 2", "SPIN +z 400 2", "SPIN +z -50 2", "SPIN +z -200 2",
+                     "SPIN +z -400 2"]
+    capture = read_capture(tmp_path / "rates.csv")
+    steps = {label: sl for label, sl in capture.segments()}
+    assert set(steps) == {"rate+z:50", "rate+z:200", "rate+z:400", "rate-z:50", "rate-z:200", "rate-z:400"}
+    for label, sl in steps.items():  # labelled only while steady: 2 s each, at the asked rate
+        assert (sl.stop - sl.start) == pytest.approx(400, abs=4)
+        rate = float(label.split(":")[1]) * (1 if "+" in label else -1)
+        steady = (capture.gyro[sl, 2] - truth.gyro.bias[2]) / truth.gyro.scale[2]
+        np.testing.assert_allclose(steady, np.radians(rate), rtol=0.01)
+    section = yaml.safe_load(params.read_text())["characterisation"]
+    w = np.radians(np.array([50.0, 200.0, 400.0, -50.0, -200.0, -400.0]))
+    exact = dataclasses.replace(truth.gyro, resolution=None)
+    out = exact.measure(np.column_stack([0 * w, 0 * w, w]), np.full(6, 25.0), np.zeros(6))[:, 2]
+    nl, asym, _ = by_definition(w, out)
+    assert section["gyro_scale_nonlinearity_ppm"][:2] == [None, None]
+    for key, truth_value in (("gyro_scale_nonlinearity", nl), ("gyro_scale_asymmetry", asym)):
+        assert abs(section[f"{key}_ppm"][2] - truth_value) < 3 * section[f"{key}_sd_ppm"][2] + 40
+
+
+def test_options_that_do_not_go_together_are_refused(capsys) -> None:
+    assert cli.main(["characterise", "--port", "/dev/null", "--table", "/dev/null"]) == 4
+    assert "rate steps need both --table TABLE and --rates" in capsys.readouterr().err
+    assert cli.main(["characterise", "--port", "/dev/null", "--turn-ons", "3"]) == 4
+    assert "need both --turn-ons N (3 or more) and --still S" in capsys.readouterr().err
+    assert cli.main(["characterise", "--turn-ons", "3", "--still", "5"]) == 4
+    assert "go with --port" in capsys.readouterr().err
+    assert cli.main(["characterise", "--datasheet"]) == 4
+    assert "--datasheet reads a parameter file" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["characterise", "--port", "/dev/null", "--table", "/dev/null", "--rates", "10,20"])
+    assert "three or more distinct rates" in capsys.readouterr().err

@@ -32,8 +32,10 @@ power-cycled by the operator when asked). The figure is the spread of the turn-o
 record's in-run noise of its mean removed (from its own Allan deviation), with a chi-square interval.
 
 Scale-factor nonlinearity and asymmetry: give captures with constant-rate steps (labels rate+z:90,
-rate-z:90, ...: three or more rates over the range, both ways, about each axis measured), as a rate
-table records them; per the parameter-file spec's definitions, in ppm.
+rate-z:90, ...: three or more rates over the range, both ways, about each axis measured), or record
+them with --port PORT --table TABLE --rates R1,R2,R3 [--axes xyz] [--hold S]: the rate table spins the
+unit at each rate both ways (SPIN), and the rows are labelled where the unit's own rate is steady.
+Per the parameter-file spec's definitions, in ppm.
 
 --datasheet prints one table in datasheet units of every figure the parameter file holds (noise,
 calibration, g-sensitivity, thermal and characterisation sections), each with its uncertainty and what
@@ -45,6 +47,7 @@ examples:
   imu-station characterise still1.csv still2.csv still3.csv still4.csv -o unit.yaml
   imu-station characterise --port /dev/ttyUSB0 --turn-ons 10 --still 60 -o unit.yaml --keep turn-ons/
   imu-station characterise rates.csv -o unit.yaml --datasheet
+  imu-station characterise --port /dev/ttyUSB0 --table /dev/ttyUSB1 --rates 10,100,300,600 -o unit.yaml
   imu-station characterise --datasheet --params unit.yaml --json"""
 
 MAX_TURN_ONS = 1000
@@ -60,8 +63,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"power-ups to record with --port, 3 to {MAX_TURN_ONS}")
     parser.add_argument("--still", type=DURATION_S, default=None, metavar="S",
                         help="seconds recorded still at each power-up with --port")
+    parser.add_argument("--table", metavar="TABLE",
+                        help="the rate table's port: record constant-rate steps of the unit at --port")
+    parser.add_argument("--rates", type=_rates, default=None, metavar="R,R,R",
+                        help="rates of the steps with --table, deg/s, each run both ways (three or more)")
+    parser.add_argument("--axes", default="xyz", choices=("x", "y", "z", "xy", "xz", "yz", "xyz"),
+                        help="axes the rate steps turn about (default xyz)")
+    parser.add_argument("--hold", type=DURATION_S, default=5.0, metavar="S",
+                        help="seconds each rate is held once steady (default 5)")
     parser.add_argument("--keep", type=Path, metavar="DIR",
-                        help="keep the turn-on captures recorded with --port in DIR (default: not kept)")
+                        help="keep the captures recorded with --port in DIR (default: not kept)")
     parser.add_argument("--level", type=number(float, 0.5, 0.999), default=None, metavar="P",
                         help="confidence level of the repeatability interval (default one sigma, 0.683)")
     add_output_option(parser, metavar="PARAMS",
@@ -74,11 +85,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
 
 
+def _rates(text: str) -> list[float]:
+    """``10,100,300``: three or more distinct positive rates, deg/s."""
+    try:
+        rates = sorted({float(r) for r in text.split(",") if r.strip()})
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give rates in deg/s like 10,100,300") from None
+    if len(rates) < 3 or rates[0] <= 0 or rates[-1] > 720:
+        raise argparse.ArgumentTypeError(f"{text!r}: give three or more distinct rates above 0 and up to "
+                                         "720 deg/s")
+    return rates
+
+
 def _check_options(args: argparse.Namespace) -> None:
-    if args.port is not None and (args.turn_ons is None or args.still is None):
-        raise EngineInputError("--port records the turn-ons: give --turn-ons N (3 or more) and --still S")
-    if args.port is None and (args.turn_ons is not None or args.still is not None or args.keep is not None):
-        raise EngineInputError("--turn-ons, --still and --keep go with --port (the unit to record)")
+    turn_ons = args.turn_ons is not None or args.still is not None
+    if args.port is not None and not turn_ons and args.table is None:
+        raise EngineInputError("--port records the turn-ons (give --turn-ons N and --still S) or rate steps "
+                               "(give --table TABLE and --rates R,R,R)")
+    if turn_ons and (args.turn_ons is None or args.still is None):
+        raise EngineInputError("the turn-ons need both --turn-ons N (3 or more) and --still S")
+    if (args.table is None) != (args.rates is None):
+        raise EngineInputError("rate steps need both --table TABLE and --rates R,R,R")
+    if args.port is None and (turn_ons or args.table is not None or args.keep is not None):
+        raise EngineInputError("--turn-ons, --still, --table and --keep go with --port (the unit to record)")
     if not args.inputs and args.port is None and not args.datasheet:
         raise EngineInputError("nothing to do: give captures, --port with --turn-ons and --still, or "
                                "--datasheet")
@@ -94,14 +123,29 @@ def _power_cycle(turn_on: int) -> None:
 
 
 def _record(args: argparse.Namespace, folder: Path) -> list[Path]:
+    from drivers import open_device
+    from drivers.turntable import Turntable
+    from station.acquisition.port_capture import prepare_device
+    from station.acquisition.rate_table import record_rate_steps
     from station.acquisition.turn_ons import record_turn_ons
     from station.status_line import CaptureStatusLine
 
-    interactive = sys.stdin.isatty()
-    status = (lambda duration_s: CaptureStatusLine(sys.stderr, duration_s)) if sys.stderr.isatty() else None
-    return record_turn_ons(args.port, folder, args.turn_ons, args.still, protocol=args.protocol,
-                           baudrate=args.baud, power_cycle=_power_cycle if interactive else None,
-                           err=sys.stderr, status=status)
+    paths = []
+    if args.turn_ons is not None:
+        interactive = sys.stdin.isatty()
+        status = ((lambda duration_s: CaptureStatusLine(sys.stderr, duration_s)) if sys.stderr.isatty()
+                  else None)
+        paths += record_turn_ons(args.port, folder, args.turn_ons, args.still, protocol=args.protocol,
+                                 baudrate=args.baud, power_cycle=_power_cycle if interactive else None,
+                                 err=sys.stderr, status=status)
+    if args.table is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+        with open_device(args.port, protocol=args.protocol, baudrate=args.baud) as device, \
+                Turntable(args.table) as table:
+            prepare_device(device, None, sys.stderr)
+            paths.append(record_rate_steps(device, table, folder / "rates.csv", args.rates, args.axes,
+                                           args.hold, err=sys.stderr))
+    return paths
 
 
 def _analyse(paths: list[Path], level: float | None) -> tuple[dict[str, Any], dict[str, Any]]:
