@@ -65,6 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--operator", metavar="NAME", help="who calibrated the unit")
 
 
+def _stage(text: str) -> None:
+    """A progress line on stderr: what long step starts (reading captures, an Allan curve, printing)."""
+    print(f"imu-station report: {text} ...", file=sys.stderr, flush=True)
+
+
 def _from_params(args: argparse.Namespace) -> Certificate:
     from station.acquisition.capture import read_capture
     from station.engines.calibration_common import CalibrationReport
@@ -76,7 +81,10 @@ def _from_params(args: argparse.Namespace) -> Certificate:
     from station.report.certificate import Certificate, capture_file
 
     params = ParamsFile.load(args.params)
-    captures = [capture_file(path, read_capture(path)) for path in args.capture]
+    captures = []
+    for path in args.capture:
+        _stage(f"reading {path}")
+        captures.append(capture_file(path, read_capture(path)))
     measurements, plan = [], {}
     if args.plan is not None:
         loaded = load_plan(args.plan)
@@ -132,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     cert = _from_params(args) if args.params is not None else _from_record(args)
     cert.station = args.station or os.environ.get("IMU_STATION_ID") or cert.station
     cert.operator = args.operator or ""
+    cert.on_stage = _stage
     notes = write_certificate(cert, args.output)
     serial = cert.record.serial if cert.record is not None else cert.params.device.get("serial", "?")
     print(f"{args.output}: calibration certificate of unit {serial}")
@@ -140,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
     if args.pdf is not None:
         from station.report.pdf import html_to_pdf
 
+        _stage(f"printing {args.pdf} with headless Chromium")
         html_to_pdf(args.output, args.pdf)
         print(f"{args.pdf}: PDF printed")
     return ExitCode.OK

@@ -9,6 +9,7 @@ parameter file has. What the file or the record lacks is said on the page, not s
 from __future__ import annotations
 
 import datetime as _dt
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,6 +57,13 @@ class Certificate:
     operator: str = ""
     plan: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    on_stage: Callable[[str], None] | None = None
+    """Told what long step starts (an Allan curve of hours of samples), for a progress line."""
+
+    def stage(self, text: str) -> None:
+        """Report a long step to :attr:`on_stage`, if anyone listens."""
+        if self.on_stage is not None:
+            self.on_stage(text)
 
 
 def _utc_now() -> str:
@@ -173,6 +181,8 @@ def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
             notes.append("residuals per pose: give the calibration's labelled capture (--capture FILE)")
     if params.noise and any(isinstance(params.noise.get(s), dict) for s in ("gyro", "accel")):
         still = _section_capture(cert, "noise")
+        if still is not None:
+            cert.stage(f"Allan deviation of {still.path} ({len(still.samples)} samples)")
         curve = cert_plots.measured_allan(still.samples) if still is not None else None
         if curve is not None and still is not None:
             caption = f"measured curve with its 68 % interval from {still.path}"
@@ -182,6 +192,8 @@ def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
                       "caption": caption})
     if params.thermal is not None and (params.thermal.accel is not None or params.thermal.gyro is not None):
         sweep = _section_capture(cert, "thermal")
+        if sweep is not None:
+            cert.stage(f"block means of the temperature sweep {sweep.path}")
         points = cert_plots.thermal_points(sweep.samples, params) if sweep is not None else {}
         if points and sweep is not None:
             caption = (f"the fitted model as firmware evaluates it; dots: {cert_plots.THERMAL_BLOCK_S:g} s "
