@@ -18,6 +18,7 @@ HELP = """\
   a        Allan recording        t          temperature sweep
   o        turn-on repeatability (restarts the unit, or asks
            you to power-cycle it)
+  m        magnetometer step (a unit with a magnetometer)
 
 [b]Connect[/b]
   up/down  choose a port          Enter      connect, then the live view
@@ -38,6 +39,11 @@ HELP = """\
   e        export only            up/down    scroll the tables
   Judged against the built-in loose limits or a factory plan's
   (--plan); the header says which.
+
+[b]Magnetometer step[/b]
+  Turn the unit until the two half-spheres are filled: it ends
+  by itself at 80 %.  Enter  finish earlier (from 50 %)
+  Escape   back to the live view
 
 [b]Allan recording / temperature sweep[/b]
   Enter    stop the recording and fit   Escape   back
