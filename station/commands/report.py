@@ -26,8 +26,9 @@ each where the parameter file has the section (what it lacks is said on the page
 
 From a parameter file: PARAMS [--capture FILE ...] [--plan PLAN.yaml]. A capture whose SHA-256
 the file's 'sources' names is used for that section's plot (the labelled calibration capture for
-the residuals, the still one for the measured Allan curve, the magnetometer's for its sphere);
---plan judges the calibration against the plan's limits.
+the residuals, the still one for the measured Allan curve, the temperature sweep for the bias
+against temperature, the magnetometer's for its sphere); --plan judges the calibration against the
+plan's limits. Progress goes to stderr, with what the certificate does not show.
 From the factory records: --db DB --serial SN [--run ID] (the unit's latest run by default): the
 record's measurements with its plan's limits, its parameter file and raw capture.
 
