@@ -127,7 +127,7 @@ class _Unit:
         self.serial: str | None = None
         self.stem: str | None = None
         self.note = ""
-        self.recorder: Recorder | None = None
+        self.recorder: Recorder | None = None  # made by the writer thread once the unit is named
         self.batch: list[np.ndarray] = []
         # What prepare_device asks of a single unit: who it is, and with a rate, to set it and who it
         # is then (the file records the unit's info at the new rate).
@@ -160,7 +160,7 @@ class _Unit:
         if self.done:
             state = "done" if self.error is None else f"failed: {self.error}"
         else:
-            state = "recording" if rec is not None else "preparing"
+            state = "recording" if self.stem is not None else "preparing"
         return UnitStatus(self.port.port, self.stem or self.port.port, self.port.stats,
                           rec.rows if rec is not None else 0, rec.device_time_s if rec is not None else 0.0,
                           state)
@@ -254,13 +254,9 @@ class _Session:
                          f"after its port")
         unit.stem = self._unique(stem, unit)
         path = self.directory / (unit.stem + self.suffix)
-        # A CSV's rows reach the OS as they are written; its flush is an fsync, left to the syncer's
-        # thread. An HDF5 file's flush writes its metadata, which only the writing thread may do.
-        flush_s = FLUSH_INTERVAL_S if self.syncer is None else math.inf
-        unit.recorder = Recorder(path, device=port.info, port=port.port, protocol=port.protocol,
-                                 duration_s=self.duration_s, flush_interval_s=flush_s)
-        if self.syncer is not None:
-            self.syncer.add(path)
+        # Made in the writer thread, like every write after it: an HDF5 file takes ~10 ms to create,
+        # and 32 of them at once would leave the ports unread for 0.4 s.
+        self.writer.submit(self._guarded, self._open_recorder, unit, path, port.info)
         if port.protocol == "native" and unit.received == 0:
             port.send(native.START_STREAM)  # a unit streams from power-up; one that was stopped starts
 
@@ -277,20 +273,32 @@ class _Session:
         self.stems[stem] = unit.port.port
         return stem
 
+    def _open_recorder(self, unit: _Unit, path: Path, info: dict[str, object]) -> None:
+        """In the writer thread: create the unit's file."""
+        port = unit.port
+        # A CSV's rows reach the OS as they are written; its flush is an fsync, left to the syncer's
+        # thread. An HDF5 file's flush writes its metadata, which only the writing thread may do.
+        flush_s = FLUSH_INTERVAL_S if self.syncer is None else math.inf
+        unit.recorder = Recorder(path, device=info, port=port.port, protocol=port.protocol,
+                                 duration_s=self.duration_s, flush_interval_s=flush_s)
+        if self.syncer is not None:
+            self.syncer.add(path)
+
     def write(self, unit: _Unit) -> None:
         """Queue the unit's gathered samples for its recorder, in one batch."""
-        rec = unit.recorder
-        if rec is None or not unit.batch:
+        if unit.stem is None or not unit.batch:
             return
         batch = unit.batch[0] if len(unit.batch) == 1 else np.concatenate(unit.batch)
         unit.batch = []
-        self.writer.submit(self._guarded, self._record, unit.port, rec, batch)
+        self.writer.submit(self._guarded, self._record, unit, batch)
 
     @staticmethod
-    def _record(port: PolledPort, rec: Recorder, batch: np.ndarray) -> None:
-        """In the writer thread: one batch to the file, with the link statistics so far (a snapshot of
-        the loop's counters, each read whole)."""
-        rec.write(batch, _link(port, rec))
+    def _record(unit: _Unit, batch: np.ndarray) -> None:
+        """In the writer thread: one batch to the unit's file, with the link statistics so far (a
+        snapshot of the loop's counters, each read whole)."""
+        rec = unit.recorder
+        assert rec is not None  # _open_recorder() ran first, in the same thread
+        rec.write(batch, _link(unit.port, rec))
 
     def _guarded(self, call: Callable[..., object], *args: object, closing: bool = False) -> None:
         """Run ``call`` in the writer thread, keeping its first error for the loop to raise. After an
@@ -320,7 +328,7 @@ class _Session:
         and the unit's result."""
         unit.finishing = True
         try:
-            if unit.recorder is None:  # the capture ends before the unit was prepared
+            if unit.stem is None:  # the capture ends before the unit was prepared
                 unit.asks.clear()
                 self.open_file(unit)
             self.write(unit)
@@ -332,7 +340,8 @@ class _Session:
     def _close_file(unit: _Unit) -> None:
         """In the writer thread: close the unit's file and keep its result."""
         port, rec = unit.port, unit.recorder
-        assert rec is not None  # open_file() made it
+        if rec is None:  # its file could not be made: the writer's error says why
+            return
         rec.close(_link(port, rec))
         if rec.rows == 0:
             unit.error, unit.ended_by = _no_rows(port, rec, unit.error, unit.ended_by), "link error"
@@ -448,7 +457,7 @@ def _serve(session: _Session, selector: selectors.BaseSelector, interrupted: thr
                 if unit.finishing:
                     continue
                 rec = unit.recorder
-                if rec is None and not unit.done:
+                if unit.stem is None and not unit.done:
                     session.prepare(unit, now)
                 elif rec is not None and rec.full and not unit.done:  # the writer reached --duration
                     unit.ended_by, unit.done = "duration", True
