@@ -109,3 +109,27 @@ def test_hemispheres_drawing() -> None:
     text = hemispheres(hit, np.array([0.0, 0.0, -1.0])).plain.splitlines()
     centre = text[1 + 3]
     assert centre[7] == VISITED and centre[15 + 3 + 7] == NOW and MISSING in centre
+
+
+def test_enter_finishes_early_once_the_calibration_can_use_the_coverage(tmp_path: Path) -> None:
+    app = _app(tmp_path, mag=True)
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
+            await pilot.press("m")
+            await wait_for(pilot, lambda: isinstance(app.screen, MagScreen), 10, "the magnetometer step")
+            screen = app.screen
+            assert isinstance(screen, MagScreen)
+            screen.share = 0.05  # as if the unit had hardly moved: Enter is refused
+            screen.action_finish()
+            assert not screen.finished
+            await wait_for(pilot, lambda: screen.share >= 0.2, 30, "a fifth of the sphere")
+            await pilot.press("enter")
+            await wait_for(pilot, lambda: screen.finished, 5, "the step to finish")
+            text = screen_text(app)
+            assert "Finished at" in text and "run-mag.csv" in text
+            app.exit(0)
+
+    asyncio.run(run())
+    assert read_capture(tmp_path / "run-mag.csv").mag is not None

@@ -32,7 +32,7 @@ deviation plot, and a temperature-sweep monitor for the thermal fit.
 
 The magnetometer step (key m, for a unit that reports a magnetometer): the two halves of the sphere
 of field directions are drawn with the directions seen so far; the screen says which way to turn
-the unit next and ends by itself at 80 % of the sphere (Enter ends it earlier, from 50 %). Its
+the unit next and ends by itself at 80 % of the sphere (Enter ends it earlier, from 15 %). Its
 capture goes beside --capture FILE.csv as FILE-mag.csv (else PARAMS-mag-capture.csv beside --out),
 for calibrate --method mag. A unit without a magnetometer is told apart and the step says so.
 

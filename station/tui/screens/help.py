@@ -42,7 +42,7 @@ HELP = """\
 
 [b]Magnetometer step[/b]
   Turn the unit until the two half-spheres are filled: it ends
-  by itself at 80 %.  Enter  finish earlier (from 50 %)
+  by itself at 80 %.  Enter  finish earlier (from 15 %)
   Escape   back to the live view
 
 [b]Allan recording / temperature sweep[/b]

@@ -6,9 +6,10 @@ largest missing group of directions, :meth:`station.engines.mag_coverage.MagCove
 Directions are taken from the hard-iron centre estimated so far (the least-squares sphere through
 the readings, :func:`station.engines.mag_fit.sphere_fit`, once they spread enough; raw before).
 The step finishes by itself at :data:`TARGET_SHARE` of the sphere; Enter finishes it earlier once
-the share no longer draws the calibration's coverage warning. Everything read is recorded to the
-magnetometer capture (``TuiConfig.mag_capture_path``), for ``imu-station calibrate FILE --method
-mag``. A unit without a magnetometer is told apart within seconds and the screen says so.
+the calibration can use the share (``MIN_COVERAGE``; below ``WARN_COVERAGE`` it warns, and says
+so). Everything read is recorded to the magnetometer capture (``TuiConfig.mag_capture_path``), for
+``imu-station calibrate FILE --method mag``. A unit without a magnetometer is told apart within
+seconds and the screen says so.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from textual.widgets import Footer, Header, ProgressBar, Static
 
 from protocols.base import has_mag
 from station.acquisition.recorder import Recorder
-from station.engines.calibration_mag import WARN_COVERAGE
+from station.engines.calibration_mag import MIN_COVERAGE, WARN_COVERAGE
 from station.engines.mag_coverage import MagCoverage, direction_label, field_coverage
 from station.engines.mag_fit import sphere_fit
 from station.errors import StationError
@@ -238,15 +239,20 @@ class MagScreen(StationScreen):
         self.query_one("#status", Static).update(Text(f"stopped: {message.error}\nq: quit", style="red"))
 
     def action_finish(self) -> None:
-        """Enter: finish now, if the coverage is enough for a calibration without a warning."""
+        """Enter: finish now, once the calibration can use the coverage (a desk session's third of the
+        sphere included: the dip constraint carries it, with a warning)."""
         if self.finished:
             self.station.show("live")
             return
-        if self.share < WARN_COVERAGE:
-            self.notify(f"only {self.share:.0%} covered: turn on until at least {WARN_COVERAGE:.0%} "
-                        f"(the calibration warns below)", severity="warning")
+        if self.share < MIN_COVERAGE:
+            self.notify(f"only {self.share:.0%} covered: the calibration needs at least {MIN_COVERAGE:.0%}; "
+                        f"turn on", severity="warning")
             return
-        self._finish(f"Finished at {self.share:.0%} of the sphere.")
+        why = f"Finished at {self.share:.0%} of the sphere."
+        if self.share < WARN_COVERAGE:
+            why += (f" Under {WARN_COVERAGE:.0%} the calibration leans on the dip constraint and warns: "
+                    f"fine for a desk-bound unit, with still poses in varied tilts.")
+        self._finish(why)
 
     def action_back(self) -> None:
         """Escape: leave the step (what was recorded stays in its file)."""
