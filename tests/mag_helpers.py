@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocks.truth import UnitTruth
+from station.engines.calibration_common import triangular_correction
 
 
 def polar(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -32,17 +33,29 @@ def unit_det(matrix: np.ndarray) -> np.ndarray:
     return matrix / np.linalg.det(matrix) ** (1 / 3)
 
 
-def errors(matrix: np.ndarray, bias: np.ndarray, truth: UnitTruth) -> dict[str, float]:
-    """Hard iron (uT), shape (%) and alignment (deg) errors of a fit against the unit's magnetometer."""
+def errors(matrix: np.ndarray, bias: np.ndarray, truth: UnitTruth,
+           frame: np.ndarray | None = None) -> dict[str, float]:
+    """Hard iron (uT), shape (%) and alignment (deg) errors of a fit against the unit's magnetometer;
+    ``frame`` (Q, body vectors v = Q v') when the fit's field is in other axes than the body's
+    (:func:`lower_frame`): the true rotation is then C Q."""
     mag = truth.mag
     assert mag is not None
     p, r = polar(matrix)
     w = mag.soft_iron
+    rotation = mag.rotation if frame is None else mag.rotation @ frame
     return {
         "hard_ut": float(np.linalg.norm(np.asarray(bias) - mag.hard_iron)),
         "shape_pct": float(100 * np.max(np.abs(unit_det(p) - unit_det(w)))),
-        "align_deg": angle_deg(r @ mag.rotation.T),
+        "align_deg": angle_deg(r @ rotation.T),
     }
+
+
+def lower_frame(truth: UnitTruth) -> np.ndarray:
+    """Q of the accelerometer's lower-triangular frame (``calibrate --method free``'s default: x along
+    its x axis, xy its xy plane): its true correction M^-1 = Q C' with C' lower triangular, so body
+    vectors are Q times that frame's (``calibration_common.triangular_correction``)."""
+    q, _ = triangular_correction(np.linalg.inv(truth.accel.matrix), "lower")
+    return q
 
 
 def calibrated_acc(acc: np.ndarray, truth: UnitTruth) -> np.ndarray:

@@ -103,14 +103,16 @@ def test_dip_far_from_the_model_is_warned_about(desk_csv, capsys: pytest.Capture
     assert "differs from the geomagnetic model's" in out
 
 
-def test_without_accel_section_the_summary_says_to_calibrate_it_first(
+def test_without_accel_section_the_accelerometer_is_estimated(
         desk_csv, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path, _ = desk_csv
     assert cli.main(["calibrate", str(path), "--method", "mag", "-o", str(tmp_path / "u.yaml")]) == 0
     out = " ".join(capsys.readouterr().out.split())
-    assert "accelerometer looks uncalibrated" in out and "calibrate it first" in out
+    assert "no accelerometer calibration: its bias, scale and misalignment were estimated" in out
+    assert "accelerometer estimated from the still poses" in out and "looks uncalibrated" not in out
     section = yaml.safe_load((tmp_path / "u.yaml").read_text())["mag"]
     assert section["field_source"] == "the data's own" and "field_norm" in section["stddev"]
+    assert section["frame"] == "accel" and "accelerometer estimated" in section["method"]
 
 
 def test_capture_without_magnetometer_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

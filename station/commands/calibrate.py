@@ -50,7 +50,9 @@ Estimate the intrinsics of both triads, raw = K (I + S) true + b, from a capture
   and the rotation to the accelerometer, fitted jointly with the dip constraint (the angle between
   gravity and the field is the same at every still pose), so a desk-bound session whose z axis stays
   within 45 deg of up still calibrates; the accelerometer is corrected first with PARAMS's 'accel'
-  section when it has one (calibrate it first). The field magnitude: --field, or the World Magnetic
+  section when it has one, else its bias, scale and misalignment are estimated from the still poses
+  with the magnetometer (the rotation is then to the axes --method free's lower convention gives;
+  calibrating it first is better near level). The field magnitude: --field, or the World Magnetic
   Model at --latitude/--longitude/--height/--date, else the data's own. Prints the coverage of the
   sphere of field directions (and which are missing), every parameter's 1-sigma and the residuals;
   disturbed stretches are left out and named.
@@ -189,24 +191,20 @@ def run_mag(args: argparse.Namespace) -> int:
                                  "unit that reports its magnetometer, or calibrate the accelerometer and "
                                  "gyroscope with --method free or turntable")
         params = open_for_unit(args.output, capture.device, replace=args.replace) if args.output else None
-        acc = capture.acc
-        if params is not None and params.accel is not None:
-            # the down direction in the calibrated accelerometer's axes
-            acc = params.accel.correct(capture.acc)
+        accel = params.accel if params is not None else None
+        # the down direction in the calibrated accelerometer's axes; without an accel section the
+        # engine estimates the accelerometer from the still poses
+        acc = accel.correct(capture.acc) if accel is not None else capture.acc
         progress.update(task, description="fitting the magnetometer")
         cal = calibrate_mag(MagCapture(capture.t, capture.mag, acc, capture.gyro),
-                            MagSettings(field_ut=field, model_dip_deg=dip))
-    uncalibrated = any("accelerometer looks uncalibrated" in w for w in cal.warnings)
-    if params is not None and params.accel is None and cal.frame == "accel" and not uncalibrated:
-        cal.warnings.append(f"{args.output} has no 'accel' section: the rotation is solved against the raw "
-                            "accelerometer; calibrate it into the same file first for the calibrated axes")
+                            MagSettings(field_ut=field, model_dip_deg=dip, estimate_accel=accel is None))
     outputs = {}
     if args.output:
         merge_sections(args.output, capture.device, {MAG: mag_section(cal, field_source)}, capture=args.input,
                        replace=args.replace)
-        corrected = params is not None and params.accel is not None
         outputs[str(args.output)] = "mag section written" + (
-            " (accelerometer corrected with its accel section)" if corrected else "")
+            " (accelerometer corrected with its accel section)" if accel is not None
+            else " (accelerometer estimated from the still poses)" if cal.accel_estimated else "")
     if args.plot:
         from station.plots.mag_plot import plot_mag
 

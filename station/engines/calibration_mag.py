@@ -11,6 +11,9 @@ The steps:
 3. the still poses (stretches of still samples) give the down direction d = -a / |a| of their mean
    accelerometer reading, and their mean magnetometer reading, one dip residual each (``_Gravity``);
    the rotation that best satisfies the dip constraint is solved linearly (``initial_rotation``);
+   with ``estimate_accel`` (no accelerometer calibration at hand) the down directions are those of
+   the raw accelerometer under intrinsics first fitted to its still poses alone and then estimated
+   with the rest (:mod:`mag_accel`: all nine, or all but the z bias near level);
 4. a first fit with the soft-L1 loss (iteratively reweighted, ``JointProblem.reweighted``), whose
    magnitude residuals show the disturbed stretches (eq. (1) of ``mag_inputs``) and whose dip
    residuals show poses that were not still (an acceleration the detector missed): both are left
@@ -32,6 +35,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from station.engines.calibration_common import covariance, propagate
+from station.engines.calibration_free_accel import acc_initial_guess
+from station.engines.levenberg_marquardt import least_squares_lm
+from station.engines.mag_accel import ALL, NO_Z_BIAS, PoseAccel
 from station.engines.mag_coverage import MagCoverage, field_coverage
 from station.engines.mag_fit import JointProblem, Start, ellipsoid_fit, initial_rotation, polar, sphere_fit
 from station.engines.mag_inputs import (
@@ -78,6 +84,9 @@ REFUSE_NOISE_RATIO = 10.0
 MAX_FIT_SAMPLES = 50_000
 # Outlier-resistant first pass: rounds of reweighting, residuals beyond this share of F weighed down.
 ROBUST_SHARE, ROBUST_ROUNDS = 0.02, 3
+# Largest 1-sigma (deg, % of scale, % of g) of the accelerometer's nine intrinsics from its still
+# poses alone for all nine to be estimated (a desk session to 45 deg: about 1.3; to 30 deg, 40).
+ACC_CONDITION = 2.0
 
 
 @dataclass(frozen=True)
@@ -117,12 +126,16 @@ class MagSettings:
         Moving-variance window of the still detector, s.
     joint : bool
         Fit the rotation with the dip constraint (needs ``acc``); False: the plain fit.
+    estimate_accel : bool
+        ``acc`` is raw (no calibration at hand): its intrinsics are estimated from the still poses
+        with the rest (``station.engines.mag_accel``), the rotation is to their frame.
     """
 
     field_ut: float | None = None
     model_dip_deg: float | None = None
     window_s: float = 0.5
     joint: bool = True
+    estimate_accel: bool = False
 
 
 @dataclass
@@ -158,6 +171,8 @@ class MagCalibration:
         Stretches left out.
     warnings : list of str
         What the operator should know, with what to do.
+    accel_estimated : bool
+        The accelerometer was raw: its intrinsics were estimated from the still poses with the rest.
     """
 
     matrix: np.ndarray
@@ -175,6 +190,7 @@ class MagCalibration:
     still: int
     disturbances: list[Disturbance] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    accel_estimated: bool = False
 
     @property
     def correction(self) -> np.ndarray:
@@ -184,8 +200,10 @@ class MagCalibration:
     @property
     def method(self) -> str:
         """Which fit produced it, for the parameter file."""
-        return ("mag: joint ellipsoid and alignment, dip constraint" if self.frame == "accel"
-                else "mag: ellipsoid (no gravity reference)")
+        if self.frame != "accel":
+            return "mag: ellipsoid (no gravity reference)"
+        return "mag: joint ellipsoid and alignment, dip constraint" + (
+            ", accelerometer estimated from the still poses" if self.accel_estimated else "")
 
     def shape_and_alignment(self) -> tuple[np.ndarray, np.ndarray]:
         """A = P R (left polar decomposition): the soft iron's symmetric P and the rotation R."""
@@ -287,18 +305,21 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
     step = -(-len(m) // MAX_FIT_SAMPLES)
     m_fit, t_fit = m[::step], t_m[::step]
     problem = JointProblem(m_fit, gravity.m_pose, gravity.down, field_fit)
+    acc0 = np.zeros(0)
+    if problem.joint and settings.estimate_accel:
+        problem, acc0 = _accel_stage(problem, gravity.a_pose, warnings)
     correction0 = field_fit * start.correction
     sin0 = 0.0
     if problem.joint:
         rot, sin0 = initial_rotation(problem.m_still, problem.down, start)
         correction0 = rot @ correction0
-    p = problem.pack(start.bias, correction0, sin0)
+    p = problem.pack(start.bias, correction0, sin0, acc0)
     robust = ROBUST_SHARE * field_fit
     for _ in range(ROBUST_ROUNDS):
         p = problem.reweighted(p, robust, robust).solve(p)
 
     # Step 4: disturbances and still samples that moved, by the first fit's residuals.
-    r_norm, r_dip = problem.residual_parts(p)
+    r_norm, r_dip, _ = problem.residual_parts(p)
     left_out, disturbances = disturbed(t_fit, r_norm, field_fit)
     keep_norm = ~left_out
     spoiled = np.zeros(len(t_m), bool)
@@ -319,14 +340,14 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
 
     # Step 5: the final fit, each residual set weighted by its scatter, twice: the second time with
     # the scatter at the optimum, so that s^2 of the covariance is about 1 for both sets.
-    final = replace(problem, m=m_fit[keep_norm], m_still=problem.m_still[keep_dip],
-                    down=problem.down[keep_dip])
-    r_norm, r_dip = r_norm[keep_norm], r_dip[keep_dip]
+    final = replace(problem, m=m_fit[keep_norm]).poses(keep_dip)
+    r_norm, r_dip, r_acc = final.residual_parts(p)
     for _ in range(2):
         final = replace(final, w_norm=max(_rms(r_norm), 1e-9 * field_fit),
-                        w_dip=max(_rms(r_dip), 1e-9 * field_fit) if final.joint else 1.0)
+                        w_dip=max(_rms(r_dip), 1e-9 * field_fit) if final.joint else 1.0,
+                        w_acc=max(_rms(r_acc), 1e-9 * (final.acc.gravity if final.acc else 1.0)))
         p = final.solve(p)
-        r_norm, r_dip = final.residual_parts(p)
+        r_norm, r_dip, r_acc = final.residual_parts(p)
     cov, _ = covariance(final.jacobian(p), final.residual(p))
     ratio = _rms(r_norm) / gravity.noise if gravity.noise else 0.0
     misfit = (f"the magnitude residual ({_rms(r_norm):.2g} uT RMS) is {ratio:.0f} times the magnetometer's "
@@ -354,6 +375,7 @@ class _Gravity:
 
     stretches: list[tuple[int, int]]
     m_pose: np.ndarray
+    a_pose: np.ndarray
     down: np.ndarray
     noise: float | None
 
@@ -361,7 +383,7 @@ class _Gravity:
 def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings,
                        warnings: list[str]) -> _Gravity:
     """Step 3: the down directions at the still samples, or none (the plain fit), saying why."""
-    none = _Gravity([], np.zeros((0, 3)), np.zeros((0, 3)), None)
+    none = _Gravity([], np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), None)
     if not settings.joint:
         return none
     if data.acc is None:
@@ -389,12 +411,50 @@ def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings
                         "still for a second at each); fitted in the magnetometer's own axes instead")
         return replace(none, noise=noise)
     spread = gravity_spread(acc, still)
-    if spread is not None and spread > GRAVITY_SPREAD:
+    if not settings.estimate_accel and spread is not None and spread > GRAVITY_SPREAD:
         warnings.append(f"|a| differs by {spread:.2%} (1 sigma) between the still poses: the accelerometer "
                         "looks uncalibrated, and its errors tilt the down direction the alignment is solved "
                         "against; calibrate it first (imu-station calibrate --method free -o PARAMS) and "
                         "run this again with the same PARAMS")
-    return _Gravity(stretches, m_pose, down, noise)
+    return _Gravity(stretches, m_pose, a_pose, down, noise)
+
+
+def _accel_alone(acc: PoseAccel) -> tuple[np.ndarray, float]:
+    """The accelerometer's intrinsics ``acc.free`` from its still poses alone (``mag_accel`` eq. (2),
+    Levenberg-Marquardt from ``calibration_free_accel.acc_initial_guess``), and the largest of their
+    1-sigma (misalignment in deg, scale in % of itself, bias in % of g): how well the poses
+    determine them."""
+    q0 = acc.reduced(acc_initial_guess(acc.x, acc.gravity))
+    q = least_squares_lm(acc.residual, q0, acc.jacobian, ftol=1e-14, xtol=1e-14, gtol=1e-14, max_nfev=500).x
+    cov, _ = covariance(acc.jacobian(q), acc.residual(q))
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    full = acc.full(q)
+    unit = np.array([np.degrees(1.0)] * 3 + list(100.0 / np.abs(full[3:6])) + [100.0 / acc.gravity] * 3)
+    return q, float(np.max(sd * unit[list(acc.free)]))
+
+
+def _accel_stage(problem: JointProblem, x: np.ndarray,
+                 warnings: list[str]) -> tuple[JointProblem, np.ndarray]:
+    """Step 3 without an accelerometer calibration: its intrinsics (``mag_accel``) from the still
+    poses alone start the joint fit (and give the start's down directions); all nine where the poses
+    determine them (``ACC_CONDITION``), else all but the z bias."""
+    gravity = float(np.median(np.linalg.norm(x, axis=1)))
+    acc = PoseAccel(x, gravity, ALL)
+    q, worst = _accel_alone(acc)
+    terms = "bias, scale and misalignment"
+    if worst > ACC_CONDITION:
+        acc = acc.with_free(NO_Z_BIAS)
+        q, _ = _accel_alone(acc)
+        terms = "x and y bias, scale and misalignment (the z bias is taken into the z scale)"
+        warnings.append(
+            "the still poses stay near level: the accelerometer's z bias is not determined and the tilt of "
+            "its z axis only loosely (see the alignment's 1-sigma); tilt the unit further (45 deg), or "
+            "calibrate the accelerometer first (imu-station calibrate --method free -o PARAMS) and run this "
+            "again with the same PARAMS")
+    warnings.append(f"no accelerometer calibration: its {terms} were estimated from the {len(x)} still poses "
+                    "with the magnetometer; the rotation is to its axes as calibrate --method free (lower "
+                    "convention) defines them")
+    return replace(problem, down=acc.down(q), acc=acc, w_acc=max(_rms(acc.residual(q)), 1e-9 * gravity)), q
 
 
 def _normalised(problem: JointProblem, p: np.ndarray, given: bool) -> tuple[np.ndarray, np.ndarray, float]:
@@ -434,8 +494,8 @@ def _result(problem: JointProblem, p: np.ndarray, cov: np.ndarray, settings: Mag
     h = (problem.m - b) @ c.T
     cover = field_coverage(h)
     sin_dip = problem.unpack(p)[2]
-    dip_rms = (_rms(np.einsum("ij,ij->i", problem.down, (problem.m_still - b) @ c.T) - field_norm * sin_dip)
-               if problem.joint else None)
+    dip_rms = (_rms(np.einsum("ij,ij->i", problem.downs(p), (problem.m_still - b) @ c.T)
+                    - field_norm * sin_dip) if problem.joint else None)
     dip = float(np.degrees(np.arcsin(np.clip(sin_dip, -1.0, 1.0)))) if problem.joint else None
     if cover.share < WARN_COVERAGE:
         leans = ("the fit leans on the dip constraint" if problem.joint
@@ -451,4 +511,5 @@ def _result(problem: JointProblem, p: np.ndarray, cov: np.ndarray, settings: Mag
         matrix=matrix, bias=b, frame="accel" if problem.joint else "sensor", field_norm=field_norm,
         field_given=given, residual_rms=_rms(np.linalg.norm(h, axis=1) - field_norm), dip_rms=dip_rms,
         coverage=cover, dip_deg=dip, stddev=stddev, start=start.kind, samples=len(problem.m),
-        still=len(problem.m_still), disturbances=disturbances, warnings=warnings)
+        still=len(problem.m_still), disturbances=disturbances, warnings=warnings,
+        accel_estimated=problem.acc is not None)

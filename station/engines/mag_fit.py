@@ -21,6 +21,9 @@ entries of C and s = sin(delta). With u, h = C u and n = h / |h|, the Jacobian i
     dr_F/db = -n^T C,    dr_F/dC_jk = n_j u_k,    dr_F/ds = 0                             (4)
     dr_D/db = -d^T C,    dr_D/dC_jk = d_j u_k,    dr_D/ds = -F                            (5)
 
+An accelerometer not calibrated first adds its intrinsics to the unknowns, its down directions
+and its own residuals at the still poses (:mod:`station.engines.mag_accel`).
+
 Without a gravity reference only (2) is fitted and C is kept symmetric (six unknowns:
 c = [C_xx, C_yy, C_zz, C_xy, C_xz, C_yz]), the field then in the magnetometer's own axes rotated by
 no more than its soft iron: the ellipsoid fit of the autopilots (ArduPilot's offsets, diagonal and
@@ -43,6 +46,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from station.engines.levenberg_marquardt import least_squares_lm
+from station.engines.mag_accel import PoseAccel
 
 # c of a symmetric C (plain fit): entries (j, k) of each of the six unknowns.
 _SYM_INDEX = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
@@ -160,7 +164,10 @@ class JointProblem:
 
     ``m`` are the readings of (2); ``m_still`` and ``down`` (unit vectors, accelerometer axes) those
     of (3), empty for the plain fit. ``w_norm`` and ``w_dip`` divide each set's residuals (their
-    scatter, microtesla: one for the set or one per residual). ``field`` is F.
+    scatter, microtesla: one for the set or one per residual). ``field`` is F. With ``acc`` (an
+    accelerometer not calibrated first, :mod:`station.engines.mag_accel`), the down directions are
+    those of its raw pose means under intrinsics estimated with the rest (``down`` is then only the
+    start's), and its residuals r_A, divided by ``w_acc``, join the fit.
     """
 
     m: np.ndarray
@@ -169,6 +176,8 @@ class JointProblem:
     field: float
     w_norm: float | np.ndarray = 1.0
     w_dip: float | np.ndarray = 1.0
+    acc: PoseAccel | None = None
+    w_acc: float | np.ndarray = 1.0
 
     @property
     def joint(self) -> bool:
@@ -176,35 +185,55 @@ class JointProblem:
         return len(self.m_still) > 0
 
     def unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """(b, C, s) from the parameter vector: [b, C row-major, s] (joint) or [b, c] (plain)."""
+        """(b, C, s) from the parameter vector: [b, C row-major, s (, accelerometer)] (joint) or [b, c]."""
         if self.joint:
             return p[0:3], p[3:12].reshape(3, 3), float(p[12])
         return p[0:3], sym_matrix(p[3:9]), 0.0
 
-    def pack(self, bias: np.ndarray, correction: np.ndarray, sin_dip: float) -> np.ndarray:
-        """The parameter vector of (b, C, s), inverse of :meth:`unpack`."""
+    def pack(self, bias: np.ndarray, correction: np.ndarray, sin_dip: float,
+             acc: np.ndarray | None = None) -> np.ndarray:
+        """The parameter vector of (b, C, s) and the accelerometer's estimated intrinsics, inverse of
+        :meth:`unpack` and :meth:`acc_params`."""
         if self.joint:
-            return np.concatenate([bias, np.asarray(correction, float).ravel(), [sin_dip]])
+            tail = [] if self.acc is None else [np.asarray(acc, float)]
+            return np.concatenate([bias, np.asarray(correction, float).ravel(), [sin_dip], *tail])
         return np.concatenate([bias, sym_params(correction)])
 
-    def residual_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eqs. (2) and (3), each divided by its sensitivity to the reading (eq. (8)), microtesla."""
+    def acc_params(self, p: np.ndarray) -> np.ndarray:
+        """The accelerometer's estimated intrinsics (``mag_accel``), empty without ``acc``."""
+        return p[13:] if self.joint and self.acc is not None else np.zeros(0)
+
+    def downs(self, p: np.ndarray) -> np.ndarray:
+        """The down directions of (3) at ``p``: ``down``, or the estimated accelerometer's."""
+        return self.down if self.acc is None else self.acc.down(self.acc_params(p))
+
+    def poses(self, keep: np.ndarray) -> JointProblem:
+        """The problem on the still poses ``keep`` (a boolean mask) only."""
+        return replace(self, m_still=self.m_still[keep], down=self.down[keep],
+                       acc=None if self.acc is None else self.acc.subset(keep))
+
+    def residual_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Eqs. (2) and (3), each divided by its sensitivity to the reading (eq. (8)), microtesla, and
+        the estimated accelerometer's r_A (``mag_accel`` eq. (2), empty without ``acc``)."""
         b, c, s = self.unpack(p)
         h = (self.m - b) @ c.T
         rho = np.linalg.norm(h, axis=1)
         r_norm = (rho - self.field) / np.linalg.norm((h / rho[:, None]) @ c, axis=1)
         if not self.joint:
-            return r_norm, np.zeros(0)
-        g = np.einsum("ij,ij->i", self.down, (self.m_still - b) @ c.T) - self.field * s
-        return r_norm, g / np.linalg.norm(self.down @ c, axis=1)
+            return r_norm, np.zeros(0), np.zeros(0)
+        down = self.downs(p)
+        g = np.einsum("ij,ij->i", down, (self.m_still - b) @ c.T) - self.field * s
+        r_acc = np.zeros(0) if self.acc is None else self.acc.residual(self.acc_params(p))
+        return r_norm, g / np.linalg.norm(down @ c, axis=1), r_acc
 
     def residual(self, p: np.ndarray) -> np.ndarray:
-        """Eqs. (2) and (3) as :meth:`residual_parts`, stacked, each set divided by its weight."""
-        r_norm, r_dip = self.residual_parts(p)
-        return np.concatenate([r_norm / self.w_norm, r_dip / self.w_dip])
+        """Eqs. (2) and (3) (and r_A) as :meth:`residual_parts`, stacked, each set divided by its weight."""
+        r_norm, r_dip, r_acc = self.residual_parts(p)
+        return np.concatenate([r_norm / self.w_norm, r_dip / self.w_dip, r_acc / self.w_acc])
 
     def jacobian(self, p: np.ndarray) -> np.ndarray:
-        """Eqs. (9)-(10), rows as :meth:`residual`'s (the plain fit's C columns by the chain rule)."""
+        """Eqs. (9)-(10), rows as :meth:`residual`'s (the plain fit's C columns by the chain rule; the
+        accelerometer's columns by ``mag_accel`` eq. (3))."""
         b, c, _ = self.unpack(p)
         u = self.m - b
         h = u @ c.T
@@ -224,17 +253,27 @@ class JointProblem:
             # c_l enters C at (j, k) and, off the diagonal, at (k, j) too
             cols = [dc_norm[:, 3 * j + k] + (dc_norm[:, 3 * k + j] if j != k else 0.0) for j, k in _SYM_INDEX]
             return np.column_stack([db_norm, *cols]) / _column(self.w_norm)
-        d = self.down
+        d = self.downs(p)
         us = self.m_still - b
+        hs = us @ c.T                                                         # C u
         vd = d @ c                                                            # C^T d
         sd = np.linalg.norm(vd, axis=1)
         ed = vd / sd[:, None]
-        gd = np.einsum("ij,ij->i", d, us @ c.T) - self.field * self.unpack(p)[2]
+        gd = np.einsum("ij,ij->i", d, hs) - self.field * self.unpack(p)[2]
         kd = (gd / sd**2)[:, None, None]
         dc_dip = (d[:, :, None] * us[:, None, :] / sd[:, None, None] - kd * d[:, :, None] * ed[:, None, :])
-        top = np.column_stack([db_norm, dc_norm, np.zeros(len(u))]) / _column(self.w_norm)
-        bottom = np.column_stack([-ed, dc_dip.reshape(len(us), 9), -self.field / sd]) / _column(self.w_dip)
-        return np.vstack([top, bottom])
+        n_acc = len(self.acc_params(p))
+        top = np.column_stack([db_norm, dc_norm, np.zeros((len(u), 1 + n_acc))]) / _column(self.w_norm)
+        dip_cols = [-ed, dc_dip.reshape(len(us), 9), -self.field / sd]
+        if self.acc is None:
+            return np.vstack([top, np.column_stack(dip_cols) / _column(self.w_dip)])
+        # dr_D/dd = C u / sigma - (g / sigma^2) C e, through d to the intrinsics (mag_accel eq. (3))
+        w = hs / sd[:, None] - (gd / sd**2)[:, None] * (ed @ c.T)
+        q_acc = self.acc_params(p)
+        dip_cols.append(self.acc.down_jacobian(q_acc, w))
+        bottom = np.column_stack(dip_cols) / _column(self.w_dip)
+        acc_rows = np.column_stack([np.zeros((len(self.acc.x), 13)), self.acc.jacobian(q_acc)])
+        return np.vstack([top, bottom, acc_rows / _column(self.w_acc)])
 
     def solve(self, p0: np.ndarray) -> np.ndarray:
         """Levenberg-Marquardt (MINPACK's ``lmder``, :mod:`station.engines.levenberg_marquardt`) from ``p0``.
@@ -268,7 +307,7 @@ class JointProblem:
         -------
         JointProblem
         """
-        r_norm, r_dip = self.residual_parts(p)
+        r_norm, r_dip, _ = self.residual_parts(p)
         return replace(self, w_norm=scale_norm * (1.0 + (r_norm / scale_norm) ** 2) ** 0.25,
                        w_dip=scale_dip * (1.0 + (r_dip / scale_dip) ** 2) ** 0.25)
 
