@@ -371,7 +371,7 @@ def test_a_unit_that_cannot_restart_without_a_terminal_is_an_error(tmp_path, cap
     with PtyServer(device, speed=20.0) as server:
         code = cli.main(["characterise", "--port", server.port_path, "--turn-ons", "3", "--still", "1"])
     assert code == 4
-    assert "cannot restart itself (RESTART answered status 1)" in capsys.readouterr().err
+    assert "cannot restart itself (it answered RESTART with status 1" in capsys.readouterr().err
 
 
 def test_rate_steps_recorded_on_the_simulated_rate_table(tmp_path, capsys) -> None:
@@ -417,3 +417,23 @@ def test_options_that_do_not_go_together_are_refused(capsys) -> None:
     with pytest.raises(SystemExit):
         cli.main(["characterise", "--port", "/dev/null", "--table", "/dev/null", "--rates", "10,20"])
     assert "three or more distinct rates" in capsys.readouterr().err
+
+
+def test_a_unit_whose_protocol_has_no_restart_is_power_cycled_by_the_operator(monkeypatch, capsys) -> None:
+    import mocks.encoders_extra  # noqa: F401  (registers the Xsens encoder)
+
+    device = SimDevice(unit(), seed=SEED, rate_hz=100, encoder="xsens")
+    cycles = []
+
+    def operator_power_cycles(*_: object) -> str:
+        cycles.append(True)
+        device.feed(native.encode_frame(native.RESTART))  # the switch: the unit powers up again
+        return ""
+
+    monkeypatch.setattr(builtins, "input", operator_power_cycles)
+    monkeypatch.setattr(sys.stdin, "isatty", lambda: True, raising=False)
+    with PtyServer(device, speed=20.0) as server:
+        code = cli.main(["characterise", "--port", server.port_path, "--protocol", "xsens", "--turn-ons", "3",
+                         "--still", "2"])
+    assert code == 0, capsys.readouterr().err
+    assert len(cycles) == 2 and device.restarts == 2

@@ -15,7 +15,7 @@ from contextlib import nullcontext
 from pathlib import Path
 from typing import IO
 
-from drivers import DEFAULT_BAUDRATE, CommandRejected, Device, SerialDevice, open_device
+from drivers import DEFAULT_BAUDRATE, CommandRejected, CommandUnsupported, Device, SerialDevice, open_device
 from protocols import native
 from station.acquisition.port_capture import StatusDisplay, prepare_device
 from station.acquisition.recorder import record
@@ -34,11 +34,14 @@ class TurnOnError(StationError):
 
 
 def _restart(device: Device) -> bool:
-    """Restart the unit; False when it answers that it cannot (ACK status 1)."""
+    """Restart the unit; False when it answers that it cannot (ACK status 1) or its protocol has no
+    RESTART (a text-line, Xsens, MAVLink or frame-described unit: power-cycle it)."""
     if not isinstance(device, SerialDevice):
         return False
     try:
         device.restart()
+    except CommandUnsupported:
+        return False
     except CommandRejected as exc:
         if exc.status == native.ACK_UNKNOWN:
             return False
@@ -103,10 +106,10 @@ def record_turn_ons(port: str, folder: Path, turn_ons: int, still_s: float, *, p
                 print(f"turn-on {k + 1}/{turn_ons}: restarting the unit", file=err)
                 if not _restart(device):
                     if power_cycle is None:
-                        raise TurnOnError(f"{port}: the unit cannot restart itself (RESTART answered "
-                                          "status 1); run characterise from a terminal to be asked to "
-                                          "power-cycle it, or record each power-up yourself and give the "
-                                          "files")
+                        raise TurnOnError(f"{port}: the unit cannot restart itself (it answered RESTART "
+                                          "with status 1, or its protocol has no RESTART); run characterise "
+                                          "from a terminal to be asked to power-cycle it, or record each "
+                                          "power-up yourself and give the files")
                     device.close()
                     power_cycle(k + 1)
                     device = _reopen(port, protocol, baudrate)

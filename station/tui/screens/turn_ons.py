@@ -17,7 +17,7 @@ from textual import work
 from textual.widgets import Static
 from textual.worker import get_current_worker
 
-from drivers import CommandRejected, SerialDevice
+from drivers import CommandRejected, CommandUnsupported, SerialDevice
 from drivers.errors import DriverError
 from protocols import native
 from station.engines.characterisation_turnon import reduce_record, turn_on_repeatability
@@ -94,6 +94,8 @@ class TurnOnsScreen(LongRecordingScreen):
             device.restart()
             time.sleep(RESTART_SETTLE_S)
             return True
+        except CommandUnsupported:
+            pass  # a protocol without RESTART: the operator power-cycles it
         except CommandRejected as exc:
             if exc.status != native.ACK_UNKNOWN:
                 raise
