@@ -133,3 +133,19 @@ def test_enter_finishes_early_once_the_calibration_can_use_the_coverage(tmp_path
 
     asyncio.run(run())
     assert read_capture(tmp_path / "run-mag.csv").mag is not None
+
+
+def test_live_view_shows_the_field_of_a_nine_axis_unit(tmp_path: Path) -> None:
+    app = _app(tmp_path, mag=True)
+
+    async def run() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
+            await pilot.press("enter")
+            await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
+            await wait_for(pilot, lambda: "uT" in screen_text(app), 20, "the field's row")
+            row = next(line for line in screen_text(app).splitlines() if "uT" in line)
+            assert "mag" in row and row.count(".") >= 3
+            app.exit(0)
+
+    asyncio.run(run())

@@ -1,5 +1,5 @@
-"""Live view: the latest values, the measured rate, the accelerometer and gyroscope traces, errors
-and lost samples."""
+"""Live view: the latest values (the magnetic field too, for a unit that reports one), the measured
+rate, the accelerometer and gyroscope traces, errors and lost samples."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from textual.containers import Horizontal
 from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
+from protocols.base import has_mag
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, draw
 from station.tui.pump import Tail, pump
@@ -21,8 +22,8 @@ from station.tui.screens.station_screen import StationScreen
 
 AXIS_COLORS = ("red", "green", "blue")
 TAIL_SAMPLES = 400
-# Tail columns: device time (s), acc x y z, gyro x y z, temperature.
-T, ACC, GYRO, TEMP = 0, slice(1, 4), slice(4, 7), 7
+# Tail columns: device time (s), acc x y z, gyro x y z, temperature, field x y z (NaN without).
+T, ACC, GYRO, TEMP, MAG = 0, slice(1, 4), slice(4, 7), 7, slice(8, 11)
 
 
 class LiveScreen(StationScreen):
@@ -50,7 +51,7 @@ class LiveScreen(StationScreen):
         """Start reading the unit."""
         self.title = "imu-station · live"
         self._lock = threading.Lock()
-        self._tail = Tail(TAIL_SAMPLES, 8)
+        self._tail = Tail(TAIL_SAMPLES, 11)
         self._read()
 
     @work(thread=True, exclusive=True, group="reader")
@@ -58,7 +59,8 @@ class LiveScreen(StationScreen):
         device = self.session.device
 
         def on_batch(batch: np.ndarray) -> None:
-            rows = np.column_stack([batch["t_us"] * 1e-6, batch["acc"], batch["gyro"], batch["temp"]])
+            field = batch["mag"] if has_mag(batch) else np.full((len(batch), 3), np.nan)
+            rows = np.column_stack([batch["t_us"] * 1e-6, batch["acc"], batch["gyro"], batch["temp"], field])
             with self._lock:
                 self._tail.add(rows)
 
@@ -85,6 +87,9 @@ class LiveScreen(StationScreen):
         table.add_row("gyro", *(f"{v:+9.5f}" for v in last[3:6]), "rad/s")
         table.add_row("|a|", f"{np.linalg.norm(last[0:3]):9.4f}", "", "", "m/s^2")
         table.add_row("temp", f"{last[6]:9.2f}", "", "", "degC")
+        field = rows[-1, MAG]
+        if field.size == 3 and np.isfinite(field).all():  # a unit that reports a magnetometer
+            table.add_row("mag", *(f"{v:+9.2f}" for v in field), "uT")
         link = (f"rate [b]{stats.rate_hz:.1f} Hz[/b]   samples {stats.samples}   errors {stats.errors} "
                 f"(CRC {stats.crc_errors})   lost {stats.lost}   dropped {stats.overflow_drops}")
         grid = Table.grid()
