@@ -40,6 +40,21 @@ def _up_vector(label: str) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+def _axis_and_numbers(args: list[str], command: str, usage: str, names: str) -> tuple[float, float] | str:
+    """The two numbers after a signed axis (``ROT +z 360 90``), or the ``ERR 2`` reply saying why not."""
+    if len(args) != 3 or not _AXIS_RE.match(args[0]):
+        return f"ERR 2 {command} takes {usage}"
+    try:
+        return float(args[1]), float(args[2])
+    except ValueError:
+        return f"ERR 2 {command}: {names} must be numbers"
+
+
+def _signed(axis: str, value: float) -> str:
+    """The axis a negative angle or rate turns about positively: ``+z`` with -90 is ``-z``."""
+    return axis if value > 0 else ("-" if axis[0] == "+" else "+") + axis[1]
+
+
 class TurntableSim(PtyService):
     """``with TurntableSim(server.device) as table: Turntable(table.port_path)``.
 
@@ -166,38 +181,34 @@ class TurntableSim(PtyService):
         return "OK"
 
     def _rotate(self, args: list[str]) -> str:
-        if len(args) != 3 or not _AXIS_RE.match(args[0]):
-            return "ERR 2 ROT takes <axis> <deg> <dps>, e.g. ROT +z 360 90"
-        try:
-            angle, rate = float(args[1]), float(args[2])
-        except ValueError:
-            return "ERR 2 ROT: <deg> and <dps> must be numbers"
+        parsed = _axis_and_numbers(args, "ROT", "<axis> <deg> <dps>, e.g. ROT +z 360 90", "<deg> and <dps>")
+        if isinstance(parsed, str):
+            return parsed
+        angle, rate = parsed
         if not (math.isfinite(angle) and 0 < abs(angle) <= MAX_TURN_DEG):
             return f"ERR 2 ROT: the angle must be non-zero and within +-{MAX_TURN_DEG:g} deg"
         if not (math.isfinite(rate) and 0 < rate <= MAX_RATE_DPS):
             return f"ERR 2 ROT: the rate must be within 0..{MAX_RATE_DPS:g} deg/s"
-        sign = args[0][0] if angle > 0 else ("-" if args[0][0] == "+" else "+")
         self._move_start = self._now()
         kept = 1.0 + self.turn_error
-        self._move_end = self.device.rotate(sign + args[0][1], abs(angle) * kept, rate * kept, self.settle_s)
+        self._move_end = self.device.rotate(_signed(args[0], angle), abs(angle) * kept, rate * kept,
+                                            self.settle_s)
         self.up, self._turn_deg = "+" + args[0][1], angle if args[0][0] == "+" else -angle
         return "OK"
 
     def _spin(self, args: list[str]) -> str:
-        if len(args) != 3 or not _AXIS_RE.match(args[0]):
-            return "ERR 2 SPIN takes <axis> <dps> <seconds>, e.g. SPIN +z 90 10"
-        try:
-            rate, seconds = float(args[1]), float(args[2])
-        except ValueError:
-            return "ERR 2 SPIN: <dps> and <seconds> must be numbers"
+        parsed = _axis_and_numbers(args, "SPIN", "<axis> <dps> <seconds>, e.g. SPIN +z 90 10",
+                                   "<dps> and <seconds>")
+        if isinstance(parsed, str):
+            return parsed
+        rate, seconds = parsed
         if not (math.isfinite(rate) and 0 < abs(rate) <= MAX_RATE_DPS):
             return f"ERR 2 SPIN: the rate must be non-zero and within +-{MAX_RATE_DPS:g} deg/s"
         if not (math.isfinite(seconds) and 0 < seconds <= MAX_SPIN_S):
             return f"ERR 2 SPIN: the seconds must be within 0..{MAX_SPIN_S:g}"
-        sign = args[0][0] if rate > 0 else ("-" if args[0][0] == "+" else "+")
         kept = 1.0 + self.turn_error
         self._move_start = self._now()
-        self._move_end = self.device.command([ConstantRate(sign + args[0][1], abs(rate) * kept, seconds,
+        self._move_end = self.device.command([ConstantRate(_signed(args[0], rate), abs(rate) * kept, seconds,
                                                            settle_s=self.rate_settle_s)]) + self.settle_s
         self.up, self._turn_deg = "+" + args[0][1], 0.0
         return "OK"
