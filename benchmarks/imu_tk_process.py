@@ -16,7 +16,8 @@ Runs alternate (imu_tk, station, imu_tk, ...) so that both see the same load; me
 The parameters are compared entry by entry: the station's ``correction`` matrices (C = T K) and biases
 against imu_tk's full-precision dump (``test_imu_calib_dump``). Start-up is measured too: ``imu-station
 --help``, and the station's run with OpenBLAS allowed two threads (``OPENBLAS_NUM_THREADS=2``) against
-the default the command sets (one).
+the default the command sets (one). The station runs from its compiled bytecode, as installed
+(``process_timing.installed_env``).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from process_timing import ProcessRun, run_process  # noqa: E402
+from process_timing import ProcessRun, installed_env, run_process  # noqa: E402
 
 XSENS = REPO / "tests" / "data" / "xsens-imu_tk"
 BUILD = REPO.parent / "shared" / "peers" / "imu_tk" / "build.sh"
@@ -115,7 +116,9 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "imu-station" / "imu_tk")
     args = parser.parse_args()
 
-    helps = [run_process([*STATION, "--help"]) for _ in range(args.repeats)]
+    env = installed_env()
+    run_process([*STATION, "--help"], env=env)  # the bytecode cache filled before timing
+    helps = [run_process([*STATION, "--help"], env=env) for _ in range(args.repeats)]
     print(f"start-up: imu-station --help {median(helps, 'wall'):.3f} s wall, "
           f"{median(helps, 'cpu'):.3f} s CPU (median of {args.repeats}; target under 0.15 s)")
     binaries = build_imu_tk(args.cache)
@@ -123,18 +126,18 @@ def main() -> None:
         acc, gyro, csv = inputs(Path(tmp))
         params = Path(tmp) / "params.yaml"
         station = [*STATION, "calibrate", str(csv), *OPTIONS, "-o", str(params), "--replace"]
-        two_threads = dict(os.environ, OPENBLAS_NUM_THREADS="2")
+        two_threads = installed_env(OPENBLAS_NUM_THREADS="2")
         if isinstance(binaries, str):
             print(f"imu_tk: skipped, {binaries}")
-            ours = [run_process(station) for _ in range(args.repeats)]
+            ours = [run_process(station, env=env) for _ in range(args.repeats)]
             print(f"imu-station calibrate --method free --imu-tk, whole process: "
                   f"{median(ours, 'wall'):.3f} s wall, {median(ours, 'cpu'):.3f} s CPU")
             return
         theirs, ours, ours_two = [], [], []
-        run_process(station)  # compiled modules cached before the first timed run
+        run_process(station, env=env)  # compiled modules cached before the first timed run
         for _ in range(args.repeats):
             theirs.append(run_process([str(binaries / "test_imu_calib_quiet"), str(acc), str(gyro)]))
-            ours.append(run_process(station))
+            ours.append(run_process(station, env=env))
             ours_two.append(run_process(station, env=two_threads))
         print(f"imu_tk's Xsens session, whole processes, median of {args.repeats} alternating runs "
               "(wall; CPU = user + system of the process):")
