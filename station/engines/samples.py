@@ -28,7 +28,7 @@ def as_samples(t: object, acc: object, gyro: object) -> tuple[np.ndarray, np.nda
     Returns
     -------
     tuple of ndarray
-        ``t``, ``acc`` and ``gyro`` as float arrays.
+        ``t``, ``acc`` and ``gyro`` as float arrays, the triads column-major (Fortran order).
 
     Raises
     ------
@@ -45,7 +45,10 @@ def as_samples(t: object, acc: object, gyro: object) -> tuple[np.ndarray, np.nda
         if x.shape != (len(t), 3):
             raise EngineInputError(f"{name} has shape {x.shape}; the engines take ({len(t)}, 3): three axes "
                                    "per sample, one row per time")
-        arrays[name] = x
+        # column-major: the engines reduce over samples (each step's mean and variance, axis 0), which
+        # on rows of three runs numpy's inner loop three elements at a time (a 45,000-sample step's std:
+        # 1.16 ms against 0.08 ms); one copy of each triad
+        arrays[name] = np.asfortranarray(x)
     for name, x in arrays.items():
         bad = np.flatnonzero(~np.isfinite(x).reshape(len(t), -1).all(axis=1))
         if len(bad):
