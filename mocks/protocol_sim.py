@@ -20,6 +20,8 @@ URL options (all optional)::
     field=UT dip=DEG declination=DEG
                       the local Earth field (default 50 uT, dip 60, declination 0; implies mag=1);
                       scenario=mag-sphere or mag-desk turns the unit for a magnetometer calibration
+    heading=DEG       azimuth of the rig's x axis from true north (default 0): where the horizontal
+                      field and the Earth rate point in the rig's frame
     grade=mems|tactical   intrinsics of the random unit (default mems)
     ideal=1           an ideal unit (identity, no noise) instead of a random one
     speed=X           device time runs X times faster than the wall clock (default 1)
@@ -71,6 +73,7 @@ class SimOptions:
     faults: FaultSpec | None = None
     chamber: ChamberSweep | None = None
     mag: MagTruth | None = None
+    heading: float = 0.0
 
 
 MAX_SEED = 2**32 - 1  # numpy's generators take seeds of 0..2^32-1
@@ -128,6 +131,10 @@ def parse_sim_url(url: str) -> SimOptions:
                 chamber_options[key] = value
             elif key in MAG_OPTIONS:
                 mag_options[key] = value
+            elif key == "heading":
+                options.heading = float(value)
+                if not -360.0 <= options.heading <= 360.0:
+                    raise ValueError("give a heading in -360..360 deg")
             else:
                 raise ValueError("unknown option")
         except ValueError as exc:
@@ -179,6 +186,7 @@ class Serial(SerialBase):
             opts = parse_sim_url(self._port)
             truth = UnitTruth.ideal() if opts.ideal else UnitTruth.random(opts.seed, grade=opts.grade)
             truth.mag = opts.mag
+            truth.heading_deg = opts.heading
             self.device = SimDevice(truth, seed=opts.seed, rate_hz=opts.rate, scenario=opts.scenario,
                                     loop=opts.loop, chamber=opts.chamber)
         except ValueError as exc:

@@ -250,6 +250,9 @@ def test_sim_url_options_make_a_nine_axis_unit() -> None:
         parse_sim_url("sim://?mag=1&dip=100")
     with pytest.raises(ValueError, match="field"):
         parse_sim_url("sim://?field=strong")
+    assert parse_sim_url("sim://?mag=1&heading=90").heading == 90.0
+    with pytest.raises(ValueError, match="heading"):
+        parse_sim_url("sim://?heading=400")
 
 
 def test_pty_end_to_end_capture_of_a_mag_unit_matches_what_was_sent(tmp_path: Path) -> None:

@@ -63,8 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="programme of --scenario chamber: t_min=C,t_max=C,rate_c_per_min=R,soak_s=S, "
                              "any of them (default: t_min=-20,t_max=60,rate_c_per_min=1,soak_s=600)")
     parser.add_argument("--mag", nargs="?", const="mag=1", default="", metavar="SPEC",
-                        help="a unit with a magnetometer; SPEC sets the local field: field=UT,dip=DEG,"
-                             "declination=DEG, any of them (default: field=50,dip=60,declination=0)")
+                        help="a unit with a magnetometer; SPEC sets the local field and the rig's heading: "
+                             "field=UT,dip=DEG,declination=DEG,heading=DEG, any of them (default: "
+                             "field=50,dip=60,declination=0,heading=0)")
     parser.add_argument("--hold", action="store_true",
                         help="hold the last pose at the end of the scenario instead of looping it")
     parser.add_argument("--grade", default="mems", choices=["mems", "tactical"],
@@ -108,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
     if args.link is not None and os.path.lexists(args.link) and not args.link.is_symlink():
         raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
-    truth.mag = _magnetometer(args.mag, args.seed)
+    truth.mag, heading = _magnetometer(args.mag, args.seed)
+    truth.heading_deg = heading
     device = SimDevice(truth, seed=args.seed, rate_hz=args.rate, scenario=args.scenario,
                        loop=False if args.hold else None, encoder=args.protocol, chamber=chamber)
     server = PtyServer(device, faults=faults, link=args.link, speed=args.speed)
@@ -141,19 +143,24 @@ def run(args: argparse.Namespace) -> int:
     return ExitCode.OK
 
 
-def _magnetometer(spec: str, seed: int) -> MagTruth | None:
-    """The magnetometer of ``--mag SPEC`` (comma-separated key=value), or None without --mag."""
+def _magnetometer(spec: str, seed: int) -> tuple[MagTruth | None, float]:
+    """The magnetometer of ``--mag SPEC`` (comma-separated key=value; None without --mag) and the
+    rig's heading (deg from true north) the spec gives, 0 by default."""
     from mocks.magnetometer import mag_from_options
 
     if not spec:
-        return None
+        return None, 0.0
     options = dict(part.partition("=")[::2] for part in spec.split(",") if part.strip())
     options = {k.strip(): v.strip() for k, v in options.items()}
     options.setdefault("mag", "1")
     try:
-        return mag_from_options(options, seed)
+        heading = float(options.pop("heading", "0"))
+        if not -360.0 <= heading <= 360.0:
+            raise ValueError(f"heading {heading:g} is outside -360..360 deg")
+        return mag_from_options(options, seed), heading
     except ValueError as exc:
-        raise StationError(f"--mag {spec!r}: {exc}; give field=UT,dip=DEG,declination=DEG") from None
+        raise StationError(f"--mag {spec!r}: {exc}; give field=UT,dip=DEG,declination=DEG,heading=DEG") \
+            from None
 
 
 def _wait(server: PtyServer, stop: threading.Event, duration: float | None) -> None:
