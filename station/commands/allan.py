@@ -23,7 +23,11 @@ Compute the overlapping Allan deviation of every axis (gx gy gz ax ay az) of a s
 identify the IEEE 952 noise terms: N white noise (angle/velocity random walk), K rate random walk,
 B bias instability, Q quantization, R rate ramp. N and K are always fitted; B, Q and R only where the
 curve shows them. A term the record cannot show is null, with the reason (for example K when the
-white-noise and random-walk lines cross beyond a twentieth of the record).
+white-noise and random-walk lines cross beyond a twentieth of the record). Where those terms do not
+describe the curve within its 68%% interval (or 10%%), every combination of them with up to three
+Gauss-Markov processes (GM), the sensor's output filter and sinusoids is fitted and the simplest that
+does is reported, with the range of tau where it holds (valid_tau). The Kalibr, VINS and ORB-SLAM3
+values are the N and K equivalent to the whole model over --horizon.
 
 INPUT is a capture CSV, a station capture file (.h5) or a ROS 1/ROS 2 bag with sensor_msgs/Imu
 (header stamps are used; needs the 'ros' extra). Timestamps are checked: gaps, repeated and
@@ -34,7 +38,8 @@ exit codes: 0 done, 4 unusable input or options."""
 EPILOG = """\
 examples:
   imu-station allan still.csv -o unit.yaml --plot allan.png --curve allan.csv
-  imu-station allan imu.bag --topic /imu/data --kalibr imu.yaml --vins vins.yaml --json"""
+  imu-station allan imu.bag --topic /imu/data --kalibr imu.yaml --vins vins.yaml --json
+  imu-station allan still.csv --gm gm.yaml --gm-rate 200 --horizon 600"""
 
 
 MAX_PER_DECADE = 1000  # beyond this the cluster sizes repeat: every integer m is already there
@@ -54,6 +59,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kalibr", type=Path, metavar="FILE.yaml", help="write Kalibr's imu.yaml")
     parser.add_argument("--vins", type=Path, metavar="FILE.yaml", help="write VINS-Fusion's IMU noise lines")
     parser.add_argument("--orbslam3", type=Path, metavar="FILE.yaml", help="write the ORB-SLAM3 IMU lines")
+    parser.add_argument("--horizon", type=number(float, 0.0, 1e9, low_open=True, unit="s"), metavar="S",
+                        help="time scale (s) over which the Kalibr/VINS/ORB-SLAM3 N and K cover the whole "
+                             "noise model, from the sample period (default: each axis's valid_tau end)")
+    parser.add_argument("--gm", type=Path, metavar="FILE.yaml",
+                        help="write N, K and the Gauss-Markov terms for EKF-style process noise, continuous "
+                             "and discrete-time")
+    parser.add_argument("--gm-rate", type=RATE_HZ, metavar="HZ",
+                        help="filter rate of the --gm discrete-time terms (default: the record's rate)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.add_argument("--topic", help="IMU topic of a ROS bag holding several (default: the only one)")
     parser.add_argument("--rostopic", help="rostopic for Kalibr's imu.yaml (default: --topic or /imu0)")
@@ -203,7 +216,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
                 refuse_short_record(noise, args.terms, curve.duration_s, str(args.input))
     source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
               "timing_problems": timing.problems()}
-    section = to_plain(allan_report.noise_section(noise, curve, source))
+    section = to_plain(allan_report.noise_section(noise, curve, source, horizon_s=args.horizon))
     outputs: dict[str, str] = {}
     rostopic = args.rostopic or args.topic or "/imu0"
     texts = {}
@@ -213,6 +226,10 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
         texts[args.vins] = kalibr.vins_snippet(section)
     if args.orbslam3:
         texts[args.orbslam3] = kalibr.orbslam3_snippet(section)
+    if args.gm:
+        from station.export.gm_yaml import gm_yaml
+
+        texts[args.gm] = gm_yaml(section, args.gm_rate)
     for path, text in texts.items():
         atomic_write_text(path, text)
         outputs[str(path)] = "written"

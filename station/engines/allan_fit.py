@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import optimize
@@ -46,6 +47,9 @@ from station.engines.allan import AllanCurve
 from station.engines.allan_ml import block_length, white_walk_ml
 from station.engines.allan_terms import TERMS
 from station.errors import EngineInputError
+
+if TYPE_CHECKING:
+    from station.engines.allan_model import NoiseModel
 
 B_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.66428
 ALPHA_OF_TERM = {"Q": 2, "N": 0, "B": -1, "K": -2, "R": -2}
@@ -140,6 +144,7 @@ class AxisNoise:
     gauss_markov: tuple[float, float] | None = None  # (sigma, correlation time s) where a hump was fitted
     fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
     k_needed_s: float | None = None  # record length that could show K, where K is not shown (a lower bound)
+    noise_model: NoiseModel | None = None  # the model reported and drawn (allan_model.choose_model)
 
     def value(self, term: str) -> float | None:
         """The estimate of noise term ``term`` (N, B, K, ...) in its own unit, or None if not resolved.
@@ -167,6 +172,8 @@ class AxisNoise:
         -------
         ndarray, (M,)
         """
+        if self.noise_model is not None:
+            return np.sqrt(self.noise_model.avar(np.asarray(tau, dtype=np.float64)))
         avar = model_avar(tau, self.coeffs)
         if self.gauss_markov is not None:
             sigma, tau_c = self.gauss_markov
@@ -633,6 +640,9 @@ def identify_noise(curve: AllanCurve, phase: np.ndarray | Sequence[np.ndarray] |
     term that dominates the first fit there, which is steadier at long tau where the slope is noisy.
     Given the integrated records the curve came from (``phase``, one row per axis), K of the axes
     that show only those two terms is then taken from their exact likelihood (:func:`use_white_walk_ml`).
+    Last, each axis's model is checked against its curve and, where it does not describe it, replaced
+    by the simplest that does (:func:`station.engines.allan_model.choose_model`: Gauss-Markov processes,
+    the sensor's filter, sinusoids); ``AxisNoise.noise_model`` holds the model and its valid range.
 
     Parameters
     ----------
@@ -655,4 +665,9 @@ def identify_noise(curve: AllanCurve, phase: np.ndarray | Sequence[np.ndarray] |
     if phase is not None:
         for j, axis in enumerate(noise):
             use_white_walk_ml(axis, phase[j], curve.rate_hz)
+    from station.engines.allan_model import choose_model  # it builds on this module's fit: no import cycle
+
+    for j, axis in enumerate(noise):
+        choose_model(axis, refined.tau, refined.adev[:, j], refined.edf[:, j], refined.ci_low[:, j],
+                     refined.ci_high[:, j], refined.rate_hz)
     return refined, noise

@@ -1,4 +1,5 @@
-"""The Allan deviation plot: log-log curves with 68 % bands, fitted model and the identified terms marked."""
+"""The Allan deviation plot: log-log curves with 68 % bands, every fitted term as its own line, their sum, the
+identified terms marked and the range of tau where the model holds shaded."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from station.files import atomic_write_bytes
 
 COLORS = ("tab:red", "tab:green", "tab:blue")
 MARKERS = {"Q": "v", "N": "o", "B": "s", "K": "^", "R": "D"}
+PART_STYLES = {"GM": "-.", "S": (0, (1, 3))}  # Gauss-Markov processes, sinusoids; IEEE terms dotted
 
 
 def _term_point(term: str, value: float, noise: AxisNoise, tau: np.ndarray) -> tuple[float, float]:
@@ -46,17 +48,25 @@ def render_png(curve: AllanCurve, noise: list[AxisNoise], title: str = "") -> by
             ax.fill_between(curve.tau, curve.ci_low[:, j], curve.ci_high[:, j], color=color, alpha=0.18, lw=0)
             ax.loglog(curve.tau, curve.adev[:, j], ".-", color=color, lw=1.2, ms=3, label=f"{name}")
             fit = by_axis.get(name)
-            if fit is None or not fit.coeffs:
+            if fit is None or (not fit.coeffs and fit.noise_model is None):
                 continue
             ax.loglog(fine, fit.model(fine), "--", color=color, lw=0.9, alpha=0.8)
+            if fit.noise_model is not None:
+                for label, part in fit.noise_model.parts(fine).items():
+                    style = PART_STYLES.get(label[:2] if label[:2] in PART_STYLES else label[:1], ":")
+                    ax.loglog(fine, np.sqrt(part), ls=style, color=color, lw=0.8, alpha=0.7)
             for term, est in fit.terms.items():
                 if est.value is None:
                     continue
-                # the term's own line: sigma^2 = basis column * value^2
-                own = np.sqrt(basis(fine)[:, TERMS.index(term)]) * est.value
-                ax.loglog(fine, own, ":", color=color, lw=0.8, alpha=0.7)
+                if fit.noise_model is None:  # the term's own line: sigma^2 = basis column * value^2
+                    own = np.sqrt(basis(fine)[:, TERMS.index(term)]) * est.value
+                    ax.loglog(fine, own, ":", color=color, lw=0.8, alpha=0.7)
                 point = _term_point(term, est.value, fit, curve.tau)
                 ax.loglog(*point, MARKERS[term], color=color, mfc="white", ms=7, mew=1.5)
+        valid = [by_axis[a].noise_model.valid_tau for a in SENSOR_AXES[sensor]
+                 if a in by_axis and by_axis[a].noise_model is not None]
+        if valid:
+            ax.axvspan(max(v[0] for v in valid), min(v[1] for v in valid), color="gold", alpha=0.10, lw=0)
         unit = "rad/s" if sensor == "gyro" else "m/s$^2$"
         ax.set_title(f"{'gyroscope' if sensor == 'gyro' else 'accelerometer'}"
                      f" ({curve.duration_s / 3600:.3g} h at {curve.rate_hz:.4g} Hz)")
@@ -72,9 +82,16 @@ def render_png(curve: AllanCurve, noise: list[AxisNoise], title: str = "") -> by
                 handles.append(ax.plot([], [], marker, color="gray", mfc="white", ls="")[0])
                 labels.append(f"{term} [{UNITS[sensor][term][0]}]")
         handles.append(ax.plot([], [], "--", color="gray")[0])
-        labels.append("fitted model (IEEE 952, Gauss-Markov bias where shown)")
+        labels.append("fitted model: the sum of its terms")
         handles.append(ax.plot([], [], ":", color="gray")[0])
-        labels.append("identified terms")
+        labels.append("IEEE 952 terms")
+        handles.append(ax.plot([], [], ls=PART_STYLES["GM"], color="gray")[0])
+        labels.append("Gauss-Markov processes")
+        handles.append(ax.plot([], [], ls=PART_STYLES["S"], color="gray")[0])
+        labels.append("sinusoids")
+        if valid:
+            handles.append(ax.fill_between([], [], [], color="gold", alpha=0.25, lw=0))
+            labels.append("valid range of the model (every axis)")
         ax.legend(handles, labels, fontsize=8, loc="best")
     if title:
         fig.suptitle(title, fontsize=10)

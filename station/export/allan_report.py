@@ -15,11 +15,14 @@ import numpy as np
 
 from protocols.units import STANDARD_GRAVITY
 from station.engines.allan import AllanCurve
+from station.engines.allan_equivalent import white_walk_equivalent
 from station.engines.allan_fit import ML_METHOD, TERMS, AxisNoise
+from station.engines.allan_model import NoiseModel
 from station.files import atomic_write_text
 
 METHOD = ("overlapping Allan deviation (demeaned cumulative sum), IEEE 952 model fitted with weights from "
-          "Greenhall-Riley EDF")
+          "Greenhall-Riley EDF; where it does not describe the curve, the simplest of every combination of "
+          "IEEE terms, up to three Gauss-Markov processes, the sensor's filter and sinusoids that does")
 DEG = 180.0 / math.pi
 
 # SI unit of each term, then (datasheet unit, factor from SI)
@@ -53,8 +56,33 @@ def _by_likelihood(axis: AxisNoise, term: str) -> bool:
     return (axis.terms[term].method or "").startswith(ML_METHOD)
 
 
-def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
-    """The ``noise.gyro`` / ``noise.accel`` mapping of params-file.md, with stddev, reasons and readings."""
+def model_keys(models: list[NoiseModel], step_s: float, horizon_s: float | None) -> dict[str, Any]:
+    """The keys of each axis's chosen model (:mod:`station.engines.allan_model`): ``GM`` (per axis a list of
+    [sigma, tau_c]), ``valid_tau``, their 1-sigma, the filter, sinusoids, how the model was chosen, and the
+    white noise and random walk equivalent to the whole model for filters that take only those
+    (:mod:`station.engines.allan_equivalent`, over ``step_s`` .. ``horizon_s``, default each axis's valid
+    range's end)."""
+    out: dict[str, Any] = {
+        "GM": [[[g.sigma.value, g.tau_c.value] for g in m.gauss_markov] for m in models],
+        "valid_tau": [list(m.valid_tau) for m in models],
+        "GM_stddev": [[[g.sigma.stddev, g.tau_c.stddev] for g in m.gauss_markov] for m in models],
+    }
+    if any(m.filter_s is not None for m in models):
+        out["filter_time_constant_s"] = [None if m.filter_s is None else m.filter_s.value for m in models]
+    if any(m.sinusoids for m in models):
+        out["sinusoids"] = [[[s.amplitude.value, s.freq_hz.value] for s in m.sinusoids] for m in models]
+    out["model"] = {"terms": [m.describe() for m in models], "method": [m.method for m in models],
+                    "outside_band": [m.outside for m in models], "points": [m.points for m in models]}
+    pairs = [white_walk_equivalent(m, step_s, horizon_s or m.valid_tau[1]) for m in models]
+    out["filter_equivalent"] = {"N": [n for n, _ in pairs], "K": [k for _, k in pairs], "step_s": step_s,
+                                "horizon_s": [horizon_s or m.valid_tau[1] for m in models]}
+    return out
+
+
+def sensor_noise(noise: list[AxisNoise], sensor: str, step_s: float = 0.01, horizon_s: float | None = None
+                 ) -> dict[str, Any]:
+    """The ``noise.gyro`` / ``noise.accel`` mapping of params-file.md, with stddev, reasons and readings
+    (``step_s`` and ``horizon_s``: see :func:`model_keys`)."""
     units = UNITS[sensor]
     out: dict[str, Any] = {}
     for term in TERMS:
@@ -83,26 +111,30 @@ def sensor_noise(noise: list[AxisNoise], sensor: str) -> dict[str, Any]:
             "tau_s": [a.terms[t].slope_tau for a in noise],
             "reason": [a.terms[t].slope_reason for a in noise]}
         for t in TERMS}
-    if any(a.gauss_markov for a in noise):
-        out["gauss_markov"] = {"sigma": [a.gauss_markov[0] if a.gauss_markov else None for a in noise],
-                               "correlation_time_s": [a.gauss_markov[1] if a.gauss_markov else None
-                                                      for a in noise]}
+    models = [a.noise_model for a in noise]
+    if any(m is not None for m in models):
+        out.update(model_keys([m for m in models if m is not None], step_s, horizon_s))
     out["crossing_tau_N_K_s"] = [a.crossing_tau_nk for a in noise]
     out["reduced_chi2"] = [a.reduced_chi2 for a in noise]
     return out
 
 
-def noise_section(noise: list[AxisNoise], curve: AllanCurve, record: dict[str, Any]) -> dict[str, Any]:
-    """The whole ``noise`` section: per-sensor terms, units, method and the record they came from."""
+def noise_section(noise: list[AxisNoise], curve: AllanCurve, record: dict[str, Any],
+                  horizon_s: float | None = None) -> dict[str, Any]:
+    """The whole ``noise`` section: per-sensor terms, units, method and the record they came from
+    (``horizon_s``: the filters' horizon of the equivalent N and K, :func:`model_keys`)."""
     by_axis = {a.axis: a for a in noise}
     section: dict[str, Any] = {
         "method": METHOD,
         "units": {s: {t: UNITS[s][t][0] for t in TERMS} for s in UNITS},
-        "model": "sigma^2(tau) = 3 Q^2/tau^2 + N^2/tau + (2 ln2/pi) B^2 + K^2 tau/3 + R^2 tau^2/2",
+        "model": ("sigma^2(tau) = 3 Q^2/tau^2 + N^2/tau + (2 ln2/pi) B^2 + K^2 tau/3 + R^2 tau^2/2 + sum "
+                  "over GM [sigma, T] of sigma^2 (T/tau)^2 (2 tau/T - 3 + 4 exp(-tau/T) - exp(-2 tau/T)); "
+                  "filter_time_constant_s T_f: N^2/tau becomes the GM term of sigma^2 = N^2/(2 T_f), "
+                  "T = T_f; sinusoids [A, f]: A^2 sin^4(pi f tau)/(pi f tau)^2"),
     }
     for sensor, axes in SENSOR_AXES.items():
         if all(a in by_axis for a in axes):
-            section[sensor] = sensor_noise([by_axis[a] for a in axes], sensor)
+            section[sensor] = sensor_noise([by_axis[a] for a in axes], sensor, 1.0 / curve.rate_hz, horizon_s)
     section["record"] = {"samples": curve.n_samples, "rate_hz": curve.rate_hz, "duration_s": curve.duration_s,
                          "tau_range_s": [float(curve.tau[0]), float(curve.tau[-1])], **record}
     return section
@@ -150,6 +182,14 @@ def summary_lines(section: dict[str, Any]) -> list[str]:
             cells = [f"{axis} " + ("null" if v is None else f"{v:.4g}")
                      for axis, v in zip(SENSOR_AXES[sensor], fit["value"], strict=True)]
             lines.append(f"  {t} by the IEEE 952 fit of the curve, for comparison: " + " | ".join(cells))
+        for axis, procs, valid, what in zip(SENSOR_AXES[sensor], s.get("GM") or [[]] * 3,
+                                            s.get("valid_tau") or [None] * 3,
+                                            (s.get("model") or {}).get("terms") or [None] * 3, strict=True):
+            if what is None:
+                continue
+            gm = "; ".join(f"sigma {p[0]:.3g} {UNITS[sensor]['B'][0]}, tau_c {p[1]:.3g} s" for p in procs)
+            lines.append(f"  {axis} model {what}" + (f" (Gauss-Markov {gm})" if gm else "")
+                         + f", valid for tau {valid[0]:.3g} .. {valid[1]:.4g} s")
         for t, reasons in s["reasons"].items():
             if t not in ("N", "K"):  # the optional terms' absence is the normal case
                 continue

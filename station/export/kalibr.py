@@ -22,12 +22,18 @@ UNIT = {("gyro", "N"): "rad/s/sqrt(Hz)", ("gyro", "K"): "rad/s^2/sqrt(Hz)",
 
 
 def filter_values(noise: dict[str, Any]) -> dict[tuple[str, str], float]:
-    """The four numbers (largest axis of N and K per sensor); refuses when the record does not show one."""
+    """The four numbers (largest axis of N and K per sensor); refuses when the record does not show one.
+
+    Where the section has them, the values equivalent to each axis's whole model over the filter's time
+    scale (``filter_equivalent``, :mod:`station.engines.allan_equivalent`) are taken; N and K themselves
+    otherwise. A K of zero (a model with nothing that drifts) counts as not shown."""
     out = {}
     for (sensor, term) in KEYS:
-        values = [v for v in ((noise.get(sensor) or {}).get(term) or []) if v is not None]
+        sensor_noise = noise.get(sensor) or {}
+        source = sensor_noise.get("filter_equivalent") or sensor_noise
+        values = [v for v in (source.get(term) or []) if v is not None and (term != "K" or v > 0)]
         if not values:
-            reasons = {r for r in ((noise.get(sensor) or {}).get("reasons", {}).get(term) or []) if r}
+            reasons = {r for r in (sensor_noise.get("reasons", {}).get(term) or []) if r}
             why = "; ".join(sorted(reasons)) or "the noise section has no such term"
             raise EngineInputError(f"cannot write filter noise parameters: {sensor} {term} is unknown "
                                    f"({why}). Record a longer still period (several hours) and run "
@@ -42,12 +48,22 @@ def kalibr_yaml(noise: dict[str, Any], rostopic: str = "/imu0", update_rate: flo
     rate = update_rate if update_rate is not None else noise["record"]["rate_hz"]
     lines = ["# IMU noise model for Kalibr, from imu-station allan (still recording of "
              f"{noise['record']['duration_s'] / 3600:.3g} h).",
-             "# Continuous-time densities, largest axis. Kalibr advises inflating bench values for motion."]
+             "# Continuous-time densities, largest axis. Kalibr advises inflating bench values for motion.",
+             *_equivalent_note(noise)]
     for key, name in KEYS.items():
         lines.append(f"{name}: {v[key]:.6e}  # {key[1]} [{UNIT[key]}]")
     lines.append(f"rostopic: {rostopic}")
     lines.append(f"update_rate: {float(rate):.6g}  # Hz")
     return "\n".join(lines) + "\n"
+
+
+def _equivalent_note(noise: dict[str, Any]) -> list[str]:
+    """A comment saying the values cover the whole noise model, and over which time scale."""
+    eq = (noise.get("gyro") or {}).get("filter_equivalent")
+    if not eq:
+        return []
+    return [f"# N and K equivalent to the whole model (Gauss-Markov terms included) from {eq['step_s']:.3g} "
+            f"s to {max(eq['horizon_s']):.4g} s (imu-station docs: methods/allan)."]
 
 
 def vins_snippet(noise: dict[str, Any]) -> str:

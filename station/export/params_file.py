@@ -79,6 +79,21 @@ def sensor_from_dict(d: dict[str, Any]) -> SensorCalibration:
     )
 
 
+def gauss_markov_of(sensor_noise: dict[str, Any]) -> list[list[list[float]]] | None:
+    """Per axis the [sigma, tau_c] pairs of a ``noise.gyro`` / ``noise.accel`` mapping, or None.
+
+    Reads the spec's ``GM`` key, and files written before it: ``gauss_markov: {sigma: [..],
+    correlation_time_s: [..]}`` (one process per axis, null where none).
+    """
+    if sensor_noise.get("GM") is not None:
+        return [list(p or []) for p in sensor_noise["GM"]]
+    old = sensor_noise.get("gauss_markov")
+    if not old:
+        return None
+    return [[] if s is None or t is None else [[s, t]]
+            for s, t in zip(old.get("sigma") or [], old.get("correlation_time_s") or [], strict=False)]
+
+
 @dataclass
 class ParamsFile:
     """A unit's parameter file: known sections typed, every other section kept as it was read."""

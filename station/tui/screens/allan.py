@@ -10,7 +10,7 @@ from textual import work
 from textual.widgets import Static
 
 from station.acquisition.allan_source import AXES
-from station.engines.allan import allan_curve, cluster_sizes, integrate_rates, overlapping_adev
+from station.engines.allan import AllanCurve, allan_curve, cluster_sizes, integrate_rates, overlapping_adev
 from station.engines.allan_fit import AxisNoise, identify_noise
 from station.errors import StationError
 from station.export import allan_report
@@ -22,13 +22,15 @@ from station.tui.recording import Recording
 from station.tui.screens.long_recording import LongRecordingScreen
 
 COLORS = ("red", "green", "blue")
+DIM = ("orange", "cyan", "magenta")  # the band, the terms and the valid range of each axis
 MIN_SAMPLES = 64
 
 
 def adev_series(tau: np.ndarray, adev: np.ndarray, noise: list[AxisNoise] | None,
-                first: int) -> list[Series]:
-    """The ADEV of the three axes from column ``first`` (``AXES`` order), each followed by its fitted
-    model when ``noise`` is given.
+                first: int, curve: AllanCurve | None = None) -> list[Series]:
+    """The ADEV of the three axes from column ``first`` (``AXES`` order), each followed, when ``noise``
+    is given, by its fitted model (the sum), every term of the model as its own line, the curve's 68 %
+    band (from ``curve``) and the bounds of the model's valid range as vertical lines.
 
     Parameters
     ----------
@@ -40,6 +42,8 @@ def adev_series(tau: np.ndarray, adev: np.ndarray, noise: list[AxisNoise] | None
         The fit of every axis (None while recording).
     first : int
         0 for the gyroscope, 3 for the accelerometer.
+    curve : AllanCurve, optional
+        The fitted curve, for its 68 % interval.
 
     Returns
     -------
@@ -49,18 +53,32 @@ def adev_series(tau: np.ndarray, adev: np.ndarray, noise: list[AxisNoise] | None
     for j in range(3):
         k = first + j
         out.append(Series(AXES[k], tau, adev[:, k], COLORS[j]))
-        if noise is not None:
-            out.append(Series(f"{AXES[k]} fit", tau, noise[k].model(tau), COLORS[j], fitted=True))
+        if noise is None:
+            continue
+        fit = noise[k]
+        out.append(Series(f"{AXES[k]} fit", tau, fit.model(tau), COLORS[j], fitted=True))
+        if curve is not None:
+            out.append(Series(f"{AXES[k]} 68%", tau, curve.ci_low[:, k], DIM[j], fitted=True))
+            out.append(Series("", tau, curve.ci_high[:, k], DIM[j], fitted=True))
+        model = fit.noise_model
+        if model is None:
+            continue
+        for label, part in model.parts(tau).items():
+            out.append(Series(f"{AXES[k]} {label}", tau, np.sqrt(part), DIM[j], fitted=True))
+        span = [float(np.min(adev[:, k])) / 2.0, float(np.max(adev[:, k])) * 2.0]
+        for name, edge in zip((f"{AXES[k]} valid", ""), model.valid_tau, strict=True):
+            out.append(Series(name, np.array([edge, edge]), np.array(span), DIM[j], fitted=True))
     return out
 
 
 def draw_adev(screen: LongRecordingScreen, tau: np.ndarray, adev: np.ndarray,
-              noise: list[AxisNoise] | None = None) -> None:
-    """The gyro and accel ADEV on log-log axes, with the fitted lines once fitted."""
+              noise: list[AxisNoise] | None = None, curve: AllanCurve | None = None) -> None:
+    """The gyro and accel ADEV on log-log axes, with the model, its terms, band and valid range once
+    fitted."""
     gyro_plot, acc_plot = screen.plots()
-    draw(gyro_plot, adev_series(tau, adev, noise, 0), title="gyro ADEV", xlabel="tau (s)",
+    draw(gyro_plot, adev_series(tau, adev, noise, 0, curve), title="gyro ADEV", xlabel="tau (s)",
          ylabel="rad/s", logx=True, logy=True)
-    draw(acc_plot, adev_series(tau, adev, noise, 3), title="accel ADEV", xlabel="tau (s)",
+    draw(acc_plot, adev_series(tau, adev, noise, 3, curve), title="accel ADEV", xlabel="tau (s)",
          ylabel="m/s^2", logx=True, logy=True)
 
 
@@ -136,7 +154,7 @@ class AllanScreen(LongRecordingScreen):
     def show_fit(self, fit: tuple) -> None:
         """The fitted lines over the curves, and the noise terms of every axis."""
         curve, noise, section = fit
-        draw_adev(self, curve.tau, curve.adev, noise)
+        draw_adev(self, curve.tau, curve.adev, noise, curve)
         text = Text("\n".join(allan_report.summary_lines(section)))
         if self.recording.path is not None:
             text.append(f"\nrecording in {self.recording.path}")
