@@ -28,7 +28,7 @@ from textual.widgets import Footer, Header, ProgressBar, Static
 from protocols.base import has_mag
 from station.acquisition.recorder import Recorder
 from station.engines.calibration_mag import MIN_COVERAGE, WARN_COVERAGE
-from station.engines.mag_coverage import MagCoverage, direction_label, field_coverage
+from station.engines.mag_coverage import CELLS, MagCoverage, direction_label, field_coverage
 from station.engines.mag_fit import sphere_fit
 from station.errors import StationError
 from station.tui.art import bar
@@ -58,10 +58,10 @@ class MagProgress:
         self.with_field = 0
         self.first_t_us: int | None = None
         self.last_t_us = 0
-        self._next_keep_us = 0
+        self._last_bin = -1  # the last 1/KEEP_HZ s bin of device time a reading was kept from
 
     def add(self, batch: np.ndarray) -> None:
-        """Take a batch of samples: those with a finite field, one per 1/KEEP_HZ s, are kept."""
+        """Take a batch of samples: those with a finite field, the first of each 1/KEEP_HZ s, are kept."""
         if not len(batch):
             return
         t = batch["t_us"].astype(np.int64)
@@ -74,14 +74,14 @@ class MagProgress:
         mag = batch["mag"].astype(np.float64)
         ok = np.isfinite(mag).all(axis=1)
         self.with_field += int(ok.sum())
-        step = int(1e6 / KEEP_HZ)
-        keep = []
-        for i in np.flatnonzero(ok):
-            if t[i] >= self._next_keep_us:
-                keep.append(i)
-                self._next_keep_us = int(t[i]) + step
-        if keep:
-            self.readings.append(mag[keep])
+        index = np.flatnonzero(ok)
+        if not len(index):
+            return
+        bins = t[index] // int(1e6 / KEEP_HZ)
+        first = np.concatenate([[bins[0] != self._last_bin], bins[1:] != bins[:-1]])
+        self._last_bin = int(bins[-1])
+        if first.any():
+            self.readings.append(mag[index[first]])
 
     @property
     def seconds(self) -> float:
@@ -143,7 +143,7 @@ class MagScreen(StationScreen):
         """The sphere, the guidance with the coverage bar, the status line, the keys."""
         yield Header()
         with Horizontal(id="top"):
-            yield Static(hemispheres(np.zeros(62, bool)), id="sphere")
+            yield Static(hemispheres(np.zeros(CELLS, bool)), id="sphere")
             with Vertical(id="guide-box"):
                 yield Static("waiting for samples ...", id="guide")
                 yield ProgressBar(total=1.0, show_eta=False, id="coverage")
