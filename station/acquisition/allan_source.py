@@ -123,11 +123,16 @@ class TimingChecker:
                 raise EngineInputError("cannot tell the sample rate from the first timestamps; give --rate")
             # 6 significant digits: timestamps printed to microseconds would otherwise give 200.0000000002 Hz
             r.rate_hz = float(f"{1.0 / np.median(steps):.6g}")
-        newest = np.maximum.accumulate(np.concatenate([[self._last], t]))[:-1]
-        keep = t > newest
-        r.duplicates += int(np.count_nonzero(t == newest))
-        r.disordered += int(np.count_nonzero(t < newest))
-        kept = t[keep]
+        if len(t) and t[0] > self._last and (len(t) < 2 or np.min(np.diff(t)) > 0):
+            # the usual chunk: every stamp later than the one before, nothing dropped
+            keep = np.ones(len(t), dtype=bool)
+            kept = t
+        else:
+            newest = np.maximum.accumulate(np.concatenate([[self._last], t]))[:-1]
+            keep = t > newest
+            r.duplicates += int(np.count_nonzero(t == newest))
+            r.disordered += int(np.count_nonzero(t < newest))
+            kept = t[keep]
         if len(kept) == 0:
             return keep
         dt = np.diff(np.concatenate([[self._last], kept]))
@@ -230,13 +235,13 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
             for f in files:
                 f.write(np.zeros(1).tobytes())
             for index, (t, acc, gyro) in enumerate(_merge_first(chunks)):
-                keep, columns = _checked(t, acc, gyro, checker, source)
+                keep, columns, chunk_sums = _checked(t, acc, gyro, checker, source)
                 if keep is not None:
                     dropped[index] = keep
-                for j, y in enumerate(columns):
-                    sums[j] += np.sum(y, dtype=np.float64)
-                    if not twice:
-                        files[j].write(np.ascontiguousarray(y, dtype=np.float64).data)
+                sums += chunk_sums
+                if not twice:
+                    for f, y in zip(files, columns, strict=True):
+                        f.write(np.ascontiguousarray(y, dtype=np.float64).data)
                 if on_rows is not None:
                     on_rows(len(t))
             report = checker.report
@@ -261,21 +266,23 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
 
 
 def _checked(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, checker: TimingChecker,
-             source: str) -> tuple[np.ndarray | None, list[np.ndarray]]:
-    """One chunk's timestamps checked: the keep mask (None when every sample is kept) and the kept
-    columns gx..az as float64 (views where no sample is dropped)."""
+             source: str) -> tuple[np.ndarray | None, list[np.ndarray], np.ndarray]:
+    """One chunk's timestamps checked: the keep mask (None when every sample is kept), the kept
+    columns gx..az (views where no sample is dropped) and their float64 sums."""
     keep = checker.check(np.asarray(t, dtype=np.float64))
     whole = bool(keep.all())
     columns = _columns(acc, gyro)
     if not whole:
         columns = [c[keep] for c in columns]
-    if not all(np.isfinite(c).all() for c in columns):
+    sums = np.array([np.sum(c, dtype=np.float64) for c in columns])
+    # a NaN or an infinity makes its column's sum non-finite: only then look for it, sample by sample
+    if not np.isfinite(sums).all() and not all(np.isfinite(c).all() for c in columns):
         block = np.column_stack(columns)
         i, j = (int(v) for v in np.argwhere(~np.isfinite(block))[0])
         t_kept = np.asarray(t, dtype=np.float64)[keep]
         raise EngineInputError(f"{source}: the sample at t = {t_kept[i]:.6f} s has a non-finite {AXES[j]} "
                                f"({block[i, j]}); cut the record before it or repair")
-    return (None if whole else keep), columns
+    return (None if whole else keep), columns, sums
 
 
 def _columns(acc: np.ndarray, gyro: np.ndarray) -> list[np.ndarray]:
