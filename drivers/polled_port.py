@@ -161,7 +161,11 @@ class PolledPort(Device):
             return
         frame = native.encode_frame(command_id, payload)
         try:
-            os.write(self._fd, frame)  # a command frame is far smaller than any port's output buffer
+            # A command frame is far smaller than a port's output buffer, so it goes whole or, on a
+            # port still sending, not at all: then no answer comes, and the caller sends it again.
+            os.write(self._fd, frame)
+        except BlockingIOError:
+            pass
         except OSError as exc:
             self._error = PortLost(f"{self.port}: writing to the port failed ({exc}); check the cable or "
                                    f"the simulator", self.port)
