@@ -89,6 +89,9 @@ ROBUST_SHARE, ROBUST_ROUNDS = 0.02, 3
 # poses alone do (desk sessions to 45, 40, 35 deg: about 1.3, 2, 3-5, and all nine then fit well;
 # to 30 deg: 40, and all nine wander off).
 ACC_CONDITION = 10.0
+# The 1-sigma, as a share of g, of an accelerometer's z bias where the poses leave it undetermined
+# and it is held at zero: a consumer MEMS part's zero-g offset (datasheets: 10-40 mg at most).
+ACC_Z_BIAS_SIGMA = 0.01
 
 
 @dataclass(frozen=True)
@@ -350,7 +353,10 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
                         w_acc=max(_rms(r_acc), 1e-9 * (final.acc.gravity if final.acc else 1.0)))
         p = final.solve(p)
         r_norm, r_dip, r_acc = final.residual_parts(p)
-    cov, _ = covariance(final.jacobian(p), final.residual(p))
+    jac = final.jacobian(p)
+    cov, _ = covariance(jac, final.residual(p))
+    if final.acc is not None and final.acc.free == NO_Z_BIAS:
+        cov = cov + _held_z_bias(final, p, jac)
     ratio = _rms(r_norm) / gravity.noise if gravity.noise else 0.0
     misfit = (f"the magnitude residual ({_rms(r_norm):.2g} uT RMS) is {ratio:.0f} times the magnetometer's "
               f"noise at the still poses ({gravity.noise or 0.0:.2g} uT): the field changed during the "
@@ -421,6 +427,20 @@ def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings
     return _Gravity(stretches, m_pose, a_pose, down, noise)
 
 
+def _held_z_bias(problem: JointProblem, p: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    """What the held z bias of the accelerometer adds to the covariance (a consider parameter):
+    its 1-sigma ``ACC_Z_BIAS_SIGMA`` of g through the sensitivity of the least-squares solution,
+    dp/db_z = -(J^T J)^-1 J^T dr/db_z. Near level the hard iron's z is determined to the second
+    order of the tilt only, as b_z is, and moves by about 0.04 uT per mg of b_z."""
+    assert problem.acc is not None
+    whole = replace(problem, acc=problem.acc.with_free(ALL))
+    b, c, s = problem.unpack(p)
+    column = whole.jacobian(whole.pack(b, c, s, problem.acc.full(problem.acc_params(p))))[:, -1]
+    sensitivity = -np.linalg.lstsq(jac, column, rcond=None)[0]
+    sigma = ACC_Z_BIAS_SIGMA * problem.acc.gravity
+    return sigma**2 * np.outer(sensitivity, sensitivity)
+
+
 def _accel_alone(acc: PoseAccel) -> tuple[np.ndarray, float]:
     """The accelerometer's intrinsics ``acc.free`` from its still poses alone (``mag_accel`` eq. (2),
     Levenberg-Marquardt from ``calibration_free_accel.acc_initial_guess``), and the largest of their
@@ -449,8 +469,9 @@ def _accel_stage(problem: JointProblem, x: np.ndarray,
         q, _ = _accel_alone(acc)
         terms = "x and y bias, scale and misalignment (the z bias is taken into the z scale)"
         warnings.append(
-            "the still poses stay near level: the accelerometer's z bias is not determined and the tilt of "
-            "its z axis only loosely (see the alignment's 1-sigma); tilt the unit further (45 deg), or "
+            "the still poses stay near level: the accelerometer's z bias is not determined (held at zero; "
+            f"the hard iron's z 1-sigma includes {ACC_Z_BIAS_SIGMA * 1e3:.0f} mg of it) and the tilt of its "
+            "z axis only loosely (see the alignment's 1-sigma); tilt the unit further (45 deg), or "
             "calibrate the accelerometer first (imu-station calibrate --method free -o PARAMS) and run this "
             "again with the same PARAMS")
     warnings.append(f"no accelerometer calibration: its {terms} were estimated from the {len(x)} still poses "
