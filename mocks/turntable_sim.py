@@ -19,6 +19,7 @@ import re
 import select
 import threading
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,14 +41,40 @@ def _up_vector(label: str) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _axis_and_numbers(args: list[str], command: str, usage: str, names: str) -> tuple[float, float] | str:
+class _Number(NamedTuple):
+    """A number a command takes after its axis: finite, non-zero, at most ``limit`` in size (and
+    positive unless ``signed``: a negative value turns the other way)."""
+
+    name: str
+    placeholder: str
+    limit: float
+    unit: str
+    signed: bool
+
+    def refusal(self, command: str, value: float) -> str | None:
+        """The ``ERR 2`` reply when ``value`` is out of range, else None."""
+        if math.isfinite(value) and 0 < (abs(value) if self.signed else value) <= self.limit:
+            return None
+        span = f"non-zero and within +-{self.limit:g}" if self.signed else f"within 0..{self.limit:g}"
+        return f"ERR 2 {command}: the {self.name} must be {span}{self.unit}"
+
+
+_ANGLE = _Number("angle", "<deg>", MAX_TURN_DEG, " deg", signed=True)
+_TURN_RATE = _Number("rate", "<dps>", MAX_RATE_DPS, " deg/s", signed=False)  # ROT's angle has the sign
+_SPIN_RATE = _Number("rate", "<dps>", MAX_RATE_DPS, " deg/s", signed=True)
+_SECONDS = _Number("seconds", "<seconds>", MAX_SPIN_S, "", signed=False)
+
+
+def _axis_and_numbers(args: list[str], command: str, example: str, first: _Number,
+                      second: _Number) -> tuple[float, float] | str:
     """The two numbers after a signed axis (``ROT +z 360 90``), or the ``ERR 2`` reply saying why not."""
     if len(args) != 3 or not _AXIS_RE.match(args[0]):
-        return f"ERR 2 {command} takes {usage}"
+        return f"ERR 2 {command} takes <axis> {first.placeholder} {second.placeholder}, e.g. {example}"
     try:
-        return float(args[1]), float(args[2])
+        values = float(args[1]), float(args[2])
     except ValueError:
-        return f"ERR 2 {command}: {names} must be numbers"
+        return f"ERR 2 {command}: {first.placeholder} and {second.placeholder} must be numbers"
+    return first.refusal(command, values[0]) or second.refusal(command, values[1]) or values
 
 
 def _signed(axis: str, value: float) -> str:
@@ -181,14 +208,10 @@ class TurntableSim(PtyService):
         return "OK"
 
     def _rotate(self, args: list[str]) -> str:
-        parsed = _axis_and_numbers(args, "ROT", "<axis> <deg> <dps>, e.g. ROT +z 360 90", "<deg> and <dps>")
+        parsed = _axis_and_numbers(args, "ROT", "ROT +z 360 90", _ANGLE, _TURN_RATE)
         if isinstance(parsed, str):
             return parsed
         angle, rate = parsed
-        if not (math.isfinite(angle) and 0 < abs(angle) <= MAX_TURN_DEG):
-            return f"ERR 2 ROT: the angle must be non-zero and within +-{MAX_TURN_DEG:g} deg"
-        if not (math.isfinite(rate) and 0 < rate <= MAX_RATE_DPS):
-            return f"ERR 2 ROT: the rate must be within 0..{MAX_RATE_DPS:g} deg/s"
         self._move_start = self._now()
         kept = 1.0 + self.turn_error
         self._move_end = self.device.rotate(_signed(args[0], angle), abs(angle) * kept, rate * kept,
@@ -197,15 +220,10 @@ class TurntableSim(PtyService):
         return "OK"
 
     def _spin(self, args: list[str]) -> str:
-        parsed = _axis_and_numbers(args, "SPIN", "<axis> <dps> <seconds>, e.g. SPIN +z 90 10",
-                                   "<dps> and <seconds>")
+        parsed = _axis_and_numbers(args, "SPIN", "SPIN +z 90 10", _SPIN_RATE, _SECONDS)
         if isinstance(parsed, str):
             return parsed
         rate, seconds = parsed
-        if not (math.isfinite(rate) and 0 < abs(rate) <= MAX_RATE_DPS):
-            return f"ERR 2 SPIN: the rate must be non-zero and within +-{MAX_RATE_DPS:g} deg/s"
-        if not (math.isfinite(seconds) and 0 < seconds <= MAX_SPIN_S):
-            return f"ERR 2 SPIN: the seconds must be within 0..{MAX_SPIN_S:g}"
         kept = 1.0 + self.turn_error
         self._move_start = self._now()
         self._move_end = self.device.command([ConstantRate(_signed(args[0], rate), abs(rate) * kept, seconds,
