@@ -19,7 +19,8 @@ The steps:
    residuals show poses that were not still (an acceleration the detector missed): both are left
    out, and so is a pose in a disturbed stretch;
 5. the final Levenberg-Marquardt fit, each residual set weighted by its own scatter, and its
-   covariance s^2 (J^T J)^-1 (``calibration_common.covariance``) propagated to every reported value.
+   covariance s^2 (J^T J)^-1 (``calibration_common.covariance``) propagated to every reported value;
+   an accelerometer z bias held at zero near level adds its share as a consider parameter.
 
 Without the operator's field magnitude F the data's own is used: the fit runs at the start's F and
 is then rescaled so that det C = 1 (the geometric mean of the ellipsoid's semi-axes becomes F):
