@@ -5,12 +5,14 @@ the rest of the TUI still usable, and the screen at 80x24 with nothing clipped."
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 from serial.tools import list_ports
 from test_tui_ports import _ports
+from textual.pilot import Pilot
 from tui_helpers import screen_text, wait_for
 
 from mocks.mag_sessions import nine_axis_unit
@@ -32,32 +34,43 @@ def fixed_ports(monkeypatch):
     monkeypatch.setattr(list_ports, "comports", _ports)
 
 
-def _app(tmp_path: Path, mag: bool) -> StationApp:
-    return StationApp(TuiConfig(simulate=True, mag=mag, speed=4.0, seed=2, rate_hz=100.0,
-                                capture=tmp_path / "run.csv"))
-
-
-def test_a_nine_axis_unit_is_turned_until_the_sphere_is_covered(tmp_path: Path) -> None:
-    app = _app(tmp_path, mag=True)
+def _drive(tmp_path: Path, mag: bool, steps: Callable[[StationApp, Pilot], Awaitable[None]]) -> None:
+    """Run the TUI on a simulated unit (a nine-axis one with ``mag``) at 80x24: once its session is
+    up, ``steps`` drive it; then the app exits."""
+    app = StationApp(TuiConfig(simulate=True, mag=mag, speed=4.0, seed=2, rate_hz=100.0,
+                               capture=tmp_path / "run.csv"))
 
     async def run() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
             await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
-            await pilot.press("m")
-            await wait_for(pilot, lambda: isinstance(app.screen, MagScreen), 10, "the magnetometer step")
-            screen = app.screen
-            assert isinstance(screen, MagScreen)
-            await wait_for(pilot, lambda: screen.share > 0.2, 30, "some coverage")
-            text = screen_text(app)
-            for words in ("+z half", "-z half", "covered", "turn next:", "finish"):
-                assert words in text, f"{words!r} is not on the 80x24 screen:\n{text}"
-            await wait_for(pilot, lambda: screen.finished, 90, "the step to finish by itself")
-            assert "magnetometer step is done" in screen_text(app)
-            await pilot.press("enter")
-            await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
+            await steps(app, pilot)
             app.exit(0)
 
     asyncio.run(run())
+
+
+async def _mag_step(app: StationApp, pilot: Pilot) -> MagScreen:
+    """Press m and wait for the magnetometer step's screen."""
+    await pilot.press("m")
+    await wait_for(pilot, lambda: isinstance(app.screen, MagScreen), 10, "the magnetometer step")
+    screen = app.screen
+    assert isinstance(screen, MagScreen)
+    return screen
+
+
+def test_a_nine_axis_unit_is_turned_until_the_sphere_is_covered(tmp_path: Path) -> None:
+    async def steps(app: StationApp, pilot: Pilot) -> None:
+        screen = await _mag_step(app, pilot)
+        await wait_for(pilot, lambda: screen.share > 0.2, 30, "some coverage")
+        text = screen_text(app)
+        for words in ("+z half", "-z half", "covered", "turn next:", "finish"):
+            assert words in text, f"{words!r} is not on the 80x24 screen:\n{text}"
+        await wait_for(pilot, lambda: screen.finished, 90, "the step to finish by itself")
+        assert "magnetometer step is done" in screen_text(app)
+        await pilot.press("enter")
+        await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
+
+    _drive(tmp_path, True, steps)
     cap = read_capture(tmp_path / "run-mag.csv")
     assert cap.mag is not None and len(cap) > 500
     corrected = nine_axis_unit(2).mag.correct(cap.mag)  # the simulated unit of seed 2
@@ -66,19 +79,14 @@ def test_a_nine_axis_unit_is_turned_until_the_sphere_is_covered(tmp_path: Path) 
 
 
 def test_a_unit_without_magnetometer_is_told_and_the_tui_goes_on(tmp_path: Path) -> None:
-    app = _app(tmp_path, mag=False)
+    async def steps(app: StationApp, pilot: Pilot) -> None:
+        await pilot.press("m")
+        await wait_for(pilot, lambda: "reports no magnetometer" in screen_text(app), 20, "the message")
+        await pilot.press("l")
+        await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
+        await wait_for(pilot, lambda: "accel" in screen_text(app), 20, "live values")
 
-    async def run() -> None:
-        async with app.run_test(size=(80, 24)) as pilot:
-            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
-            await pilot.press("m")
-            await wait_for(pilot, lambda: "reports no magnetometer" in screen_text(app), 20, "the message")
-            await pilot.press("l")
-            await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
-            await wait_for(pilot, lambda: "accel" in screen_text(app), 20, "live values")
-            app.exit(0)
-
-    asyncio.run(run())
+    _drive(tmp_path, False, steps)
     assert not (tmp_path / "run-mag.csv").exists()
 
 
@@ -112,40 +120,27 @@ def test_hemispheres_drawing() -> None:
 
 
 def test_enter_finishes_early_once_the_calibration_can_use_the_coverage(tmp_path: Path) -> None:
-    app = _app(tmp_path, mag=True)
+    async def steps(app: StationApp, pilot: Pilot) -> None:
+        screen = await _mag_step(app, pilot)
+        screen.share = 0.05  # as if the unit had hardly moved: Enter is refused
+        screen.action_finish()
+        assert not screen.finished
+        await wait_for(pilot, lambda: screen.share >= 0.2, 30, "a fifth of the sphere")
+        await pilot.press("enter")
+        await wait_for(pilot, lambda: screen.finished, 5, "the step to finish")
+        text = screen_text(app)
+        assert "Finished at" in text and "run-mag.csv" in text
 
-    async def run() -> None:
-        async with app.run_test(size=(80, 24)) as pilot:
-            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
-            await pilot.press("m")
-            await wait_for(pilot, lambda: isinstance(app.screen, MagScreen), 10, "the magnetometer step")
-            screen = app.screen
-            assert isinstance(screen, MagScreen)
-            screen.share = 0.05  # as if the unit had hardly moved: Enter is refused
-            screen.action_finish()
-            assert not screen.finished
-            await wait_for(pilot, lambda: screen.share >= 0.2, 30, "a fifth of the sphere")
-            await pilot.press("enter")
-            await wait_for(pilot, lambda: screen.finished, 5, "the step to finish")
-            text = screen_text(app)
-            assert "Finished at" in text and "run-mag.csv" in text
-            app.exit(0)
-
-    asyncio.run(run())
+    _drive(tmp_path, True, steps)
     assert read_capture(tmp_path / "run-mag.csv").mag is not None
 
 
 def test_live_view_shows_the_field_of_a_nine_axis_unit(tmp_path: Path) -> None:
-    app = _app(tmp_path, mag=True)
+    async def steps(app: StationApp, pilot: Pilot) -> None:
+        await pilot.press("enter")
+        await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
+        await wait_for(pilot, lambda: "uT" in screen_text(app), 20, "the field's row")
+        row = next(line for line in screen_text(app).splitlines() if "uT" in line)
+        assert "mag" in row and row.count(".") >= 3
 
-    async def run() -> None:
-        async with app.run_test(size=(80, 24)) as pilot:
-            await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
-            await pilot.press("enter")
-            await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
-            await wait_for(pilot, lambda: "uT" in screen_text(app), 20, "the field's row")
-            row = next(line for line in screen_text(app).splitlines() if "uT" in line)
-            assert "mag" in row and row.count(".") >= 3
-            app.exit(0)
-
-    asyncio.run(run())
+    _drive(tmp_path, True, steps)
