@@ -26,14 +26,17 @@ decade: the active ones cluster where the curve needs a process).
 
 Which terms: every admissible combination (any subset of Q, B, K, R beside N, and zero to three
 Gauss-Markov processes; the filter and sinusoids where the curve shows them) is fitted, and the simplest
-(fewest parameters; then the smallest (1)) that describes the curve is chosen. "Describes" is a
-goodness-of-fit test point by point: the model lies inside the curve's 68 % interval, or within
-TOLERANCE of the curve, at every cluster time of the valid range. Not an information criterion: the
-points of an overlapping Allan curve are strongly correlated (neighbouring cluster times share most of
-their data), so (1) is not a log-likelihood and AIC or BIC would count the same evidence many times over
-and add terms to follow the long-tau scatter; the band test asks of each point only what its own EDF
-promises, which is also what the plot shows. Each term's 1-sigma comes from the Jacobian of (1) at the
-optimum, inflated by the reduced chi-square where that exceeds one.
+(fewest parameters; then the smallest (1)) that describes the curve is the reference (:func:`preferred`);
+a simpler combination is still preferred to it unless the reference lowers (1) by CHI2_GAIN per added
+parameter. "Describes" is a goodness-of-fit test point by point: the model lies inside the curve's 68 %
+interval, or within TOLERANCE of the curve, at every cluster time of the valid range. Not an information
+criterion alone: the points of an overlapping Allan curve are strongly correlated (neighbouring cluster
+times share most of their data), so (1) is not a log-likelihood and AIC or BIC would count the same
+evidence many times over; not the band test alone either: a third of independent points fall outside a
+68 % interval by chance, and following them adds processes that chase the scatter. The band test asks of
+each point only what its own EDF promises, which is also what the plot shows; the penalty (about ln 53,
+BIC's for the points of a 10,000 s curve) keeps chance apart from evidence. Each term's 1-sigma comes
+from the Jacobian of (1) at the optimum, inflated by the reduced chi-square where that exceeds one.
 """
 
 from __future__ import annotations
@@ -61,6 +64,7 @@ CHI2_GAIN = 4.0  # per parameter: what a richer model must gain in (1) over a si
 KEEP_REDUCED_CHI2 = 3.0  # (1) per point beyond which the IEEE fit misses the curve (see choose_model)
 SIN_GAIN = 100.0  # a sinusoid draws the correlated wiggles of the many-EDF first points too (gains of tens)
 GM_PARAMS = 2
+JAC_STEP = 1e-6  # in the log of a time constant or frequency
 
 
 @dataclass(frozen=True)
@@ -306,11 +310,30 @@ def _solve(curve: _Curve, combo: _Combination, x0: np.ndarray, bounds: tuple[np.
     log_avar = np.log(curve.avar)
     tiny = np.finfo(float).tiny
 
+    n_lin = len(combo.terms) + combo.n_gm + combo.n_sin
+
     def residuals(x: np.ndarray) -> np.ndarray:
         return w * (log_avar - np.log(np.maximum(_model(combo, curve.tau, x), tiny)))
 
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        # d r / d log c_j = -w c_j col_j / model, exactly; the time constants by central differences
+        c, t_f, t_gm, freqs = _unpack(combo, x)
+        parts = _columns(combo, curve.tau, t_f, t_gm, freqs) * c
+        model = np.maximum(parts.sum(axis=1), tiny)
+        jac = np.empty((len(curve.tau), len(x)))
+        jac[:, :n_lin] = -w[:, None] * parts / model[:, None]
+        for k in range(n_lin, len(x)):
+            step = np.zeros_like(x)
+            step[k] = JAC_STEP
+            jac[:, k] = (residuals(x + step) - residuals(x - step)) / (2.0 * JAC_STEP)
+        return jac
+
     x0 = np.clip(x0, bounds[0] + 1e-9, bounds[1] - 1e-9)
-    sol = optimize.least_squares(residuals, x0, bounds=bounds, method="trf", x_scale=1.0, max_nfev=400)
+    # a term the data does not need shrinks until its Jacobian column is zero; the trust-region's
+    # secular equation then divides by zero on its way to the same step (RuntimeWarnings, no harm)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sol = optimize.least_squares(residuals, x0, jac=jacobian, bounds=bounds, method="trf", x_scale=1.0,
+                                     max_nfev=400)
     chi2 = float(np.sum(sol.fun**2))
     jac = sol.jac
     dof = max(len(curve.tau) - len(sol.x), 1)
