@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from PIL import Image, ImageStat
 from test_docs import CHROMIUM_FLAGS
+from test_docs import chromium as docs_chromium
 
 REPO = Path(__file__).resolve().parents[1]
 VOID = {"area", "base", "br", "col", "embed", "hr", "img", "input", "link", "meta", "source", "track", "wbr"}
@@ -71,10 +72,7 @@ def check_page(path: Path) -> str:
 
 def chromium() -> str:
     """Debian's chromium; the test is skipped, saying why, where it is not installed."""
-    path = shutil.which("chromium") or shutil.which("chromium-browser")
-    if path is None:
-        pytest.skip("headless Chromium is not installed (Debian: apt-get install chromium)")
-    return path
+    return docs_chromium(pytest.skip)
 
 
 def not_blank(png: Path) -> None:

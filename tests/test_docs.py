@@ -14,7 +14,9 @@ import re
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 from PIL import Image
@@ -39,10 +41,12 @@ def site(tmp_path_factory) -> Path:
     return out
 
 
-def _chromium() -> str:
+def chromium(absent: Callable[[str], NoReturn] = pytest.fail) -> str:
+    """Debian's chromium; where it is not installed, ``absent`` (this test fails, the report tests
+    skip) says how to install it."""
     path = shutil.which("chromium") or shutil.which("chromium-browser")
     if path is None:
-        pytest.fail("headless Chromium is needed to look at the built pages: apt-get install chromium")
+        absent("headless Chromium is not installed (Debian: apt-get install chromium)")
     return path
 
 
@@ -69,7 +73,7 @@ window.addEventListener('load', () => {
 </script>"""
     copy = page.with_name("docs-probe.html")
     copy.write_text(page.read_text(encoding="utf-8").replace("</body>", script + "</body>"), encoding="utf-8")
-    done = subprocess.run([_chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
+    done = subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
                            "--virtual-time-budget=10000", "--dump-dom", copy.as_uri()],
                           capture_output=True, text=True, timeout=120)
     copy.unlink()
@@ -79,7 +83,7 @@ window.addEventListener('load', () => {
 
 
 def _screenshot(page: Path, profile: Path, png: Path) -> Image.Image:
-    done = subprocess.run([_chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
+    done = subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
                            "--window-size=1280,1600", "--virtual-time-budget=10000", f"--screenshot={png}",
                            page.as_uri()],
                           capture_output=True, text=True, timeout=120)
