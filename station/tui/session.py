@@ -1,12 +1,17 @@
-"""The connection the TUI works on: a device, and the simulated rig when ``--simulate``."""
+"""The connection the TUI works on: a device, and the simulated rig when ``--simulate``.
+
+A port is opened as a :class:`~drivers.paced_port.PacedPort`: the screens' workers read it in
+their own loops, a batch every 20 ms, with no reader thread waking for every few bytes (a
+pyserial URL such as ``sim://`` keeps the threaded device).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers import open_device
 from drivers.interface import Device
+from drivers.paced_port import open_paced
 from station.acquisition.operator import Rig
 from station.tui.config import TuiConfig
 
@@ -35,7 +40,7 @@ def open_session(config: TuiConfig, port: str | None) -> Session:
     if port is None or port == SIMULATED:
         session = open_simulated(config)
     else:
-        session = Session(open_device(port, protocol=config.protocol), port)
+        session = Session(open_paced(port, protocol=config.protocol), port)
     try:
         session.info = session.device.get_info() if config.protocol == "native" else dict(session.device.info)
     except Exception:
@@ -57,7 +62,7 @@ def open_simulated(config: TuiConfig) -> Session:
     device = SimDevice(truth, seed=config.seed, rate_hz=config.rate_hz, scenario="still")
     server = PtyServer(device, speed=config.speed).start()
     try:
-        port = open_device(server.port_path, protocol="native")
+        port = open_paced(server.port_path, protocol="native")
     except Exception:
         server.stop()
         raise

@@ -4,6 +4,7 @@ rate, the accelerometer and gyroscope traces, errors and lost samples."""
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 from rich.table import Table
@@ -11,6 +12,7 @@ from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal
+from textual.timer import Timer
 from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
@@ -22,6 +24,11 @@ from station.tui.screens.station_screen import StationScreen
 
 AXIS_COLORS = ("red", "green", "blue")
 TAIL_SAMPLES = 400
+# Snapshots a second at most (the values, the link), and traces drawn a second: a trace costs plotext
+# (pure Python) 20-50 ms of CPU whatever its points, its whole canvas built and transposed, and
+# was the most of what the TUI cost on this screen (20 snapshots a second wanted 2 cores).
+UI_RATE_HZ = 10.0
+PLOT_RATE_HZ = 4.0
 # Tail columns: device time (s), acc x y z, gyro x y z, temperature, field x y z (NaN without).
 T, ACC, GYRO, TEMP, MAG = 0, slice(1, 4), slice(4, 7), 7, slice(8, 11)
 
@@ -52,6 +59,13 @@ class LiveScreen(StationScreen):
         self.title = "imu-station · live"
         self._lock = threading.Lock()
         self._tail = Tail(TAIL_SAMPLES, 11)
+        # Set while no snapshot waits for the UI: a UI slower than the snapshots (a busy machine) is
+        # sent the newest when it is ready, never a queue of stale ones to draw in turn.
+        self._taken = threading.Event()
+        self._taken.set()
+        self._rows = np.empty((0, 11))
+        self._plot_timer: Timer | None = None
+        self._plotted = 0.0  # time.monotonic() of the last traces drawn
         self._read()
 
     @work(thread=True, exclusive=True, group="reader")
@@ -65,15 +79,19 @@ class LiveScreen(StationScreen):
                 self._tail.add(rows)
 
         def on_tick() -> None:
+            if not self._taken.is_set():
+                return
+            self._taken.clear()
             with self._lock:
                 data = self._tail.data.copy()
             stats = device.stats
             self.post_message(Snapshot({"tail": data, "stats": stats}))
 
-        pump(device, on_batch, on_tick, lambda exc: self.post_message(LinkFailed(exc)))
+        pump(device, on_batch, on_tick, lambda exc: self.post_message(LinkFailed(exc)), UI_RATE_HZ)
 
     def on_snapshot(self, message: Snapshot) -> None:
         """Show the latest values, the link, and the traces of the last samples."""
+        self._taken.set()
         tail = message.data["tail"]
         stats = message.data["stats"]
         rows = tail[np.isfinite(tail[:, 0])]
@@ -96,6 +114,20 @@ class LiveScreen(StationScreen):
         grid.add_row(table)
         grid.add_row(link)
         self.query_one("#values", Static).update(grid)
+        self._rows = rows
+        wait = self._plotted + 1.0 / PLOT_RATE_HZ - time.monotonic()
+        if wait <= 0:
+            self._plot()
+        elif self._plot_timer is None:  # the traces of the newest rows, when their turn comes
+            self._plot_timer = self.set_timer(wait, self._plot)
+
+    def _plot(self) -> None:
+        """Draw the traces of the newest rows."""
+        if self._plot_timer is not None:
+            self._plot_timer.stop()
+            self._plot_timer = None
+        self._plotted = time.monotonic()
+        rows = self._rows
         t = rows[:, T] - rows[-1, T]  # seconds before the latest sample
         for name, columns, title, unit in (("acc", ACC, "accelerometer", "m/s^2"),
                                             ("gyro", GYRO, "gyroscope", "rad/s")):
