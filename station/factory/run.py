@@ -34,9 +34,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from drivers import open_device
 from drivers.errors import DriverError
 from drivers.interface import Device
+from drivers.paced_port import open_paced
 from drivers.turntable import Turntable
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition.operator import Action, BaseOperator, Operator, Prompt, SimulatedOperator
@@ -381,7 +381,9 @@ class UnitRun:
 
     def _connect(self, phase: Phase, port: str, table_port: str | None) -> None:
         plan = self.req.plan
-        self.device = open_device(port, protocol=plan.protocol)
+        # Read in the runner's own loop, a batch every 20 ms: no reader thread waking the runner, and its
+        # checks over the whole window, for every few bytes a unit at 1 kHz sends.
+        self.device = open_paced(port, protocol=plan.protocol)
         if plan.asks_serial:
             self._connect_native(phase, port)
         else:
