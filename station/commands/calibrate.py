@@ -94,10 +94,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "for the turntable method, the Earth rate's vertical part")
     parser.add_argument("--height", type=number(float, MIN_HEIGHT_M, MAX_HEIGHT_M, unit="m"), default=0.0,
                         metavar="M", help="height above the ellipsoid (m)")
-    parser.add_argument("--field", type=float, metavar="UT",
+    parser.add_argument("--field", type=number(float, MIN_FIELD_UT, MAX_FIELD_UT, unit="uT"), metavar="UT",
                         help="mag method: the local field's magnitude in microtesla (default: the World "
                              "Magnetic Model's with --latitude/--longitude, else the data's own)")
-    parser.add_argument("--longitude", type=float, metavar="DEG",
+    parser.add_argument("--longitude", type=number(float, -180.0, 180.0, unit="degrees"), metavar="DEG",
                         help="mag method: longitude, with --latitude, --height and --date for the World "
                              "Magnetic Model's field magnitude and dip")
     parser.add_argument("--date", type=_iso_date, metavar="YYYY-MM-DD",
@@ -150,14 +150,12 @@ def mag_field(args: argparse.Namespace) -> tuple[float | None, float | None, str
     Raises
     ------
     StationError
-        --field with the model's options, half of a place, or a value out of range.
+        --field with the model's options, or half of a place.
     """
     place = args.longitude is not None or args.date is not None
     if args.field is not None:
         if place:
             raise StationError("give either --field or --latitude/--longitude/--date, not both")
-        check_range("--field", args.field, MIN_FIELD_UT, MAX_FIELD_UT, unit="uT",
-                    what="the Earth's field (about 22 to 67 uT),")
         return float(args.field), None, f"given: --field {args.field:g} uT"
     if place or args.latitude is not None:
         if args.latitude is None or args.longitude is None:
