@@ -23,11 +23,9 @@ from station.cli_options import (
     positive,
 )
 from station.errors import ExitCode, StationError
+from station.phase_line import PhaseLine
 
 if TYPE_CHECKING:
-    from rich.console import Console
-    from rich.progress import Progress
-
     from station.acquisition.capture import Capture
     from station.engines.calibration_common import CalibrationReport
 
@@ -181,8 +179,8 @@ def run_mag(args: argparse.Namespace) -> int:
     from station.mag_summary import mag_report_dict, print_mag_report
 
     field, dip, field_source = mag_field(args)  # refuse bad options before reading a long capture
-    with _progress(sys.stderr) as progress:
-        task = progress.add_task(f"reading {args.input}", total=None)
+    with PhaseLine(sys.stderr) as phase:
+        phase.show(f"reading {args.input}")
         capture = read_capture(args.input)
         if capture.mag is None:
             raise InputFileError(args.input, "has no magnetometer columns (mx, my, mz): capture from a "
@@ -193,7 +191,7 @@ def run_mag(args: argparse.Namespace) -> int:
         # the down direction in the calibrated accelerometer's axes; without an accel section the
         # engine estimates the accelerometer from the still poses
         acc = accel.correct(capture.acc) if accel is not None else capture.acc
-        progress.update(task, description="fitting the magnetometer")
+        phase.show("fitting the magnetometer")
         cal = calibrate_mag(MagCapture(capture.t, capture.mag, acc, capture.gyro),
                             MagSettings(field_ut=field, model_dip_deg=dip, estimate_accel=accel is None))
     outputs = {}
@@ -319,53 +317,45 @@ def _fmt(value: float, sd: float | None) -> str:
     return f"{value:.7g} ± {sd:.2g}"
 
 
-def print_report(report: CalibrationReport, console: Console) -> None:
-    """Every parameter with its 1-sigma, the per-pose residuals and the warnings, as tables."""
+def print_report(report: CalibrationReport, out: IO[str]) -> None:
+    """Every parameter with its 1-sigma, the per-pose residuals and the warnings, as plain-text tables."""
     import numpy as np
-    from rich.table import Table
 
-    console.print(f"[bold]{report.method}[/] calibration, g = {report.gravity:.6f} m/s^2")
+    from station.text_table import format_table
+
+    blocks = [f"{report.method} calibration, g = {report.gravity:.6f} m/s^2"]
+    numbers = (False, True, True, True)
     for name, unit in (("accel", "raw per m/s^2"), ("gyro", "raw per rad/s")):
         cal = getattr(report, name)
         if cal is None:
             continue
         sd = cal.stddev
-        table = Table(title=f"{name}: {cal.method} (forward model raw = M true + b; scale in {unit})")
-        table.add_column("parameter")
-        for axis in "xyz":
-            table.add_column(axis, justify="right")
-        table.add_row("scale K", *[_fmt(cal.scale[i], sd.get("scale", [None] * 3)[i]) for i in range(3)])
+        rows = [["scale K", *[_fmt(cal.scale[i], sd.get("scale", [None] * 3)[i]) for i in range(3)]]]
         mis = cal.misalignment
         mis_sd = np.asarray(sd.get("misalignment", np.zeros((3, 3))))
         for i, row in enumerate("xyz"):
-            table.add_row(f"misalignment S, row {row}",
-                          *[("0" if i == j else _fmt(mis[i, j], mis_sd[i, j])) for j in range(3)])
+            rows.append([f"misalignment S, row {row}",
+                         *[("0" if i == j else _fmt(mis[i, j], mis_sd[i, j])) for j in range(3)]])
         bias_sd = np.asarray(sd.get("bias", [None] * 3))
-        table.add_row("bias b", *[_fmt(cal.bias[i], bias_sd[i]) for i in range(3)])
+        rows.append(["bias b", *[_fmt(cal.bias[i], bias_sd[i]) for i in range(3)]])
         if cal.extra.get("g_sensitivity") is not None:  # rad/s per m/s^2: bias change = G f
             g_sens = np.asarray(cal.extra["g_sensitivity"])
             g_sd = np.asarray(sd.get("g_sensitivity", np.full((3, 3), np.nan)))
             for i, row in enumerate("xyz"):
-                table.add_row(f"g-sensitivity G, row {row} (rad/s per m/s^2)",
-                              *[_fmt(g_sens[i, j], g_sd[i, j]) for j in range(3)])
-        console.print(table)
-        console.print(f"{name} residual RMS: {cal.residual_rms:.4g} ({cal.extra.get('residual', '')})")
+                rows.append([f"g-sensitivity G, row {row} (rad/s per m/s^2)",
+                             *[_fmt(g_sens[i, j], g_sd[i, j]) for j in range(3)]])
+        title = f"{name}: {cal.method} (forward model raw = M true + b; scale in {unit})"
+        blocks += ["", format_table(title, ("parameter", "x", "y", "z"), rows, numbers)]
+        blocks.append(f"{name} residual RMS: {cal.residual_rms:.4g} ({cal.extra.get('residual', '')})")
     trials = report.details.get("trials")
     if trials:
-        table = Table(title="static-interval detection (threshold = k x still-period variance)")
-        for col in ("k", "intervals", "cost"):
-            table.add_column(col, justify="right")
         chosen = report.details.get("chosen_multiplier")
-        for tr in trials:
-            mark = " *" if tr["multiplier"] == chosen else ""
-            table.add_row(f"{tr['multiplier']:g}{mark}", str(tr["intervals"]),
-                          "too few" if tr["cost"] is None else f"{tr['cost']:.6g}")
-        console.print(table)
+        rows = [[f"{tr['multiplier']:g}" + (" *" if tr["multiplier"] == chosen else ""), str(tr["intervals"]),
+                 "too few" if tr["cost"] is None else f"{tr['cost']:.6g}"] for tr in trials]
+        blocks += ["", format_table("static-interval detection (threshold = k x still-period variance)",
+                                    ("k", "intervals", "cost"), rows, (True, True, True))]
     if report.poses:
-        table = Table(title="per-pose residuals")
-        table.add_column("step")
-        table.add_column("t (s)", justify="right")
-        table.add_column("residual", justify="right")
+        rows = []
         for p in report.poses:
             if "angle_error_deg" in p:
                 value = f"angle error {p['angle_error_deg']:+.4f} deg"
@@ -375,10 +365,11 @@ def print_report(report: CalibrationReport, console: Console) -> None:
                 value = f"|a| - g {p['residual']:+.5f} m/s^2"
                 if p.get("gyro_residual") is not None:
                     value += f", gyro {p['gyro_residual']:.4f}"
-            table.add_row(p["label"], f"{p['t0']:.1f}..{p['t1']:.1f}", value)
-        console.print(table)
-    for w in report.warnings:
-        console.print(f"[yellow]warning:[/] {w}")
+            rows.append([p["label"], f"{p['t0']:.1f}..{p['t1']:.1f}", value])
+        blocks += ["", format_table("per-pose residuals", ("step", "t (s)", "residual"), rows,
+                                    (False, True, False))]
+    blocks += [f"warning: {w}" for w in report.warnings]
+    out.write("\n".join(blocks) + "\n")
 
 
 def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
@@ -413,30 +404,20 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
     plt.close(fig)
 
 
-def _progress(err: IO[str]) -> Progress:
-    from rich.console import Console
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    return Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                    console=Console(file=err), transient=True, disable=not err.isatty())
-
-
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
-    from rich.console import Console
-
     from station.acquisition.capture import read_capture
     from station.export.params_file import merge_sections, open_for_unit
 
     if args.method == "mag":
         return run_mag(args)
     local_gravity(args)  # refuse bad options before reading a long capture
-    with _progress(sys.stderr) as progress:
-        task = progress.add_task(f"reading {args.input}", total=None)
+    with PhaseLine(sys.stderr) as phase:
+        phase.show(f"reading {args.input}")
         capture = read_capture(args.input)
         if args.output:
             open_for_unit(args.output, capture.device, replace=args.replace)  # refuse before the fit
-        progress.update(task, description="calibrating")
+        phase.show("calibrating")
         report = calibrate_capture(capture, args)
     outputs = {}
     if args.output:
@@ -453,8 +434,7 @@ def run(args: argparse.Namespace) -> int:
         json.dump(result, sys.stdout, indent=1, allow_nan=False)
         sys.stdout.write("\n")
         return ExitCode.OK
-    console = Console(file=sys.stdout, width=140)
-    print_report(report, console)
+    print_report(report, sys.stdout)
     for path, what in outputs.items():
-        console.print(f"{path}: {what}")
+        print(f"{path}: {what}")
     return ExitCode.OK
