@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import sys
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -208,6 +207,8 @@ def run_mag(args: argparse.Namespace) -> int:
                  f"imu-station calibrate --method mag {args.input.name}")
         outputs[str(args.plot)] = "written"
     if args.json:
+        import json
+
         result = mag_report_dict(cal, str(args.input), field_source)
         result["outputs"] = outputs
         json.dump(result, sys.stdout, indent=1, allow_nan=False)
@@ -429,6 +430,8 @@ def run(args: argparse.Namespace) -> int:
         write_plot(args.plot, report, args.input.name)
         outputs[str(args.plot)] = "written"
     if args.json:
+        import json  # only --json needs it (2-4 ms of start-up)
+
         result = report_dict(report, str(args.input))
         result["outputs"] = outputs
         json.dump(result, sys.stdout, indent=1, allow_nan=False)

@@ -31,6 +31,9 @@ SECTIONS = ("accel", "gyro", "thermal", "noise")
 """The sections :class:`ParamsFile` holds typed; any other section name is kept in ``other``."""
 REPLACE_OPTION = "--replace"
 """The option of ``calibrate``, ``allan`` and ``thermal`` that starts a parameter file afresh."""
+# libyaml's emitter with PyYAML's safe representer: 4x faster than yaml.safe_dump, the same values read
+# back, the same text but where a long escaped string wraps (PyYAML built without libyaml: the Python one)
+_SAFE_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 
 
 def utc_now() -> str:
@@ -130,7 +133,8 @@ class ParamsFile:
 
     def dump(self) -> str:
         """The parameter file as YAML text."""
-        return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None, width=120)
+        return yaml.dump(self.to_dict(), Dumper=_SAFE_DUMPER, sort_keys=False, default_flow_style=None,
+                         width=120)
 
     def save(self, path: str | Path) -> None:
         """Write the parameter file to ``path`` atomically."""
