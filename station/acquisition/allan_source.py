@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import math
 import os
+import queue
 import tempfile
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -34,6 +36,7 @@ GAP_FACTOR = 1.5
 MAX_EXAMPLES = 5
 PASS2_ROWS = 1 << 20
 FIRST_ROWS = 1000
+READ_AHEAD = 2  # chunks read ahead of the one being summed or written (16 MB each from a capture file)
 
 Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]  # t (n,), acc (n, 3), gyro (n, 3)
 
@@ -234,7 +237,7 @@ def integrate_stream(chunks: Iterable[Chunk], source: str, rate_hz: float | None
             files = [stack.enter_context(open(p, "wb")) for p in paths]
             for f in files:
                 f.write(np.zeros(1).tobytes())
-            for index, (t, acc, gyro) in enumerate(_merge_first(chunks)):
+            for index, (t, acc, gyro) in enumerate(_merge_first(_read_ahead(chunks))):
                 keep, columns, chunk_sums = _checked(t, acc, gyro, checker, source)
                 if keep is not None:
                     dropped[index] = keep
@@ -294,10 +297,13 @@ def _columns(acc: np.ndarray, gyro: np.ndarray) -> list[np.ndarray]:
 
 def _write_sums(chunks: Iterable[Chunk], dropped: dict[int, np.ndarray], means: np.ndarray, tau0: float,
                 files: list) -> None:
-    """Pass 2 of a record read twice: each axis's ``cumsum(y - mean) tau0`` appended to its file."""
+    """Pass 2 of a record read twice: each axis's ``cumsum(y - mean) tau0`` appended to its file (the
+    timestamps were checked in pass 1: a capture file's are not read again)."""
     carry = np.zeros(len(means))
     buf = np.empty(0)
-    for index, (_, acc, gyro) in enumerate(_merge_first(chunks)):
+    # the same chunks as pass 1 (the drop masks go by index); a capture file's without its timestamps
+    source = H5Chunks(chunks.path, chunks.rows, times=False) if isinstance(chunks, H5Chunks) else chunks
+    for index, (_, acc, gyro) in enumerate(_merge_first(_read_ahead(source))):
         keep = dropped.get(index)
         for j, y in enumerate(_columns(acc, gyro)):
             if keep is not None:
@@ -339,13 +345,56 @@ def _map(path: Path) -> np.ndarray:
     return np.memmap(path, dtype=np.float64, mode="r")
 
 
+def _read_ahead(chunks: Iterable[Chunk], depth: int = READ_AHEAD) -> Iterator[Chunk]:
+    """The chunks, read by a thread of their own at most ``depth`` ahead: reading the input (HDF5, a CSV
+    parser) overlaps the checks, sums, cumulative sums and file writes of the chunk before, which release
+    the GIL (numpy's loops, ``write``), so the two passes use both cores. An error reading is raised here,
+    in the caller's thread; leaving early stops the reader at its next chunk."""
+    items: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+
+    def put(item: object) -> bool:
+        while not stop.is_set():
+            try:
+                items.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def read() -> None:
+        try:
+            for chunk in chunks:
+                if not put(chunk):
+                    return
+        except BaseException as exc:  # handed to the caller's thread, which raises it
+            put(exc)
+            return
+        put(end)
+
+    reader = threading.Thread(target=read, name="allan-read-ahead", daemon=True)
+    reader.start()
+    try:
+        while True:
+            item = items.get()
+            if item is end:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        reader.join()
+
+
 def _merge_first(chunks: Iterable[Chunk], rows: int = FIRST_ROWS) -> Iterator[Chunk]:
     """The chunks, the first merged until they hold ``rows`` samples (the nominal rate comes from them)."""
     head: list[Chunk] = []
     it = iter(chunks)
     for chunk in it:
         head.append(chunk)
-        if sum(len(c[0]) for c in head) >= rows:
+        if sum(len(c[1]) for c in head) >= rows:  # rows of acc: pass 2 of a capture file has no times
             break
     if head:
         yield (np.concatenate([c[0] for c in head]), np.concatenate([c[1] for c in head]),
@@ -421,15 +470,19 @@ def _h5_device(path: Path) -> dict[str, Any]:
 class H5Chunks:
     """Slices of a station capture file, ``rows`` at a time: memory bounded whatever the file's length.
     Each ``iter()`` reads the file afresh, so :func:`integrate_stream` reads it twice rather than writing
-    the record to disk twice. Samples stay in the file's float32; times are seconds."""
+    the record to disk twice. Samples stay in the file's float32; times are seconds (``times=False``:
+    empty, the timestamps not read, for a pass that has checked them already)."""
 
-    def __init__(self, path: Path, rows: int = 1 << 19):
+    def __init__(self, path: Path, rows: int = 1 << 19, times: bool = True):
         self.path = path
         self.rows = rows
+        self.times = times
 
     def __iter__(self) -> Iterator[Chunk]:
         with _h5_file(self.path) as f:
             t_us, acc, gyro = f["t_us"], f["acc"], f["gyro"]
-            for a in range(0, len(t_us), self.rows):
+            no_times = np.empty(0)
+            for a in range(0, len(acc), self.rows):
                 b = a + self.rows
-                yield t_us[a:b].astype(np.float64) * 1e-6, acc[a:b], gyro[a:b]
+                t = t_us[a:b].astype(np.float64) * 1e-6 if self.times else no_times
+                yield t, acc[a:b], gyro[a:b]
