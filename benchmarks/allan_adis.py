@@ -118,6 +118,7 @@ def gauss_markov_recovery(runs: int) -> None:
     sigma, tau_c, rate, hours = 5e-4, 300.0, 100.0, 10.0
     spec = NoiseSpec(N=[7e-4] * 3, B=[sigma * GM_ADEV_PEAK / FLICKER_FLOOR] * 3, b_corr_time_s=tau_c)
     s_err, t_err, times = [], [], []
+    s_sd, t_sd, s_log, t_log = [], [], [], []  # reported relative 1-sigma against the log errors
     for seed in range(runs):
         y = NoiseGenerator(spec, rate, np.random.SeedSequence(seed)).next(int(hours * 3600 * rate))
         phase = integrate_rates(y, rate)
@@ -130,6 +131,11 @@ def gauss_markov_recovery(runs: int) -> None:
             big = max(gms, key=lambda g: g.sigma.value, default=None)
             s_err.append(np.inf if big is None else abs(big.sigma.value / sigma - 1))
             t_err.append(np.inf if big is None else abs(big.tau_c.value / tau_c - 1))
+            if big is not None and big.sigma.stddev is not None and big.tau_c.stddev is not None:
+                s_sd.append(big.sigma.stddev / big.sigma.value)
+                t_sd.append(big.tau_c.stddev / big.tau_c.value)
+                s_log.append(np.log(big.sigma.value / sigma))
+                t_log.append(np.log(big.tau_c.value / tau_c))
     s_err_a, t_err_a = np.array(s_err), np.array(t_err)
     both = np.count_nonzero((s_err_a < 0.15) & (t_err_a < 0.30))
     print(f"Gauss-Markov sigma {sigma:g} rad/s, tau_c {tau_c:g} s, {hours:g} h at {rate:g} Hz, {runs} runs "
@@ -138,6 +144,10 @@ def gauss_markov_recovery(runs: int) -> None:
           f"({both / len(s_err):.0%}); "
           f"median |error| sigma {np.median(s_err_a):.1%}, tau_c {np.median(t_err_a):.1%}; "
           f"fit time per axis median {statistics.median(times):.2f} s")
+    if s_sd:
+        rms_s, rms_t = np.sqrt(np.mean(np.square(s_log))), np.sqrt(np.mean(np.square(t_log)))
+        print(f"1-sigma reported on {len(s_sd)}/{len(s_err)} axes: median sigma {np.median(s_sd):.1%}, tau_c "
+              f"{np.median(t_sd):.1%}; scatter (RMS log error) sigma {rms_s:.1%}, tau_c {rms_t:.1%}")
 
 
 def main() -> None:

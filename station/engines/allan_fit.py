@@ -142,6 +142,7 @@ class AxisNoise:
     reduced_chi2: float = float("nan")
     crossing_tau_nk: float | None = None
     gauss_markov: tuple[float, float] | None = None  # (sigma, correlation time s) where a hump was fitted
+    gauss_markov_stddev: tuple[float | None, float | None] = (None, None)  # their 1-sigma
     fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
     k_needed_s: float | None = None  # record length that could show K, where K is not shown (a lower bound)
     noise_model: NoiseModel | None = None  # the model reported and drawn (allan_model.choose_model)
@@ -427,6 +428,9 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
             if departure is not None:
                 values = _fit_with_gauss_markov(tau, adev, edf, result, values, chi2, departure / GM_PEAK_X,
                                                 True)
+        if result.gauss_markov is not None:
+            result.gauss_markov_stddev = _at_least_record_bound(result.gauss_markov,
+                                                                result.gauss_markov_stddev, duration_s)
     n_val = values.get("N", 0.0)
     k_val = values.get("K", 0.0)
     if n_val > 0 and k_val > 0:
@@ -516,13 +520,15 @@ def _fit_with_gauss_markov(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, r
     bends an N + K curve near the crossing (a gain of 35 on one of the mocks' N + K records, K still
     significant) or near its end (T_c of 43 s in 20 min, the walk's last points flat by chance)."""
     avar = adev**2
-    best = None
-    for tau_c in np.geomspace(min(shortest_tc, tau[-1]), tau[-1], 64):
+    grid = np.geomspace(min(shortest_tc, tau[-1]), tau[-1], 64)
+    fits = []
+    for tau_c in grid:
         a = np.column_stack([basis(tau)[:, [1, 3]], gauss_markov_avar(tau, tau_c)])
         c, cov, chi2 = _irls(a, avar, edf)
-        if best is None or chi2 < best[0]:
-            best = (chi2, tau_c, c, cov)
-    chi2, tau_c, c, cov = best
+        fits.append((chi2, c, cov))
+    at = int(np.argmin([f[0] for f in fits]))
+    chi2, c, cov = fits[at]
+    tau_c = float(grid[at])
     if c[2] <= 0 or chi2_ieee - chi2 < CHI2_GAIN:  # a hump in the noise, not a correlated bias
         return values
     inflate = max(chi2 / max(len(tau) - 4, 1), 1.0)
@@ -531,7 +537,15 @@ def _fit_with_gauss_markov(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, r
                        or GM_PEAK_X * tau_c * UNRESOLVED_PEAK_MARGIN > tau[-1]):
         return values
     sigma = math.sqrt(c[2])
-    result.gauss_markov = (sigma, float(tau_c))
+    result.gauss_markov = (sigma, tau_c)
+    sd_tau_c = _profile_stddev(grid, [f[0] for f in fits], at, inflate)
+    sd_log_sigma = sd[2] / (2.0 * c[2])  # with T_c held
+    if sd_tau_c is not None:  # and as T_c moves: the profiled sigma's slope in ln T_c, between the neighbours
+        s_lo, s_hi = fits[at - 1][1][2], fits[at + 1][1][2]  # sigma^2 at the neighbours
+        step = math.log(grid[at + 1] / grid[at - 1])
+        slope = math.log(s_hi / s_lo) / (2.0 * step) if s_lo > 0 < s_hi else 0.0  # d ln sigma / d ln T_c
+        sd_log_sigma = math.hypot(sd_log_sigma, slope * sd_tau_c / tau_c)
+    result.gauss_markov_stddev = (sigma * sd_log_sigma, sd_tau_c)
     result.reduced_chi2 = chi2 / max(len(tau) - 4, 1)
     how = (f"fit with a Gauss-Markov bias (sigma {sigma:.3g}, T_c {tau_c:.3g} s): the curve rises then "
            "falls again")
@@ -552,6 +566,36 @@ def _fit_with_gauss_markov(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, r
     result.coeffs = {t: math.sqrt(v) for t, v in (("N", c[0]), ("K", c[1])) if v > 0}
     result.fitted = ("N", "K")
     return {"N": float(c[0]), "K": float(c[1])}
+
+
+def _at_least_record_bound(gm: tuple[float, float], sd: tuple[float | None, float | None], duration_s: float
+                           ) -> tuple[float | None, float | None]:
+    """The curve's 1-sigma of a Gauss-Markov (sigma, T_c), raised to what a record of ``duration_s`` can
+    tell at best where they fall below it (they count the curve's overlapping points as independent: on
+    the benchmark's 60 axes 2.5 to 2.7 times below the scatter).
+
+    The bound is that of the process observed alone: its sample variance has variance 2 sigma^4 T_c / T
+    (Bendat and Piersol, "Random Data", 4th ed., eq. 8.72, T >> T_c), so sd(ln sigma) = sqrt(T_c / 2T);
+    its AR(1) coefficient phi = exp(-dt / T_c) has asymptotic variance (1 - phi^2) / n (Brockwell and
+    Davis, "Time Series: Theory and Methods", 8.10), so sd(ln T_c) = sqrt(2 T_c / T) for dt << T_c. White
+    noise and the other terms on top only widen it."""
+    sigma, tau_c = gm
+    floor = (sigma * math.sqrt(tau_c / (2.0 * duration_s)), tau_c * math.sqrt(2.0 * tau_c / duration_s))
+    return (max(sd[0], floor[0]) if sd[0] is not None else None,
+            max(sd[1], floor[1]) if sd[1] is not None else None)
+
+
+def _profile_stddev(grid: np.ndarray, chi2: Sequence[float], at: int, inflate: float) -> float | None:
+    """1-sigma of a positive parameter from its profiled chi-square on a log-spaced ``grid``, minimum at
+    ``at``: the parabola in ln(parameter) through the minimum and its neighbours gives sd(ln) =
+    sqrt(2 inflate / chi2''), chi2 rising by the reduced chi-square ``inflate`` at 1-sigma (Press et al.,
+    Numerical Recipes, 15.6); times the value (delta method). None where the minimum is at an end of the
+    grid or the profile is not curved upward there."""
+    if at == 0 or at == len(grid) - 1:
+        return None
+    (x0, x1, x2), (y0, y1, y2) = np.log(grid[at - 1:at + 2]), chi2[at - 1:at + 2]
+    curvature = 2.0 * ((y2 - y1) / (x2 - x1) - (y1 - y0) / (x1 - x0)) / (x2 - x0)
+    return float(grid[at]) * math.sqrt(2.0 * inflate / curvature) if curvature > 0 else None
 
 
 def dominant_alpha(tau: np.ndarray, noise: AxisNoise) -> np.ndarray:

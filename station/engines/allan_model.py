@@ -17,26 +17,29 @@ The fit follows the generalized method of wavelet moments (Guerrier, Skaloud, St
 "Wavelet-variance-based estimation for composite stochastic processes", JASA 108(503), 2013; the Allan
 variance is twice the Haar wavelet variance) with the weights of the curve's own EDF: it minimises
 
-    sum_i (edf_i / 2) ln^2(sigma_hat^2(tau_i) / sigma^2(tau_i; theta))                               (1)
+    sum_i [ln(sigma_hat^2(tau_i) / sigma^2(tau_i; theta)) - m(edf_i)]^2 / v(edf_i)                     (1)
 
-(ln of a chi-square variable of edf degrees of freedom scaled by edf has variance ~ 2 / edf) over the
-logarithms of every coefficient and time constant (Levenberg-Marquardt type trust region, scipy), started
-from a non-negative least-squares fit of a dictionary of Gauss-Markov curves (correlation times six per
-decade: the active ones cluster where the curve needs a process).
+where m = psi(edf / 2) - ln(edf / 2) and v = psi'(edf / 2) are the mean and variance of the logarithm of
+a chi-square variable of edf degrees of freedom scaled by edf (:func:`log_chi2_moments`; ~ -1 / edf and
+2 / edf for many EDF, but at the few EDF of the longest cluster times the mean matters: without it the
+fit sits under those points), over the logarithms of every coefficient and time constant
+(Levenberg-Marquardt type trust region, scipy), started from a non-negative least-squares fit of a
+dictionary of Gauss-Markov curves (correlation times six per decade: the active ones cluster where the
+curve needs a process).
 
-Which terms: every admissible combination (any subset of Q, B, K, R beside N, and zero to three
-Gauss-Markov processes; the filter and sinusoids where the curve shows them) is fitted, and the simplest
-(fewest parameters; then the smallest (1)) that describes the curve is the reference (:func:`preferred`);
-a simpler combination is still preferred to it unless the reference lowers (1) by CHI2_GAIN per added
-parameter. "Describes" is a goodness-of-fit test point by point: the model lies inside the curve's 68 %
+Which terms: every admissible combination (any subset of Q, B, K, R beside N, and zero to three Gauss-Markov
+processes; the filter and sinusoids where the curve shows them) is fitted, and the simplest (fewest
+parameters; then the smallest (1)) that describes the curve is the reference (:func:`preferred`); a simpler
+combination is still preferred to it unless the reference lowers (1) by CHI2_GAIN per added parameter, and one
+as rich never is. "Describes" is a goodness-of-fit test point by point: the model lies inside the curve's 68 %
 interval, or within TOLERANCE of the curve, at every cluster time of the valid range. Not an information
-criterion alone: the points of an overlapping Allan curve are strongly correlated (neighbouring cluster
-times share most of their data), so (1) is not a log-likelihood and AIC or BIC would count the same
-evidence many times over; not the band test alone either: a third of independent points fall outside a
-68 % interval by chance, and following them adds processes that chase the scatter. The band test asks of
-each point only what its own EDF promises, which is also what the plot shows; the penalty (about ln 53,
-BIC's for the points of a 10,000 s curve) keeps chance apart from evidence. Each term's 1-sigma comes
-from the Jacobian of (1) at the optimum, inflated by the reduced chi-square where that exceeds one.
+criterion alone: the points of an overlapping Allan curve are strongly correlated (neighbouring cluster times
+share most of their data), so (1) is not a log-likelihood and AIC or BIC would count the same evidence many
+times over; not the band test alone either: a third of independent points fall outside a 68 % interval by
+chance, and following them adds processes that chase the scatter. The band test asks of each point only what
+its own EDF promises, which is also what the plot shows; the penalty (about ln 53, BIC's for the points of a
+10,000 s curve) keeps chance apart from evidence. Each term's 1-sigma comes from the Jacobian of (1) at the
+optimum, inflated by the reduced chi-square where that exceeds one.
 """
 
 from __future__ import annotations
@@ -47,7 +50,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize
+from scipy import optimize, special
 
 from station.engines.allan_fit import B_FACTOR, TERMS, AxisNoise, TermEstimate, _irls, gauss_markov_avar
 
@@ -158,6 +161,30 @@ class NoiseModel:
         ndarray, (M,)
         """
         return np.sum(list(self.parts(tau).values()), axis=0)
+
+
+def log_chi2_moments(edf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation of ln(X / edf) for X chi-square of ``edf`` degrees of freedom.
+
+    An Allan variance estimate is sigma^2 X / edf, so its logarithm is ln sigma^2 plus a term of mean
+    psi(edf / 2) - ln(edf / 2) and variance psi'(edf / 2) (digamma and trigamma; Bartlett and Kendall,
+    "The statistical analysis of variance-heterogeneity and the logarithmic transformation", JRSS
+    Suppl. 8, 1946). For many EDF these are -1/edf and 2/edf; at the 3 to 10 EDF of a curve's last
+    points the mean is -0.1 to -0.4: fitted without it, a model sits 5 to 20 % below those points in
+    deviation and the curve's end pulls the long-tau terms down.
+
+    Parameters
+    ----------
+    edf : ndarray
+        Equivalent degrees of freedom.
+
+    Returns
+    -------
+    tuple of ndarray
+        (mean, standard deviation), each shaped like ``edf``.
+    """
+    half = np.asarray(edf, dtype=np.float64) / 2.0
+    return special.digamma(half) - np.log(half), np.sqrt(special.polygamma(1, half))
 
 
 def sinusoid_avar(tau: np.ndarray, freq_hz: float) -> np.ndarray:
@@ -295,6 +322,17 @@ class _Curve:
         (:func:`station.engines.allan_fit._filter_settled`)."""
         return (self.filter_reach_s or 3.0 * float(self.tau[0])) / 15.0
 
+    def log_residuals(self, model_avar: np.ndarray) -> np.ndarray:
+        """The weighted residuals of (1): (ln sigma_hat^2 - E ln - ln sigma^2) / sd, exact for a scaled
+        chi-square of edf degrees of freedom (:func:`log_chi2_moments`)."""
+        mean, sd = log_chi2_moments(self.edf)
+        tiny = np.finfo(float).tiny
+        return (np.log(self.avar) - mean - np.log(np.maximum(model_avar, tiny))) / sd
+
+    def chi2(self, model_avar: np.ndarray) -> float:
+        """(1) for a model's Allan variance at the curve's cluster times."""
+        return float(np.sum(self.log_residuals(model_avar) ** 2))
+
     def outside(self, model_avar: np.ndarray) -> np.ndarray:
         """Which points the model leaves outside both their 68 % interval and the tolerance."""
         adev = np.sqrt(np.maximum(model_avar, 0.0))
@@ -306,8 +344,9 @@ class _Curve:
 def _solve(curve: _Curve, combo: _Combination, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]
            ) -> _Fit:
     """Minimise (1) from ``x0``; the covariance of the log parameters from the Jacobian."""
-    w = np.sqrt(curve.edf / 2.0)
-    log_avar = np.log(curve.avar)
+    mean, sd = log_chi2_moments(curve.edf)
+    w = 1.0 / sd
+    log_avar = np.log(curve.avar) - mean
     tiny = np.finfo(float).tiny
 
     n_lin = len(combo.terms) + combo.n_gm + combo.n_sin
@@ -391,11 +430,15 @@ def _gm_starts(curve: _Curve, terms: tuple[str, ...], t_f: float | None, freqs: 
             clusters[-1].append(int(i))
         else:
             clusters.append([int(i)])
+    # with the filter, the dictionary's curves below its reach stand in for the filter itself: a process
+    # there is out of bounds (_bounds), and starting one there wastes it (the full fit misses a process)
+    fastest = max(float(curve.tau[0]), curve.filter_reach_s or 0.0) if t_f is not None else 0.0
     peaks = []
     for cl in clusters:
         weight = g[cl] * gauss_markov_avar(grid[cl] * 1.89, 1.0).max()
         t = float(np.exp(np.sum(weight * np.log(grid[cl])) / np.sum(weight)))
-        peaks.append((float(np.sum(weight)), t))
+        if t >= fastest:
+            peaks.append((float(np.sum(weight)), t))
     peaks.sort(reverse=True)
     return [t for _, t in peaks]
 
@@ -513,8 +556,9 @@ def _as_model(fit: _Fit, curve: _Curve, combinations: int) -> NoiseModel:
     model.valid_tau = (float(curve.tau[0]), float(curve.tau[-1]))
     model.method = (f"the simplest of {combinations} combinations that describes the curve (within its 68 % "
                     f"interval or {TOLERANCE:.0%} at every cluster time)" if model.describes else
-                    f"of {combinations} combinations, the one leaving fewest cluster times outside the 68 % "
-                    f"interval and {TOLERANCE:.0%} ({model.outside} of {model.points})")
+                    f"of {combinations} combinations, the simplest that no richer one betters by "
+                    f"{CHI2_GAIN:g} in (1) per added parameter; it leaves {model.outside} of {model.points} "
+                    f"cluster times outside the 68 % interval and {TOLERANCE:.0%}")
     return model
 
 
@@ -527,10 +571,12 @@ def preferred(candidates: Sequence[tuple[int, int, float]]) -> int:
 
     The reference is the simplest model that describes the curve (no point outside; the smallest (1) among
     equals), or, where none does, the one leaving fewest points outside. A simpler model is preferred to
-    it unless the reference lowers (1) by CHI2_GAIN or more per added parameter (where none describes,
-    the reference leaves fewest points outside, the smallest (1) among equals): the points an overlapping
-    curve leaves outside its 68 % interval by chance (a third of independent points would) are not
-    evidence for another term; the many-EDF points a missing term throws off are (a gain of hundreds).
+    it unless the reference lowers (1) by CHI2_GAIN or more per added parameter; one with as many
+    parameters never is, whatever its (1): it is not simpler, and it leaves points outside that the
+    reference describes (where none describes, the reference leaves fewest points outside, the smallest
+    (1) among equals). The points an overlapping curve leaves outside its 68 % interval by chance (a
+    third of independent points would) are not evidence for another term; the many-EDF points a missing
+    term throws off are (a gain of hundreds).
 
     Parameters
     ----------
@@ -548,8 +594,10 @@ def preferred(candidates: Sequence[tuple[int, int, float]]) -> int:
     else:
         ref = min(order, key=lambda i: (candidates[i][0], candidates[i][2]))
     _, p_ref, chi2_ref = candidates[ref]
-    eligible = [i for i in order if candidates[i][1] <= p_ref
-                and candidates[i][2] <= chi2_ref + CHI2_GAIN * (p_ref - candidates[i][1])]
+    # only a simpler model displaces the reference: one as rich with a smaller (1) that leaves points
+    # outside is not simpler, it draws another shape with the same freedom
+    eligible = [ref] + [i for i in order if candidates[i][1] < p_ref
+                        and candidates[i][2] <= chi2_ref + CHI2_GAIN * (p_ref - candidates[i][1])]
     return min(eligible, key=lambda i: (candidates[i][1], candidates[i][2]))
 
 
@@ -675,15 +723,14 @@ def ieee_model(axis: AxisNoise, tau: np.ndarray, adev: np.ndarray, edf: np.ndarr
         est = axis.terms[term]
         model.terms[term] = Estimate(value, est.stddev if est.value == value else None)
     if axis.gauss_markov is not None:
-        model.gauss_markov = [GaussMarkov(Estimate(axis.gauss_markov[0], None),
-                                          Estimate(axis.gauss_markov[1], None))]
+        (sigma, tau_c), (sd_sigma, sd_tau_c) = axis.gauss_markov, axis.gauss_markov_stddev
+        model.gauss_markov = [GaussMarkov(Estimate(sigma, sd_sigma), Estimate(tau_c, sd_tau_c))]
     model.parameters = len(model.terms) + GM_PARAMS * len(model.gauss_markov)
     outside = curve.outside(model.avar(curve.tau))
     model.outside = int(np.count_nonzero(outside))
     model.points = len(curve.tau)
     model.describes = model.outside == 0
-    model.chi2 = float(np.sum(curve.edf / 2.0 * np.log(curve.avar / np.maximum(model.avar(curve.tau),
-                                                                              np.finfo(float).tiny)) ** 2))
+    model.chi2 = curve.chi2(model.avar(curve.tau))
     model.valid_tau = (float(curve.tau[0]), float(curve.tau[-1]))
     return model
 
@@ -722,8 +769,7 @@ def choose_model(axis: AxisNoise, tau: np.ndarray, adev: np.ndarray, edf: np.nda
     curve = _curve_of(tau, adev, edf, ci_low, ci_high, rate_hz)
     on = (curve.tau >= chosen.valid_tau[0]) & (curve.tau <= chosen.valid_tau[1])
     curve = curve.part(on)
-    kept_avar = np.maximum(kept.avar(curve.tau), np.finfo(float).tiny)
-    kept_chi2 = float(np.sum(curve.edf / 2.0 * np.log(curve.avar / kept_avar) ** 2))
+    kept_chi2 = curve.chi2(kept.avar(curve.tau))
     if kept_chi2 <= KEEP_REDUCED_CHI2 * len(curve.tau):
         return
     axis.noise_model = chosen
@@ -746,6 +792,7 @@ def _report(axis: AxisNoise, model: NoiseModel) -> None:
     axis.fitted = tuple(model.terms)
     axis.coeffs = {t: e.value for t, e in model.terms.items()}
     axis.gauss_markov = None
+    axis.gauss_markov_stddev = (None, None)
     axis.reduced_chi2 = model.chi2 / max(model.points - model.parameters, 1)
     n_val, k_val = axis.coeffs.get("N"), axis.coeffs.get("K")
     axis.crossing_tau_nk = math.sqrt(3.0) * n_val / k_val if n_val and k_val else None
