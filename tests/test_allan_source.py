@@ -73,3 +73,25 @@ def test_non_finite_sample_named(tmp_path, twice: bool) -> None:
     with pytest.raises(EngineInputError, match=rf"t = {t_bad:.6f} s has a non-finite ay \(nan\)"):
         integrate_stream(chunks if twice else iter(chunks), "x.csv", workdir=tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("twice", [False, True])
+def test_reading_error_raised_in_the_callers_thread(tmp_path, twice: bool) -> None:
+    import threading
+
+    from station.errors import InputFileError
+
+    good = _chunks(8000)
+
+    class Broken:
+        """A source whose third chunk cannot be read (as a truncated file's), read twice or once."""
+
+        def __iter__(self):
+            yield from good[:2]
+            raise InputFileError(tmp_path / "x.csv", "line 9000 is cut short", line=9000)
+
+    with pytest.raises(InputFileError, match="line 9000 is cut short"):
+        integrate_stream(Broken() if twice else iter(Broken()), "x.csv", workdir=tmp_path)
+    assert list(tmp_path.iterdir()) == []
+    # the read-ahead thread ended with the stream
+    assert not [t for t in threading.enumerate() if t.name == "allan-read-ahead"]
