@@ -104,6 +104,11 @@ def compare(params: Path, ref: dict[str, np.ndarray]) -> list[tuple[str, float]]
     return rows
 
 
+def load() -> str:
+    """The machine's load average over the last minute, against its cores (the runs share them)."""
+    return f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+
+
 def median(runs: list[ProcessRun], what: str) -> float:
     """Median wall or CPU seconds of some runs."""
     return statistics.median(getattr(r, what) for r in runs)
@@ -117,6 +122,7 @@ def main() -> None:
     args = parser.parse_args()
 
     env = installed_env()
+    print(f"load average at the start: {load()}")
     run_process([*STATION, "--help"], env=env)  # the bytecode cache filled before timing
     helps = [run_process([*STATION, "--help"], env=env) for _ in range(args.repeats)]
     print(f"start-up: imu-station --help {median(helps, 'wall'):.3f} s wall, "
@@ -132,6 +138,7 @@ def main() -> None:
             ours = [run_process(station, env=env) for _ in range(args.repeats)]
             print(f"imu-station calibrate --method free --imu-tk, whole process: "
                   f"{median(ours, 'wall'):.3f} s wall, {median(ours, 'cpu'):.3f} s CPU")
+            print(f"load average at the end: {load()}")
             return
         theirs, ours, ours_two = [], [], []
         run_process(station, env=env)  # compiled modules cached before the first timed run
@@ -154,7 +161,7 @@ def main() -> None:
         print("parameters against imu_tk's (largest relative difference):")
         for name, diff in compare(params, imu_tk_parameters(binaries, acc, gyro)):
             print(f"  {name:16s} {diff:.1e}")
-    print(f"load average at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"load average at the end: {load()}")
 
 
 if __name__ == "__main__":
