@@ -209,6 +209,22 @@ def test_equivalent_white_noise_and_random_walk():
     assert np.all(line >= slow.avar(tau) * (1 - 1e-3)) and np.min(line / slow.avar(tau)) < 1.01
 
 
+def test_equivalent_pair_of_a_bias_instability_floor_raises_n_not_k_alone():
+    """N + B + a slow process (imu2 gy of the ADIS16405 record): K alone covering B's floor at the 10 ms
+    step would be 3e-3 rad/s^2/sqrt(Hz); the pair covers the model over [dt, H], and no pair on a fine
+    grid of N_eq overestimates it less at its worst point."""
+    model = NoiseModel(terms={"N": Estimate(7.5e-4, None), "B": Estimate(1.55e-4, None)},
+                       gauss_markov=[GaussMarkov(Estimate(3.2e-4, None), Estimate(415.0, None))])
+    n_eq, k_eq = white_walk_equivalent(model, 0.01, 2000.0)
+    tau = np.geomspace(0.01, 2000.0, 400)
+    worst = np.max((n_eq**2 / tau + k_eq**2 * tau / 3.0) / model.avar(tau))
+    assert np.min((n_eq**2 / tau + k_eq**2 * tau / 3.0) / model.avar(tau)) >= 1 - 1e-9
+    assert n_eq > 7.5e-4 and k_eq < 1e-4
+    for n_try in np.geomspace(7.5e-4, 3e-3, 60):
+        k2 = max(np.max(3.0 * (model.avar(tau) - n_try**2 / tau) / tau), 0.0)
+        assert np.max((n_try**2 / tau + k2 * tau / 3.0) / model.avar(tau)) >= worst * (1 - 0.01)
+
+
 def test_gm_yaml_discrete_form_and_the_old_key():
     d = discrete_gm(5e-4, 300.0, 0.005)
     assert d["phi"] == pytest.approx(math.exp(-0.005 / 300.0))

@@ -24,7 +24,7 @@ identify the IEEE 952 noise terms: N white noise (angle/velocity random walk), K
 B bias instability, Q quantization, R rate ramp. N and K are always fitted; B, Q and R only where the
 curve shows them. A term the record cannot show is null, with the reason (for example K when the
 white-noise and random-walk lines cross beyond a twentieth of the record). Where those terms do not
-describe the curve within its 68%% interval (or 10%%), every combination of them with up to three
+describe the curve within its 68 % interval (or 10 %), every combination of them with up to three
 Gauss-Markov processes (GM), the sensor's output filter and sinusoids is fitted and the simplest that
 does is reported, with the range of tau where it holds (valid_tau). The Kalibr, VINS and ORB-SLAM3
 values are the N and K equivalent to the whole model over --horizon.
