@@ -10,8 +10,11 @@ thread does the reading, fifty times a second whatever the rate. A port's buffer
 than a period (a pty ~20 KB: 0.4 s of a 1 kHz unit), so nothing is lost for the wait.
 
 Its calls take a lock, so a screen's worker and the UI thread (asking for the link statistics,
-a command) may share it. It needs a port with a file descriptor; :func:`open_paced` falls back
-to the threaded :class:`~drivers.serial_device.SerialDevice` for a pyserial URL (``sim://``).
+a command) may share it. While nobody reads (the TUI's connect screen), asking for the link
+statistics reads what the port has, so they stay live and the port's buffers do not overflow;
+the samples wait, bounded as a reader thread's are (beyond ``max_buffered_samples`` they are
+dropped and counted). It needs a port with a file descriptor; :func:`open_paced` falls back to the
+threaded :class:`~drivers.serial_device.SerialDevice` for a pyserial URL (``sim://``).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from drivers.errors import CommandRejected
 from drivers.interface import Device
 from drivers.link_stats import LinkStats
 from drivers.polled_port import PolledPort
-from drivers.serial_device import DEFAULT_BAUDRATE, SerialDevice
+from drivers.serial_device import DEFAULT_BAUDRATE, DEFAULT_MAX_BUFFERED, SerialDevice
 from protocols import native
 from protocols.base import Message
 
@@ -49,14 +52,39 @@ class PacedPort(PolledPort):
         Take an exclusive lock on the port.
     period_s : float
         Least time between two reads that wait (``read(timeout)`` with a timeout above 0).
+    max_buffered_samples : int
+        Samples kept between two reads; beyond it batches are dropped and counted in
+        ``stats.overflow_drops``.
     """
 
     def __init__(self, port: str, protocol: str = "native", baudrate: int = DEFAULT_BAUDRATE,
-                 exclusive: bool = True, period_s: float = READ_PERIOD_S):
+                 exclusive: bool = True, period_s: float = READ_PERIOD_S,
+                 max_buffered_samples: int = DEFAULT_MAX_BUFFERED):
         super().__init__(port, protocol, baudrate, exclusive)
         self.period_s = period_s
+        self._max_buffered = max_buffered_samples
+        self._buffered = 0
         self._lock = threading.RLock()
         self._last_read = 0.0
+
+    def _ingest(self, data: bytes) -> None:
+        """Decode ``data``; a batch beyond ``max_buffered_samples`` waiting is dropped and counted."""
+        waiting = len(self._pending)
+        super()._ingest(data)
+        if len(self._pending) > waiting:
+            batch = self._pending[-1]
+            if self._buffered + len(batch) > self._max_buffered:
+                self._pending.pop()
+                self._monitor.add_overflow(len(batch))
+            else:
+                self._buffered += len(batch)
+
+    def read_now(self) -> np.ndarray:
+        """Every sample received since the last read, reading what the port has without waiting."""
+        with self._lock:
+            batch = super().read_now()
+            self._buffered = 0  # every waiting sample is in the batch
+            return batch
 
     def read(self, timeout: float | None = None) -> np.ndarray:
         """Every sample received since the last read; waits first until ``period_s`` has passed since
@@ -102,8 +130,10 @@ class PacedPort(PolledPort):
 
     @property
     def stats(self) -> LinkStats:
-        """A snapshot of the link statistics."""
+        """A snapshot of the link statistics, once what the port has is read (its samples wait for
+        the next read)."""
         with self._lock:
+            self._receive()
             return super().stats
 
     @property

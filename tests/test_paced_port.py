@@ -125,3 +125,18 @@ def test_a_vanished_port_gives_its_samples_then_its_error() -> None:
                 got.append(dev.read(0.05))
     seq = np.concatenate(got)["seq"].astype(np.int64)
     assert len(seq) > 0 and np.all(np.diff(seq) == 1)
+
+
+def test_the_link_statistics_stay_live_while_nobody_reads_and_the_wait_is_bounded() -> None:
+    with PtyServer(seed=17, rate_hz=1000) as server, \
+            PacedPort(server.port_path, max_buffered_samples=300) as dev:
+        dev.get_info()
+        counts = []
+        for _ in range(6):  # as the TUI's connect screen asks, twice a second
+            time.sleep(0.25)
+            counts.append(dev.stats.samples)
+        assert all(b > a for a, b in zip(counts, counts[1:], strict=False))
+        stats = dev.stats
+        assert stats.overflow_drops > 0 and stats.lost == 0  # dropped here, counted; none lost on the link
+        kept = dev.read(0)
+        assert 0 < len(kept) <= 300
