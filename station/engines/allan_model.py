@@ -170,7 +170,7 @@ def log_chi2_moments(edf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     psi(edf / 2) - ln(edf / 2) and variance psi'(edf / 2) (digamma and trigamma; Bartlett and Kendall,
     "The statistical analysis of variance-heterogeneity and the logarithmic transformation", JRSS
     Suppl. 8, 1946). For many EDF these are -1/edf and 2/edf; at the 3 to 10 EDF of a curve's last
-    points the mean is -0.1 to -0.4: fitted without it, a model sits 5 to 20 % below those points in
+    points the mean is -0.1 to -0.4: fitted without it, a model sits 5 to 17 % below those points in
     deviation and the curve's end pulls the long-tau terms down.
 
     Parameters
