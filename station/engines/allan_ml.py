@@ -14,7 +14,11 @@ Gaussian log-likelihood of the n increments, whose covariance Sigma is the tridi
 
     -2 log L(a, b) = n log(2 pi) + log det Sigma + z^T Sigma^-1 z,                                   (2)
 
-with Sigma = L D L^T factored by LAPACK's tridiagonal dpttrf (log det Sigma = sum log D_jj), in O(n).
+with Sigma = L D L^T factored by LAPACK's tridiagonal dpttrf (log det Sigma = sum log D_jj), in O(n). The
+factor's recursion, D_{j+1} = gamma_0 - (gamma_1 / D_j) gamma_1, depends on D_j alone: once two successive
+D are equal every later one is too, so dpttrf runs on a prefix and, where D has settled there (within
+about 2000 steps near the optimum), the rest is its fixed point, the same numbers dpttrf gives for the
+whole length; the buffers are reused between evaluations (fresh ones cost page faults).
 Sigma = a T(rho), rho = b / a, so a is profiled out, a = z^T T^-1 z / n, and the search runs over rho
 alone. The 1-sigma comes from the observed Fisher information: the Hessian of (2) / 2 in (log a, log b)
 at the optimum (central differences), inverted.
@@ -50,6 +54,7 @@ MIN_BLOCKS = 64
 GRID = 17  # points of the coarse search over the crossing frequency
 LOWEST_CROSSING = 1e-3  # the search reaches down to a thousandth of the lowest Fourier frequency
 HESSIAN_STEP = 0.02  # in log a and log b
+SETTLE = 1 << 14  # steps of the factor's recursion tried before the whole length (see the module's text)
 
 
 @dataclass
@@ -115,23 +120,55 @@ def autocovariance(a: float, b: float, block: int) -> tuple[float, float]:
             -a / block + b * (block * block - 1.0) / (6.0 * block))
 
 
-def _logdet_and_form(z: np.ndarray, gamma0: float, gamma1: float) -> tuple[float, float]:
-    """log det Sigma and z^T Sigma^-1 z of eq. (2) for the tridiagonal Toeplitz Sigma."""
-    n = len(z)
-    d, e, info = lapack.dpttrf(np.full(n, gamma0), np.full(n - 1, gamma1))
+class _Workspace:
+    """Buffers of the factor, the solve and the logarithms for ``n`` increments, reused between
+    evaluations of the likelihood."""
+
+    def __init__(self, n: int):
+        self.d, self.e, self.x, self.log = np.empty(n), np.empty(n - 1), np.empty(n), np.empty(n)
+
+
+def _factor(gamma0: float, gamma1: float, work: _Workspace) -> tuple[np.ndarray, np.ndarray] | None:
+    """D and L's subdiagonal of Sigma = L D L^T by dpttrf, the settled tail filled in (module text);
+    None where Sigma is not positive definite."""
+    n = len(work.d)
+    k = min(n, SETTLE)
+    work.d[:k], work.e[:k - 1] = gamma0, gamma1
+    d, e, info = lapack.dpttrf(work.d[:k], work.e[:k - 1], overwrite_d=1, overwrite_e=1)
     if info != 0:
+        return None
+    work.d[:k], work.e[:k - 1] = d, e
+    if k == n:
+        return work.d, work.e
+    if d[-1] == d[-2]:  # settled: every later D is this one, every later subdiagonal gamma1 / D
+        work.d[k:], work.e[k - 1:] = d[-1], e[-1]
+        return work.d, work.e
+    work.d[:], work.e[:] = gamma0, gamma1
+    d, e, info = lapack.dpttrf(work.d, work.e, overwrite_d=1, overwrite_e=1)
+    return (d, e) if info == 0 else None
+
+
+def _logdet_and_form(z: np.ndarray, gamma0: float, gamma1: float, work: _Workspace | None = None
+                     ) -> tuple[float, float]:
+    """log det Sigma and z^T Sigma^-1 z of eq. (2) for the tridiagonal Toeplitz Sigma."""
+    work = work if work is not None else _Workspace(len(z))
+    factor = _factor(gamma0, gamma1, work)
+    if factor is None:
         return math.inf, math.inf
-    x, _ = lapack.dpttrs(d, e, z)
-    return float(np.sum(np.log(d))), float(np.dot(z, x))
+    d, e = factor
+    work.x[:] = z
+    x, _ = lapack.dpttrs(d, e, work.x, overwrite_b=1)
+    return float(np.sum(np.log(d, out=work.log))), float(np.dot(z, x))
 
 
-def _profile(log_rho: float, z: np.ndarray, block: int) -> float:
+def _profile(log_rho: float, z: np.ndarray, block: int, work: _Workspace | None = None) -> float:
     """Eq. (2) with a at its optimum for b = rho a (a = z^T T^-1 z / n), up to a constant."""
-    logdet, form = _logdet_and_form(z, *autocovariance(1.0, math.exp(log_rho), block))
+    logdet, form = _logdet_and_form(z, *autocovariance(1.0, math.exp(log_rho), block), work)
     return logdet + len(z) * math.log(form / len(z))
 
 
-def negative_log_likelihood(log_a: float, log_b: float, z: np.ndarray, block: int) -> float:
+def negative_log_likelihood(log_a: float, log_b: float, z: np.ndarray, block: int,
+                            work: _Workspace | None = None) -> float:
     """Half of eq. (2) without its constant, in the log parameters.
 
     Parameters
@@ -142,22 +179,24 @@ def negative_log_likelihood(log_a: float, log_b: float, z: np.ndarray, block: in
         Differenced block means.
     block : int
         L, samples per block.
+    work : _Workspace, optional
+        Buffers reused between calls (default fresh ones).
 
     Returns
     -------
     float
     """
-    logdet, form = _logdet_and_form(z, *autocovariance(math.exp(log_a), math.exp(log_b), block))
+    logdet, form = _logdet_and_form(z, *autocovariance(math.exp(log_a), math.exp(log_b), block), work)
     return 0.5 * (logdet + form)
 
 
-def _hessian(log_a: float, log_b: float, z: np.ndarray, block: int) -> np.ndarray:
+def _hessian(log_a: float, log_b: float, z: np.ndarray, block: int, work: _Workspace) -> np.ndarray:
     """Observed Fisher information: central second differences of the negative log-likelihood."""
     h = HESSIAN_STEP
     p = np.array([log_a, log_b])
 
     def f(da: float, db: float) -> float:
-        return negative_log_likelihood(p[0] + da, p[1] + db, z, block)
+        return negative_log_likelihood(p[0] + da, p[1] + db, z, block, work)
 
     f0 = f(0.0, 0.0)
     out = np.empty((2, 2))
@@ -200,15 +239,17 @@ def white_walk_ml(phase: np.ndarray, rate_hz: float, block: int | None = None) -
     # with g = (4 / L) sin^2(lambda / 2) and h = L - (2 (L^2 - 1) / (3 L)) sin^2(lambda / 2)
     s2 = np.sin(np.pi / n * np.geomspace(LOWEST_CROSSING, n / 2.0, GRID)) ** 2
     grid = np.log(4.0 * s2 / block / (block - 2.0 * (block * block - 1.0) / (3.0 * block) * s2))
-    values = [_profile(float(v), z, block) for v in grid]
+    work = _Workspace(n)
+    values = [_profile(float(v), z, block, work) for v in grid]
     best = int(np.argmin(values))
     lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, GRID - 1)]
-    found = optimize.minimize_scalar(_profile, bounds=(lo, hi), args=(z, block), method="bounded",
+    found = optimize.minimize_scalar(_profile, bounds=(lo, hi), args=(z, block, work), method="bounded",
                                      options={"xatol": 1e-5})
     rho = math.exp(float(found.x))
-    a = _logdet_and_form(z, *autocovariance(1.0, rho, block))[1] / n
+    a = _logdet_and_form(z, *autocovariance(1.0, rho, block), work)[1] / n
     b = rho * a
-    cov = np.linalg.pinv(_hessian(math.log(a), math.log(b), z, block))  # pinv: flat at an end of the search
+    # pinv: flat at an end of the search
+    cov = np.linalg.pinv(_hessian(math.log(a), math.log(b), z, block, work))
     sd_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
     n_density = math.sqrt(a / rate_hz)
     k_density = math.sqrt(b * rate_hz)
