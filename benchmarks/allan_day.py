@@ -118,12 +118,32 @@ def child_allantools(path: str) -> None:
 
 
 def child_phases(path: str, workdir: str) -> None:
-    """The command's stages timed in one process: reading and integrating, the curve, the fit."""
+    """The command's stages timed in one process: reading and integrating, the curve, the fit, and within
+    the fit the likelihood of K and the model choice (their functions wrapped by a timer)."""
     from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
+    from station.engines import allan_fit, allan_model
     from station.engines.allan import allan_curve, cluster_sizes
     from station.engines.allan_fit import identify_noise
 
     times = {}
+    within: dict[str, list[float]] = {}
+
+    def timed(module: object, name: str, label: str) -> None:
+        inner = getattr(module, name)
+
+        def wrapper(*args: object, **kwargs: object) -> object:
+            wall, cpu = time.perf_counter(), time.process_time()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                total = within.setdefault(label, [0.0, 0.0])
+                total[0] += time.perf_counter() - wall
+                total[1] += time.process_time() - cpu
+
+        setattr(module, name, wrapper)
+
+    timed(allan_fit, "white_walk_ml", "  of which the likelihood of K (allan_ml)")
+    timed(allan_model, "choose_model", "  of which the model choice (allan_model)")
     start, start_cpu = time.perf_counter(), time.process_time()
 
     def lap(name: str) -> None:
@@ -138,6 +158,7 @@ def child_phases(path: str, workdir: str) -> None:
         lap("Allan deviation, six axes (engines.allan)")
         identify_noise(curve, record.phase)
         lap("noise model fit (engines.allan_fit)")
+    times.update({k: (v[0], v[1]) for k, v in within.items()})
     print(json.dumps(times))
 
 
@@ -173,6 +194,7 @@ def main() -> None:
         child_phases(*args.child_phases)
         return
 
+    print(f"load average at the start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory(prefix="allan-day-", dir=args.dir) as tmp:
         folder = Path(tmp)
         path = folder / "day.h5"
