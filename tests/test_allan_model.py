@@ -98,20 +98,25 @@ def test_every_term_of_an_exact_curve_comes_back():
     assert got.valid_tau == (0.01, 1e5)
 
 
-def test_preferred_takes_the_simplest_describing_model_unless_a_simpler_one_is_as_good():
+def test_preferred_takes_the_simplest_model_that_describes_the_curve():
     # (outside, parameters, chi2): the describing 5-parameter model against a 3-parameter one 20 worse
     assert preferred([(2, 3, 120.0), (0, 5, 100.0), (0, 7, 90.0)]) == 1
-    # chance points outside the band: a simpler model within CHI2_GAIN per parameter stays
-    assert preferred([(2, 3, 105.0), (0, 5, 100.0)]) == 0
+    # a simpler model that leaves points outside does not displace one that describes the curve
+    assert preferred([(2, 3, 105.0), (0, 5, 100.0)]) == 1
+    # among describing models the simplest, then the smallest chi2
+    assert preferred([(0, 7, 80.0), (0, 5, 100.0), (0, 5, 99.0)]) == 2
+    # the ADIS16405 gyroscope of the docs: N + B + GM (none outside) against N + K + GM (4 outside), both 5,
+    # and a 4-parameter model leaving one point outside
+    assert preferred([(0, 5, 535.1), (4, 5, 499.5), (1, 4, 538.0)]) == 0
+
+
+def test_where_none_describes_a_simpler_model_within_the_penalty_stays():
     # none describes: the fewest outside is the reference
     assert preferred([(4, 3, 500.0), (1, 5, 200.0)]) == 1
-
-
-def test_an_equally_rich_model_does_not_displace_one_that_describes_the_curve():
-    # the ADIS16405 gyroscope of the docs: N + K + GM (4 points outside) against N + B + GM (none), both 5
-    assert preferred([(0, 5, 535.1), (4, 5, 499.5)]) == 0
-    # a simpler one still does, within CHI2_GAIN per parameter
-    assert preferred([(0, 5, 535.1), (4, 5, 499.5), (1, 4, 538.0)]) == 2
+    # a simpler one within CHI2_GAIN per parameter of the reference is preferred (scatter, not evidence)
+    assert preferred([(2, 3, 105.0), (1, 5, 100.0)]) == 0
+    # one as rich never displaces the reference, whatever its chi2
+    assert preferred([(1, 5, 535.1), (4, 5, 499.5)]) == 0
 
 
 def test_log_chi2_moments_match_sampled_chi_square_variables():

@@ -29,17 +29,19 @@ curve needs a process).
 
 Which terms: every admissible combination (any subset of Q, B, K, R beside N, and zero to three Gauss-Markov
 processes; the filter and sinusoids where the curve shows them) is fitted, and the simplest (fewest
-parameters; then the smallest (1)) that describes the curve is the reference (:func:`preferred`); a simpler
-combination is still preferred to it unless the reference lowers (1) by CHI2_GAIN per added parameter, and one
-as rich never is. "Describes" is a goodness-of-fit test point by point: the model lies inside the curve's 68 %
-interval, or within TOLERANCE of the curve, at every cluster time of the valid range. Not an information
-criterion alone: the points of an overlapping Allan curve are strongly correlated (neighbouring cluster times
-share most of their data), so (1) is not a log-likelihood and AIC or BIC would count the same evidence many
-times over; not the band test alone either: a third of independent points fall outside a 68 % interval by
-chance, and following them adds processes that chase the scatter. The band test asks of each point only what
-its own EDF promises, which is also what the plot shows; the penalty (about ln 53, BIC's for the points of a
-10,000 s curve) keeps chance apart from evidence. Each term's 1-sigma comes from the Jacobian of (1) at the
-optimum, inflated by the reduced chi-square where that exceeds one.
+parameters; then the smallest (1)) that describes the curve is chosen (:func:`preferred`). "Describes" is a
+goodness-of-fit test point by point: the model lies inside the curve's 68 % interval, or within TOLERANCE of
+the curve, at every cluster time of the valid range. Not an information criterion: the points of an
+overlapping Allan curve are strongly correlated (neighbouring cluster times share most of their data), so (1)
+is not a log-likelihood and AIC or BIC would count the same evidence many times over. The band test asks of
+each point only what its own EDF promises, which is also what the plot shows and what a filter that takes
+the model as its process noise needs. Where no combination passes, the points left outside may be scatter (a
+third of independent points fall outside a 68 % interval by chance): then the fewest outside is the
+reference, and a simpler combination is preferred unless the reference lowers (1) by CHI2_GAIN per added
+parameter (about ln 53, BIC's for the points of a 10,000 s curve), so that chance is kept apart from
+evidence. The IEEE fit is tried first and stands where it describes the curve well enough (see
+:func:`choose_model`), which keeps records of the IEEE terms from gaining processes. Each term's 1-sigma
+comes from the Jacobian of (1) at the optimum, inflated by the reduced chi-square where that exceeds one.
 """
 
 from __future__ import annotations
@@ -569,14 +571,13 @@ def _outside_count(fit: _Fit, curve: _Curve) -> int:
 def preferred(candidates: Sequence[tuple[int, int, float]]) -> int:
     """Index of the model to report among candidates given as (points outside, parameters, (1)).
 
-    The reference is the simplest model that describes the curve (no point outside; the smallest (1) among
-    equals), or, where none does, the one leaving fewest points outside. A simpler model is preferred to
-    it unless the reference lowers (1) by CHI2_GAIN or more per added parameter; one with as many
-    parameters never is, whatever its (1): it is not simpler, and it leaves points outside that the
-    reference describes (where none describes, the reference leaves fewest points outside, the smallest
-    (1) among equals). The points an overlapping curve leaves outside its 68 % interval by chance (a
-    third of independent points would) are not evidence for another term; the many-EDF points a missing
-    term throws off are (a gain of hundreds).
+    Where models describe the curve (no point outside), the simplest of them (the smallest (1) among
+    equals): the goodness-of-fit test the issue of the method states, and what a filter downstream needs
+    (a model inside the band everywhere it claims to hold). Where none does, the reference is the one
+    leaving fewest points outside (the smallest (1) among equals), and a simpler model is preferred to it
+    unless the reference lowers (1) by CHI2_GAIN or more per added parameter; one with as many parameters
+    never is: then no model passes the test, and the points left outside are read as scatter unless a
+    richer model earns its parameters in (1).
 
     Parameters
     ----------
@@ -590,12 +591,9 @@ def preferred(candidates: Sequence[tuple[int, int, float]]) -> int:
     order = range(len(candidates))
     describing = [i for i in order if candidates[i][0] == 0]
     if describing:
-        ref = min(describing, key=lambda i: (candidates[i][1], candidates[i][2]))
-    else:
-        ref = min(order, key=lambda i: (candidates[i][0], candidates[i][2]))
+        return min(describing, key=lambda i: (candidates[i][1], candidates[i][2]))
+    ref = min(order, key=lambda i: (candidates[i][0], candidates[i][2]))
     _, p_ref, chi2_ref = candidates[ref]
-    # only a simpler model displaces the reference: one as rich with a smaller (1) that leaves points
-    # outside is not simpler, it draws another shape with the same freedom
     eligible = [ref] + [i for i in order if candidates[i][1] < p_ref
                         and candidates[i][2] <= chi2_ref + CHI2_GAIN * (p_ref - candidates[i][1])]
     return min(eligible, key=lambda i: (candidates[i][1], candidates[i][2]))
