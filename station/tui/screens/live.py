@@ -24,9 +24,9 @@ from station.tui.screens.station_screen import StationScreen
 
 AXIS_COLORS = ("red", "green", "blue")
 TAIL_SAMPLES = 400
-# Snapshots a second at most (the values, the link), and traces drawn a second: a trace costs plotext
-# (pure Python) 20-50 ms of CPU whatever its points, its whole canvas built and transposed, and
-# was the most of what the TUI cost on this screen (20 snapshots a second wanted 2 cores).
+# At most UI_RATE_HZ snapshots a second (the values, the link) and PLOT_RATE_HZ drawings of the traces:
+# a trace costs plotext (pure Python) 20-50 ms of CPU whatever its points, its whole canvas built and
+# transposed; it was the most of what the TUI cost on this screen (20 drawings a second wanted 2 cores).
 UI_RATE_HZ = 10.0
 PLOT_RATE_HZ = 4.0
 # Tail columns: device time (s), acc x y z, gyro x y z, temperature, field x y z (NaN without).
