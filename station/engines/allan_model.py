@@ -763,8 +763,14 @@ def choose_model(axis: AxisNoise, tau: np.ndarray, adev: np.ndarray, edf: np.nda
     axis.noise_model = kept
     if kept.describes and axis.fitted_from_tau is None:  # the whole curve: nothing left out for a filter
         return
-    chosen = select_model(tau, adev, edf, ci_low, ci_high, rate_hz)
     curve = _curve_of(tau, adev, edf, ci_low, ci_high, rate_hz)
+    # Whatever model is chosen, its valid range keeps every cluster time from SHORTEST_VALID on, and (1) only
+    # grows with points: a fit within KEEP_REDUCED_CHI2 per point of those over the whole curve stands on any
+    # such range, so the hundreds of fits of the selection would not change the answer.
+    always_kept = np.count_nonzero(curve.tau >= SHORTEST_VALID)
+    if axis.fitted_from_tau is None and curve.chi2(kept.avar(curve.tau)) <= KEEP_REDUCED_CHI2 * always_kept:
+        return
+    chosen = select_model(tau, adev, edf, ci_low, ci_high, rate_hz)
     on = (curve.tau >= chosen.valid_tau[0]) & (curve.tau <= chosen.valid_tau[1])
     curve = curve.part(on)
     kept_chi2 = curve.chi2(kept.avar(curve.tau))
