@@ -19,6 +19,12 @@ from station.tui.screens.turn_ons import TurnOnsScreen
 pytestmark = pytest.mark.timeout(180)
 
 
+def _drawn(app: StationApp, words: str) -> str | None:
+    """The screen's text once it shows ``words``."""
+    text = " ".join(svg_rows(app.export_screenshot()))
+    return text if words in text else None
+
+
 def _run(tmp_path, restartable: bool) -> tuple[ParamsFile, dict]:
     out = tmp_path / "unit.yaml"
     app = StationApp(TuiConfig(simulate=True, seed=4, rate_hz=100.0, out=out, speed=20.0))
@@ -38,7 +44,9 @@ def _run(tmp_path, restartable: bool) -> tuple[ParamsFile, dict]:
                 # the prompt after turn-on k is answered once (pressing a key can outlast a record at x20)
                 if isinstance(app.screen, AskScreen) and seen["prompts"] < len(screen.records):
                     seen["prompts"] += 1
-                    seen["question"] = " ".join(svg_rows(app.export_screenshot()))
+                    # on a loaded machine the prompt's screen is pushed a moment before it is drawn
+                    seen["question"] = await wait_for(pilot, lambda: _drawn(app, "cannot restart itself"), 10,
+                                                      "the power-cycle prompt drawn")
                     unit.restartable = True  # the operator switches the unit off and on
                     unit.feed(native.encode_frame(native.RESTART))
                     unit.restartable = False
