@@ -49,6 +49,12 @@ def _drive(tmp_path: Path, mag: bool, steps: Callable[[StationApp, Pilot], Await
     asyncio.run(run())
 
 
+def _shows(app: StationApp, words: str) -> str | None:
+    """The screen's text once it shows ``words`` (a screen is drawn a moment after its state changes)."""
+    text = screen_text(app)
+    return text if words in text else None
+
+
 async def _mag_step(app: StationApp, pilot: Pilot) -> MagScreen:
     """Press m and wait for the magnetometer step's screen."""
     await pilot.press("m")
@@ -66,7 +72,7 @@ def test_a_nine_axis_unit_is_turned_until_the_sphere_is_covered(tmp_path: Path) 
         for words in ("+z half", "-z half", "covered", "turn next:", "finish"):
             assert words in text, f"{words!r} is not on the 80x24 screen:\n{text}"
         await wait_for(pilot, lambda: screen.finished, 90, "the step to finish by itself")
-        assert "magnetometer step is done" in screen_text(app)
+        await wait_for(pilot, lambda: _shows(app, "magnetometer step is done"), 10, "the step's last words")
         await pilot.press("enter")
         await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
 
@@ -128,8 +134,9 @@ def test_enter_finishes_early_once_the_calibration_can_use_the_coverage(tmp_path
         await wait_for(pilot, lambda: screen.share >= 0.2, 30, "a fifth of the sphere")
         await pilot.press("enter")
         await wait_for(pilot, lambda: screen.finished, 5, "the step to finish")
-        text = screen_text(app)
-        assert "Finished at" in text and "run-mag.csv" in text
+        # drawn a moment after the step finishes (a loaded machine shows the gap)
+        text = await wait_for(pilot, lambda: _shows(app, "Finished at"), 10, "the step's last words")
+        assert "run-mag.csv" in text
 
     _drive(tmp_path, True, steps)
     assert read_capture(tmp_path / "run-mag.csv").mag is not None
