@@ -1,7 +1,7 @@
 """Plain-text tables for a command's printed report: a title, a header, a rule and aligned columns.
 
 A command that prints a few small tables once pays nothing for them here; rich's tables cost the
-calibrate command about 35 ms to import and 40 ms to lay out (docs/methods/speed.md).
+calibrate command 20 ms to import and 17 ms to lay out on a quiet machine (docs/methods/speed.md).
 """
 
 from __future__ import annotations
