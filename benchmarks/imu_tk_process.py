@@ -80,10 +80,10 @@ def inputs(folder: Path) -> tuple[Path, Path, Path]:
     return paths[0], paths[1], csv
 
 
-def imu_tk_parameters(binaries: Path, acc: Path, gyro: Path) -> dict[str, np.ndarray]:
-    """acc_T, acc_K, acc_B, gyro_T, gyro_K, gyro_B from imu_tk's full-precision dump."""
+def imu_tk_parameters(binaries: Path, acc: Path, gyro: Path, workdir: str) -> dict[str, np.ndarray]:
+    """acc_T, acc_K, acc_B, gyro_T, gyro_K, gyro_B from imu_tk's full-precision dump (run in ``workdir``)."""
     out = subprocess.run([str(binaries / "test_imu_calib_dump"), str(acc), str(gyro)], check=True,
-                         capture_output=True, text=True).stdout
+                         capture_output=True, text=True, cwd=workdir).stdout
     values = {}
     for name, body in re.findall(r"^(\w+)=\[(.*)\]$", out, flags=re.M):
         values[name] = np.array([[float(v) for v in row.split(",")] for row in body.split(";")]).squeeze()
@@ -143,7 +143,8 @@ def main() -> None:
         theirs, ours, ours_two = [], [], []
         run_process(station, env=env)  # compiled modules cached before the first timed run
         for _ in range(args.repeats):
-            theirs.append(run_process([str(binaries / "test_imu_calib_quiet"), str(acc), str(gyro)]))
+            # imu_tk writes its results (test_imu_*.calib) into its working folder
+            theirs.append(run_process([str(binaries / "test_imu_calib_quiet"), str(acc), str(gyro)], cwd=tmp))
             ours.append(run_process(station, env=env))
             ours_two.append(run_process(station, env=two_threads))
         print(f"imu_tk's Xsens session, whole processes, median of {args.repeats} alternating runs "
@@ -159,7 +160,7 @@ def main() -> None:
               f"wall x{median(ours_two, 'wall') / median(ours, 'wall'):.2f}, "
               f"CPU x{median(ours_two, 'cpu') / median(ours, 'cpu'):.2f}")
         print("parameters against imu_tk's (largest relative difference):")
-        for name, diff in compare(params, imu_tk_parameters(binaries, acc, gyro)):
+        for name, diff in compare(params, imu_tk_parameters(binaries, acc, gyro, tmp)):
             print(f"  {name:16s} {diff:.1e}")
     print(f"load average at the end: {load()}")
 

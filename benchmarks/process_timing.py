@@ -34,10 +34,12 @@ def installed_env(**extra: str) -> dict[str, str]:
     return env
 
 
-def run_process(cmd: list[str], env: dict[str, str] | None = None) -> ProcessRun:
-    """Run ``cmd`` to completion (it must succeed), output discarded; its wall time, CPU and peak RSS."""
+def run_process(cmd: list[str], env: dict[str, str] | None = None,
+                cwd: str | Path | None = None) -> ProcessRun:
+    """Run ``cmd`` to completion (it must succeed) in ``cwd``, output discarded; its wall time, CPU and
+    peak RSS."""
     start = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=cwd)
     assert proc.stderr is not None
     err = proc.stderr.read()
     _, status, usage = os.wait4(proc.pid, 0)

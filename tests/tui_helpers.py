@@ -12,6 +12,7 @@ from pathlib import Path
 SNAPSHOTS = Path(__file__).parent / "snapshots"
 _TEXT = re.compile(r'<text[^>]*\sx="([\d.]+)"[^>]*\sy="([\d.]+)"[^>]*>(.*?)</text>', re.S)
 _SIZE = re.compile(r'<svg[^>]*viewBox="0 0 ([\d.]+) ([\d.]+)"')
+_SPACES = re.compile(r" {2,}")
 _NUMBER = re.compile(r"[+-]?\d+(?:\.\d+)?(?:e[+-]?\d+)?")
 
 
@@ -37,8 +38,9 @@ def svg_rows(svg: str) -> list[str]:
 
 
 def structure(rows: list[str]) -> list[str]:
-    """Rows with every number replaced by '#': layout, labels and verdicts, not float round-off."""
-    return [_NUMBER.sub("#", row) for row in rows]
+    """Rows with every number replaced by '#' and runs of spaces by one: layout, labels and verdicts, not
+    float round-off or the width of a number (a pty's /dev/pts/9 against /dev/pts/12 shifts a column)."""
+    return [_SPACES.sub(" ", _NUMBER.sub("#", row)) for row in rows]
 
 
 def svg_size(svg: str) -> tuple[str, str]:
