@@ -13,7 +13,7 @@ import pytest
 from serial.tools import list_ports
 from test_tui_ports import _ports
 from textual.pilot import Pilot
-from tui_helpers import screen_text, wait_for
+from tui_helpers import screen_text, shown, wait_for
 
 from mocks.mag_sessions import nine_axis_unit
 from protocols.base import MAG_SAMPLE_DTYPE
@@ -49,12 +49,6 @@ def _drive(tmp_path: Path, mag: bool, steps: Callable[[StationApp, Pilot], Await
     asyncio.run(run())
 
 
-def _shows(app: StationApp, words: str) -> str | None:
-    """The screen's text once it shows ``words`` (a screen is drawn a moment after its state changes)."""
-    text = screen_text(app)
-    return text if words in text else None
-
-
 async def _mag_step(app: StationApp, pilot: Pilot) -> MagScreen:
     """Press m and wait for the magnetometer step's screen."""
     await pilot.press("m")
@@ -72,7 +66,7 @@ def test_a_nine_axis_unit_is_turned_until_the_sphere_is_covered(tmp_path: Path) 
         for words in ("+z half", "-z half", "covered", "turn next:", "finish"):
             assert words in text, f"{words!r} is not on the 80x24 screen:\n{text}"
         await wait_for(pilot, lambda: screen.finished, 90, "the step to finish by itself")
-        await wait_for(pilot, lambda: _shows(app, "magnetometer step is done"), 10, "the step's last words")
+        await wait_for(pilot, lambda: shown(app, "magnetometer step is done"), 10, "the step's last words")
         await pilot.press("enter")
         await wait_for(pilot, lambda: isinstance(app.screen, LiveScreen), 10, "the live view")
 
@@ -135,7 +129,7 @@ def test_enter_finishes_early_once_the_calibration_can_use_the_coverage(tmp_path
         await pilot.press("enter")
         await wait_for(pilot, lambda: screen.finished, 5, "the step to finish")
         # drawn a moment after the step finishes (a loaded machine shows the gap)
-        text = await wait_for(pilot, lambda: _shows(app, "Finished at"), 10, "the step's last words")
+        text = await wait_for(pilot, lambda: shown(app, "Finished at"), 10, "the step's last words")
         assert "run-mag.csv" in text.replace("\n", "")  # a long temporary path wraps at 80 columns
 
     _drive(tmp_path, True, steps)

@@ -7,7 +7,7 @@ import asyncio
 
 import numpy as np
 import pytest
-from tui_helpers import svg_rows, wait_for
+from tui_helpers import shown, svg_rows, wait_for
 
 from protocols import native
 from station.export.params_file import ParamsFile
@@ -17,12 +17,6 @@ from station.tui.screens.ask import AskScreen
 from station.tui.screens.turn_ons import TurnOnsScreen
 
 pytestmark = pytest.mark.timeout(180)
-
-
-def _drawn(app: StationApp, words: str) -> str | None:
-    """The screen's text once it shows ``words``."""
-    text = " ".join(svg_rows(app.export_screenshot()))
-    return text if words in text else None
 
 
 def _run(tmp_path, restartable: bool) -> tuple[ParamsFile, dict]:
@@ -44,9 +38,8 @@ def _run(tmp_path, restartable: bool) -> tuple[ParamsFile, dict]:
                 # the prompt after turn-on k is answered once (pressing a key can outlast a record at x20)
                 if isinstance(app.screen, AskScreen) and seen["prompts"] < len(screen.records):
                     seen["prompts"] += 1
-                    # on a loaded machine the prompt's screen is pushed a moment before it is drawn
-                    seen["question"] = await wait_for(pilot, lambda: _drawn(app, "cannot restart itself"), 10,
-                                                      "the power-cycle prompt drawn")
+                    seen["question"] = await wait_for(pilot, lambda: shown(app, "cannot restart itself", " "),
+                                                      10, "the power-cycle prompt drawn")
                     unit.restartable = True  # the operator switches the unit off and on
                     unit.feed(native.encode_frame(native.RESTART))
                     unit.restartable = False

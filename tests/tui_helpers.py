@@ -96,3 +96,11 @@ async def results_ready(pilot, app, run):
 def screen_text(app) -> str:
     """What the app's screen shows, as text rows."""
     return "\n".join(svg_rows(app.export_screenshot()))
+
+
+def shown(app, words: str, sep: str = "\n") -> str | None:
+    """The screen's rows joined by ``sep`` once they show ``words``, else None: a condition for
+    :func:`wait_for`, since a screen is drawn a moment after its state changes (a loaded machine shows
+    the gap)."""
+    text = sep.join(svg_rows(app.export_screenshot()))
+    return text if words in text else None
