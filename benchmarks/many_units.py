@@ -33,12 +33,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from process_timing import cpu_s
 
 from protocols.native import SAMPLE_FRAME_SIZE
 from station.acquisition.capture import read_capture
 
 ROOT = Path(__file__).resolve().parent.parent
-CLOCK_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
 START_UP_S = 4.0  # left out of the steady figure: imports, opening the ports, the first file writes
 END_S = 3.0  # left out at the end: the last writes and closing
 
@@ -52,13 +52,6 @@ with PtyFleet(units, watch_s={watch_s}) as fleet:
     sys.stdin.read()  # until the benchmark closes our stdin
     print(json.dumps({{"late_ticks": fleet.late_ticks, "units": [vars(s) for s in fleet.stats]}}), flush=True)
 """
-
-
-def cpu_s(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far, every thread (``/proc/PID/stat``)."""
-    with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-        fields = fh.read().rpartition(")")[2].split()
-    return (int(fields[11]) + int(fields[12])) * CLOCK_TICK_S  # utime, stime: fields 14 and 15
 
 
 @dataclass

@@ -20,6 +20,16 @@ class ProcessRun:
     peak: int
 
 
+CLOCK_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a running process ``pid`` so far, every thread (``/proc/PID/stat``)."""
+    with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
+        fields = fh.read().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) * CLOCK_TICK_S  # utime, stime: fields 14 and 15
+
+
 PYCACHE = Path.home() / ".cache" / "imu-station" / "pycache"
 
 

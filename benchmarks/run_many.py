@@ -43,8 +43,9 @@ import threading
 import time
 from pathlib import Path
 
+from process_timing import cpu_s
+
 ROOT = Path(__file__).resolve().parent.parent
-CLOCK_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
 TUI_SETTLE_S = 3.0  # after Enter: the live screen mounted and drawing
 
 # Run before the command in a "before" process: the unit's port opened as the threaded device.
@@ -113,13 +114,6 @@ settle_s: 0.5
 rotation_rate_dps: 180
 steps: [+x, -x, +y, -y, +z, -z, rot+x, rot+y, rot+z]
 """
-
-
-def cpu_s(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far, every thread (``/proc/PID/stat``)."""
-    with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-        fields = fh.read().rpartition(")")[2].split()
-    return (int(fields[11]) + int(fields[12])) * CLOCK_TICK_S
 
 
 def station(before: str, *args: str) -> list[str]:
