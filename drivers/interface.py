@@ -56,8 +56,14 @@ class Device(abc.ABC):
         """True after :meth:`close`."""
 
     @abc.abstractmethod
-    def get_info(self, timeout: float = 1.0) -> dict[str, Any]:
-        """Ask the unit who it is: serial, model, firmware, rate_hz."""
+    def get_info(self, timeout: float = 1.0, retries: int = 2) -> dict[str, Any]:
+        """Ask the unit who it is: serial, model, firmware, rate_hz; asked again up to ``retries`` times
+        when no answer comes within ``timeout``."""
+
+    @abc.abstractmethod
+    def restart(self, timeout: float = 1.0) -> None:
+        """Restart the unit as at power-up (native RESTART), sent once; ``CommandUnsupported`` for a
+        protocol without it, ``CommandRejected`` (status ``ACK_UNKNOWN``) for a unit that cannot."""
 
     @abc.abstractmethod
     def set_rate(self, rate_hz: int, timeout: float = 1.0) -> None:

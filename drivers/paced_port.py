@@ -123,11 +123,6 @@ class PacedPort(PolledPort):
                                   self.port, native.ACK_BAD_ARGUMENT)
         super().set_rate(rate_hz, timeout)
 
-    def restart(self, timeout: float = 1.0) -> None:
-        """Restart the unit as at power-up (RESTART), sent once, never resent (see
-        :meth:`SerialDevice.restart <drivers.serial_device.SerialDevice.restart>`)."""
-        self.command(native.RESTART, b"", timeout, retries=0)
-
     @property
     def stats(self) -> LinkStats:
         """A snapshot of the link statistics, once what the port has is read (its samples wait for
@@ -174,8 +169,3 @@ def open_paced(port: str, protocol: str = "native", baudrate: int = DEFAULT_BAUD
     if "://" in port:
         return SerialDevice(port, protocol=protocol, baudrate=baudrate)
     return PacedPort(port, protocol=protocol, baudrate=baudrate)
-
-
-# It has every call of SerialDevice (restart, get_info with retries): code that asks a unit for those
-# by its type takes it too.
-SerialDevice.register(PacedPort)

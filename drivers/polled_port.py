@@ -200,6 +200,11 @@ class PolledPort(Device):
         """Ask the unit who it is (GET_INFO): serial, model, firmware, rate_hz."""
         return native.parse_device_info(self.command(native.GET_INFO, b"", timeout, retries).payload)
 
+    def restart(self, timeout: float = 1.0) -> None:
+        """Restart the unit as at power-up (RESTART), sent once, never resent (see
+        :meth:`SerialDevice.restart <drivers.serial_device.SerialDevice.restart>`)."""
+        self.command(native.RESTART, b"", timeout, retries=0)
+
     def set_rate(self, rate_hz: int, timeout: float = 1.0) -> None:
         """Set the output data rate (SET_RATE); raises ``CommandRejected`` if the unit refuses it."""
         self.command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout)

@@ -20,6 +20,7 @@ from mocks.device import SimDevice
 from mocks.pty_fleet import FleetUnit, PtyFleet
 from mocks.pty_server import PtyServer
 from protocols import native
+from station.acquisition.turn_ons import _restart as restart_for_turn_on
 
 
 @pytest.fixture
@@ -89,8 +90,8 @@ def test_restart_is_sent_once_and_the_unit_starts_again() -> None:
         dev.get_info()
         dev.restart()
         assert sim.restarts == 1
-    # Code that asks for the threaded device's commands by its type takes this one too.
-    assert isinstance(dev, SerialDevice)
+        # the turn-ons restart any Device through the interface, this one as the threaded one
+        assert restart_for_turn_on(dev) and sim.restarts == 2
 
 
 def test_a_rate_that_does_not_fit_the_command_is_refused(device: PacedPort) -> None:

@@ -19,7 +19,6 @@ from drivers import (
     Device,
     LinkStats,
     PortLost,
-    SerialDevice,
     open_device,
 )
 from station.acquisition.recorder import CaptureResult, record
@@ -33,9 +32,7 @@ StatusDisplay = Callable[[float | None], AbstractContextManager[StatusCallback]]
 
 def _get_info_quickly(device: Device) -> dict[str, Any]:
     """GET_INFO sent at most twice: a unit that does not answer is recorded anyway."""
-    if isinstance(device, SerialDevice):
-        return device.get_info(timeout=0.5, retries=1)
-    return device.get_info(timeout=0.5)  # the Device interface has no retry count
+    return device.get_info(timeout=0.5, retries=1)
 
 
 def prepare_device(device: Device, rate_hz: int | None, err: IO[str]) -> None:

@@ -15,7 +15,7 @@ from contextlib import nullcontext
 from pathlib import Path
 from typing import IO
 
-from drivers import DEFAULT_BAUDRATE, CommandRejected, CommandUnsupported, Device, SerialDevice, open_device
+from drivers import DEFAULT_BAUDRATE, CommandRejected, CommandUnsupported, Device, open_device
 from protocols import native
 from station.acquisition.port_capture import StatusDisplay, prepare_device
 from station.acquisition.recorder import record
@@ -36,8 +36,6 @@ class TurnOnError(StationError):
 def _restart(device: Device) -> bool:
     """Restart the unit; False when it answers that it cannot (ACK status 1) or its protocol has no
     RESTART (a text-line, Xsens, MAVLink or frame-described unit: power-cycle it)."""
-    if not isinstance(device, SerialDevice):
-        return False
     try:
         device.restart()
     except CommandUnsupported:

@@ -17,7 +17,7 @@ from textual import work
 from textual.widgets import Static
 from textual.worker import get_current_worker
 
-from drivers import CommandRejected, CommandUnsupported, SerialDevice
+from drivers import CommandRejected, CommandUnsupported
 from drivers.errors import DriverError
 from protocols import native
 from station.engines.characterisation_turnon import reduce_record, turn_on_repeatability
@@ -89,8 +89,6 @@ class TurnOnsScreen(LongRecordingScreen):
     def _restart(self, device: Any, k: int) -> bool:
         """Restart the unit for turn-on ``k``, or have the operator power-cycle it; False if abandoned."""
         try:
-            if not isinstance(device, SerialDevice):
-                raise CommandRejected("the unit has no RESTART", "", native.ACK_UNKNOWN)
             device.restart()
             time.sleep(RESTART_SETTLE_S)
             return True
