@@ -129,11 +129,12 @@ class TurnOnsScreen(LongRecordingScreen):
             [("c", "it is back on: record"), ("x", "stop here")]), answered)
 
     def _draw_means(self) -> None:
-        if not self.records:
+        records = list(self.records)  # one copy: the reader thread may append a record meanwhile
+        if not records:
             return
-        gyro = np.array([r["gyro"].astype(float).mean(axis=0) for r in self.records])
-        acc = np.array([r["acc"].astype(float).mean(axis=0) for r in self.records])
-        x = np.arange(1, len(self.records) + 1, dtype=float)
+        gyro = np.array([r["gyro"].astype(float).mean(axis=0) for r in records])
+        acc = np.array([r["acc"].astype(float).mean(axis=0) for r in records])
+        x = np.arange(1, len(records) + 1, dtype=float)
         gyro_plot, acc_plot = self.plots()
         draw(gyro_plot, [Series(f"g{a}", x, (gyro[:, j] - gyro[:, j].mean()) * 180 / np.pi, COLORS[j])
                          for j, a in enumerate("xyz")],
