@@ -106,6 +106,28 @@ def test_threads_blocks_and_memmap_give_the_same_numbers(tmp_path):
     assert list(tmp_path.iterdir()) == []  # temporary sums removed
 
 
+def test_compiled_sums_match_long_double_sums():
+    from station.engines.allan_kernel import add_block
+
+    # a drifting rate: after the mean is removed the phase still spans far more than its second
+    # differences, where forming 2 x_{i+m} or reassociating the terms would lose digits
+    rng = np.random.default_rng(11)
+    n = 200_000
+    y = 0.3 + 1e-3 * rng.standard_normal(n) + 1e-2 * np.linspace(0.0, 1.0, n)
+    x = allan.integrate_rates(y, 1000.0)[0]
+    m = allan.cluster_sizes(n)
+    totals = np.zeros(len(m))
+    for a in range(0, len(x), 4096):  # blocks, as the engine runs them
+        add_block(x, m, a, 4096, totals)
+    xl = x.astype(np.longdouble)
+    exact = np.array([np.sum(((xl[2 * k:] - xl[k:-k]) - (xl[k:-k] - xl[:-2 * k])) ** 2) for k in m])
+    np.testing.assert_allclose(totals, exact.astype(np.float64), rtol=1e-14, atol=0)
+    # a block past every cluster size's range adds nothing and says so
+    before = totals.copy()
+    assert add_block(x, m, len(x) - 2, 4096, totals) == 0
+    np.testing.assert_array_equal(totals, before)
+
+
 @pytest.mark.parametrize("alpha", [1, 0, -1, -2])
 def test_greenhall_edf_matches_allantools(alpha):
     for n_phase in (50, 1001, 100_001, 3_000_001):

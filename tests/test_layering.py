@@ -54,9 +54,9 @@ RULES = (
          # A simulated recording handed to the engines as the station's Capture (tests and the
          # chamber's sweeps use it); imported lazily so the simulator alone never loads the station.
          exceptions=(("mocks/rig.py", "station.acquisition.capture"),)),
-    # threadpoolctl: the Allan engine pins BLAS to one thread while its own threads run.
+    # numba: the Allan deviation's inner loop, compiled (station/engines/allan_kernel.py).
     Rule("station/engines/", ("station.engines", "station.errors", *PROTOCOL_CORE), ("numpy", "scipy",
-                                                                                   "threadpoolctl"),
+                                                                                   "numba"),
          "engines import numpy and scipy only: arrays in, results out, no files, devices or printing",
          no_io=True),
     # h5py and rosbags read and write the capture files and bags; pyyaml the sequence files.

@@ -9,13 +9,11 @@ in float64, and the overlapping Allan variance at ``tau = m tau0`` is (NIST SP 1
 
     sigma^2(tau) = 1 / (2 tau^2 (P - 2m)) * sum_{i=0}^{P-2m-1} (x_{i+2m} - 2 x_{i+m} + x_i)^2   (2)
 
-with ``P = N + 1`` phase points. The second differences are formed block by block in buffers that stay in
-the CPU cache, each block for every cluster size before the next block: every cluster size up to the
-block length reuses the same window of ``x`` (with ``d_i = x_{i+m} - x_i``, ``v_i = d_{i+m} - d_i``),
-larger ones read three windows, mostly shared between cluster sizes. Block ranges run on a thread pool
-(numpy releases the GIL in its ufuncs and BLAS calls); BLAS is pinned to one thread meanwhile so the
-threads' dot products do not oversubscribe the cores. Rows that are read-only file maps (``np.memmap``)
-have their pages released once read, so a day-long record held on disk never becomes resident as a whole.
+with ``P = N + 1`` phase points. The sums of eq. (2) are formed block by block by a compiled loop
+(:mod:`station.engines.allan_kernel`), each block for every cluster size before the next, so the windows
+of ``x`` a block reads stay in the CPU cache between cluster sizes. Block ranges run on a thread pool (the
+compiled loop releases the GIL). Rows that are read-only file maps (``np.memmap``) have their pages
+released once read, so a day-long record held on disk never becomes resident as a whole.
 
 Uncertainty: the equivalent degrees of freedom of each point follow C. A. Greenhall and W. J. Riley,
 "Uncertainty of stability variances based on finite differences", Proc. 35th PTTI Meeting (2003),
@@ -38,7 +36,7 @@ from scipy import special, stats
 from station.errors import EngineInputError
 
 ONE_SIGMA = float(special.erf(1.0 / math.sqrt(2.0)))  # 0.6827: the "68 %" interval
-BLOCK = 131_072  # doubles per block: the windows of a block stay in L2/L3 cache for every m (measured best)
+BLOCK = 131_072  # phase points per block: its windows stay in L2/L3 cache for every m
 MIN_SAMPLES = 16
 INTEGRATE_ROWS = 1 << 20
 _FAULT_AROUND = 1 << 21  # bytes: fault-around (64 kB) or a whole large folio (up to 2 MB)
@@ -126,12 +124,18 @@ def integrate_rates(rates: np.ndarray, rate_hz: float) -> np.ndarray:
     return phase
 
 
+def _mapped(x: np.ndarray) -> mmap.mmap | None:
+    """The map of a row read from a read-only file map (``np.memmap`` mode "r"), else None: dropping pages
+    of a private or anonymous map would lose their contents."""
+    mm = x.base if isinstance(x.base, mmap.mmap) and getattr(x, "mode", None) == "r" else None
+    return mm if mm is not None and hasattr(mm, "madvise") else None
+
+
 def _release(x: np.ndarray, start: int, stop: int) -> None:
     """Drop pages of a file-backed row from this process once read: memory stays bounded on day-long
     records (the pages stay in the page cache, the next read is a cheap minor fault)."""
-    # only read-only file maps: dropping pages of a private or anonymous map would lose their contents
-    mm = x.base if isinstance(x.base, mmap.mmap) and getattr(x, "mode", None) == "r" else None
-    if mm is None or not hasattr(mm, "madvise"):
+    mm = _mapped(x)
+    if mm is None:
         return
     # a fault maps the pages around it (fault-around, or a whole large folio of the page cache), before
     # the window too: release that much behind the start as well (those pages were read already)
@@ -172,54 +176,30 @@ def strided_phase(x: np.ndarray, step: int, piece: int = 1 << 21) -> np.ndarray:
 def _sums(x: np.ndarray, m: np.ndarray, first: int, stop: int, block: int) -> np.ndarray:
     """sum_i v_i^2 of eq. (2) for i in [first, stop) and every m (ascending), block by block.
 
-    Each block of i is done for every m before the next, so the windows a block reads stay in cache
-    between cluster sizes. For m <= block the window x[a : a + block + 2m] is one piece: with
-    d_i = x_{i+m} - x_i, v_i = d_{i+m} - d_i (two subtractions and a dot product). Larger m read three
-    windows far apart, x[a + 2m], x[a + m] and x[a]: the first is shared by every m of the block, and on a
-    log grid 2 m_k is close to m_{k+3}, so most far windows are read from memory once, not three times.
-    Every subtraction writes a buffer that none of its inputs overlap: numpy copies an overlapping input
-    first, which would add a pass.
+    Each block of i is done for every m before the next (:func:`station.engines.allan_kernel.add_block`),
+    so the windows a block reads stay in cache between cluster sizes: every m up to the block length
+    reads the same window of x, and on a log grid the far window x[a + 2 m_k] is close to x[a + m_{k+3}],
+    so most far windows come from memory once, not twice. The pages of a read-only file map are released
+    once a block has read them.
     """
-    n_phase = len(x)
+    from station.engines.allan_kernel import add_block  # numba: only a command computing a deviation
+
     totals = np.zeros(len(m))
+    row = x.view(np.ndarray)  # the compiled loop takes a plain array; a np.memmap row is one
+    mapped = _mapped(x)
     near_max = int(m[m <= block].max()) if np.any(m <= block) else 0
-    d = np.empty(block + near_max)
-    v = np.empty(block)
-    w = np.empty(block)
     for a in range(first, stop, block):
-        for k, mk in enumerate(m.tolist()):
-            length = min(block, stop - a, n_phase - 2 * mk - a)
-            if length <= 0:
-                break  # m ascending: no larger m reaches this block
-            vv = v[:length]
-            if mk <= block:
-                dd = d[:length + mk]
-                np.subtract(x[a + mk:a + 2 * mk + length], x[a:a + mk + length], out=dd)
-                np.subtract(dd[mk:], dd[:length], out=vv)
-            else:
-                # (x_{i+2m} - x_{i+m}) - (x_{i+m} - x_i): two differences of similar size lose less than
-                # 2 x_{i+m}
-                ww = w[:length]
-                np.subtract(x[a + 2 * mk:a + 2 * mk + length], x[a + mk:a + mk + length], out=vv)
-                np.subtract(x[a + mk:a + mk + length], x[a:a + length], out=ww)
-                vv -= ww
-                _release(x, a + mk, a + mk + length)
-                _release(x, a + 2 * mk, a + 2 * mk + length)
-            totals[k] += float(np.dot(vv, vv))
-        _release(x, a, min(a + block, stop))
-    _release(x, stop, stop + block + 2 * near_max)  # the near windows' reach past this task's range
+        length = min(block, stop - a)
+        reached = add_block(row, m, a, length, totals)
+        if mapped:
+            for mk in m[:reached].tolist():
+                if mk > block:
+                    _release(x, a + mk, a + mk + length)
+                    _release(x, a + 2 * mk, a + 2 * mk + length)
+            _release(x, a, a + length)
+    if mapped:
+        _release(x, stop, stop + block + 2 * near_max)  # the near windows' reach past this task's range
     return totals
-
-
-def _blas_one_thread():
-    """Pin BLAS to one thread while our own threads run (the dot products would oversubscribe the cores)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency; degrade to unpinned BLAS
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def overlapping_adev_phase(phase: np.ndarray | Sequence[np.ndarray], rate_hz: float,
@@ -270,7 +250,7 @@ def overlapping_adev_phase(phase: np.ndarray | Sequence[np.ndarray], rate_hz: fl
         j, a, b = task
         return j, _sums(x[j], m[order], a, b, block)
 
-    with _blas_one_thread(), ThreadPoolExecutor(max_workers=workers) as pool:
+    with ThreadPoolExecutor(max_workers=workers) as pool:
         for j, part in pool.map(run, tasks):
             sums[order, j] += part
             done += 1
