@@ -68,6 +68,9 @@ def test_fit_write_read_back_and_apply_to_another_sweep(unit, sweep_h5, tmp_path
     assert f"wrote the thermal section to {params_path}" in out
 
     data = yaml.safe_load(params_path.read_text())
+    # the sensitivity printed with the 1-sigma the file keeps, in the printed unit (deg/h for the gyro)
+    sd_gyro = data["thermal"]["gyro"]["temp_sensitivity_sd"]
+    assert f"+/- {sd_gyro[0] * 180 / np.pi * 3600:.2g}" in out and "deg/h/degC (1-sigma)" in out
     for kept in ("accel", "gyro", "noise"):
         assert data[kept] == before[kept]
     assert data["device"]["serial"] == unit.serial and data["device"]["model"] == unit.model

@@ -255,6 +255,7 @@ class ThermalFit:
                     "fit_rms": a.fit_rms,
                     "hysteresis": a.hysteresis,
                     "hysteresis_temp": a.hysteresis_temp,
+                    "temp_sensitivity_sd": a.temp_sensitivity_sd,
                 }
                 for j, a in enumerate(tri.axes)
             ]

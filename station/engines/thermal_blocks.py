@@ -210,6 +210,30 @@ def with_dtemp(blocks: Blocks, mean: BlockMeans, temp: np.ndarray, t_ref: float,
     return replace(blocks, dtemp=d, terms=terms, pose=blocks.pose.copy())
 
 
+def stretch_ids(pose: np.ndarray, per_pose: int) -> np.ndarray:
+    """Consecutive stretches of each pose's blocks, ``per_pose`` of them (fewer for a short pose),
+    numbered across poses.
+
+    Parameters
+    ----------
+    pose : ndarray of int, (B,)
+        Pose of each block (blocks in time order within a pose).
+    per_pose : int
+
+    Returns
+    -------
+    ndarray of int, (B,)
+    """
+    out = np.zeros(len(pose), dtype=int)
+    first = 0
+    for p in np.unique(pose):
+        idx = np.flatnonzero(pose == p)
+        chunk = max(1, len(idx) // per_pose)
+        out[idx] = first + np.arange(len(idx)) // chunk
+        first = int(out[idx].max()) + 1
+    return out
+
+
 def fold_ids(pose: np.ndarray, folds: int) -> np.ndarray:
     """Interleaved held-out stretches: each pose's blocks in about 8 x ``folds`` runs, dealt round.
 
@@ -223,14 +247,12 @@ def fold_ids(pose: np.ndarray, folds: int) -> np.ndarray:
     -------
     ndarray of int, (B,)
     """
+    stretch = stretch_ids(pose, 8 * folds)
     out = np.zeros(len(pose), dtype=int)
     for p in np.unique(pose):
         idx = np.flatnonzero(pose == p)
-        n = len(idx)
-        chunk = max(1, n // (8 * folds))
-        out[idx] = (np.arange(n) // chunk + p) % folds
+        out[idx] = (stretch[idx] - stretch[idx[0]] + p) % folds
     return out
-
 
 
 def rate_follows_temp(blocks: Blocks) -> float:

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.linalg import null_space
 
 from station.engines.thermal_blocks import Blocks
-from station.engines.thermal_model import TERMS, term_matrix
+from station.engines.thermal_model import TERMS, slope_weights, term_matrix
 
 VARIABLE_TERMS = TERMS[:-1]  # every term but the constant, which the pose intercepts carry
 
@@ -209,6 +209,64 @@ def fit_and_predict(d: Design, cols: list[int], z: np.ndarray, axis: int, fold: 
         held_out[fold == f, axis] = x[fold == f] @ beta_f[f]
     beta = solve(gf.sum(axis=0), rf.sum(axis=0), z)
     return beta, x @ beta
+
+
+def temperature_slope_sd(d: Design, cols: list[int], z: np.ndarray, y: np.ndarray, group: np.ndarray,
+                         t_min: float, t_max: float) -> float:
+    """1-sigma of the temperature sensitivity (:func:`station.engines.thermal_model.slope_weights`) of the
+    model on ``cols``, by the delete-a-group jackknife over consecutive stretches of blocks.
+
+    The sensitivity is linear in the scaled coefficients, S = g' beta. Each replicate refits without one
+    group (its Gram matrix taken out of the whole), and
+
+        var S = (G - 1) / G  sum_k (S_(k) - mean S_(.))^2                                   (6)
+
+    (B. Efron and C. Stein, "The jackknife estimate of variance", Ann. Statist. 9 (1981); deleting
+    whole stretches keeps the residuals' correlation within a stretch, as H. R. Kuensch, "The jackknife
+    and the bootstrap for general stationary observations", Ann. Statist. 17 (1989), does for blocks).
+
+    Parameters
+    ----------
+    d : Design
+    cols : list of int
+        Columns of the model.
+    z : ndarray
+        Basis of the allowed coefficients.
+    y : ndarray, (B,)
+        Measured bias of the axis.
+    group : ndarray of int, (B,)
+        Stretch of each block (:func:`station.engines.thermal_blocks.stretch_ids`).
+    t_min, t_max : float
+        The model's temperature range, degC.
+
+    Returns
+    -------
+    float
+        In the bias's unit per degC.
+    """
+    temp, w = slope_weights(t_min, t_max)
+    seg = np.searchsorted(np.asarray(d.breaks), temp, side="right")
+    phi = term_matrix(temp - d.t_ref, np.zeros_like(temp))
+    where = {c: i for i, c in enumerate(cols)}
+    g = np.zeros(len(cols))
+    # the pose intercepts add a constant, which the weights (summing to zero) take out
+    for s in np.unique(seg):
+        ws = w[seg == s]
+        for k in range(len(VARIABLE_TERMS)):
+            c = int(d.term_cols[s, k])
+            if c in where:
+                g[where[c]] += float(ws @ phi[seg == s, k]) / d.col_scale[c]
+        if s > 0:
+            c = d.const_cols[s - 1]
+            g[where[c]] += float(ws.sum()) / d.col_scale[c]
+    x = d.x[:, cols]
+    groups = np.unique(group)
+    gram = np.stack([x[group == k].T @ x[group == k] for k in groups])
+    rhs = np.stack([x[group == k].T @ y[group == k] for k in groups])
+    beta = solve(gram.sum(axis=0) - gram, (rhs.sum(axis=0) - rhs)[:, :, None], z)[:, :, 0]
+    replicates = beta @ g
+    n = len(groups)
+    return float(np.sqrt((n - 1) / n * np.sum((replicates - replicates.mean()) ** 2)))
 
 
 @dataclass

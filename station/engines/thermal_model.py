@@ -43,6 +43,31 @@ def term_matrix(t_rel: np.ndarray, dtemp: np.ndarray) -> np.ndarray:
     return np.stack([t**3, t**2, t, d**2, d, t * d, np.ones_like(t)], axis=-1)
 
 
+SLOPE_POINTS = 101  # temperatures over the range that the temperature sensitivity is the slope through
+
+
+def slope_weights(t_min: float, t_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """The temperatures and weights of the temperature sensitivity: the least-squares slope of the bias
+    at dT = 0 through ``SLOPE_POINTS`` evenly spaced temperatures over [t_min, t_max],
+
+        S = sum_i w_i B(T_i, 0),    w_i = (T_i - mean T) / sum_k (T_k - mean T)^2              (5)
+
+    Parameters
+    ----------
+    t_min, t_max : float
+        The model's temperature range, degC.
+
+    Returns
+    -------
+    tuple of ndarray, (SLOPE_POINTS,)
+        T_i (degC) and w_i (1/degC; they sum to zero, so a constant bias has no slope).
+    """
+    temp = np.linspace(t_min, t_max, SLOPE_POINTS)
+    centred = temp - temp.mean()
+    denom = float(np.sum(centred**2))
+    return temp, centred / denom if denom > 0 else np.zeros_like(temp)
+
+
 @dataclass
 class ThermalSegment:
     """Coefficients (3 axes x 7 terms, ``TERMS`` order) valid for t_min <= T < t_max."""
@@ -98,6 +123,22 @@ class ThermalBias:
         terms = term_matrix(temp - reference_temp, dtemp)
         coeffs = np.stack([s.coeffs for s in self.segments])  # (S, 3, 7)
         return np.einsum("nk,njk->nj", terms, coeffs[index])
+
+    def temperature_sensitivity(self, reference_temp: float) -> np.ndarray:
+        """The bias's temperature sensitivity per axis (the slope of :func:`slope_weights`), in the triad's
+        unit per degC.
+
+        Parameters
+        ----------
+        reference_temp : float
+            T_ref, degC.
+
+        Returns
+        -------
+        ndarray, (3,)
+        """
+        temp, w = slope_weights(self.t_min, self.t_max)
+        return np.asarray(w @ self.evaluate(temp, np.zeros_like(temp), reference_temp))
 
     def to_dict(self) -> dict[str, Any]:
         """The ``accel``/``gyro`` entry of the ``thermal`` section (``shared/specs/params-file.md``)."""

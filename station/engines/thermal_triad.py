@@ -5,6 +5,12 @@ For each segmentation the terms of every axis are chosen by cross-validation
 to no model, summed over the axes, is the smallest within one standard error of the best. The
 stored constant is the sample-weighted mean of the pose intercepts. Heating and cooling
 residuals are compared at equal temperature to report hysteresis the dT terms cannot explain.
+
+The temperature sensitivity's 1-sigma (``temp_sensitivity_sd``) is the jackknife of
+``thermal_design.temperature_slope_sd`` over five consecutive stretches per pose, of the fullest
+candidate model on the chosen segments: shorter stretches keep the bias's slow drifts within a
+stretch, and the chosen model's own spread leaves out what choosing it cost (on simulated sweeps the
+error over the 1-sigma had an RMS of 3.9 and 1.4-2.3 that way, 1.2 this way; docs/methods/thermal.md).
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal_blocks import Blocks
+from station.engines.thermal_blocks import Blocks, stretch_ids
 from station.engines.thermal_design import (
     VARIABLE_TERMS,
     Candidate,
@@ -24,8 +30,11 @@ from station.engines.thermal_design import (
     design,
     fit_and_predict,
     one_se,
+    temperature_slope_sd,
 )
 from station.engines.thermal_model import TERMS, ThermalBias, ThermalSegment
+
+JACKKNIFE_STRETCHES = 5  # per pose: long enough to hold the slow drifts of the bias (module docstring)
 
 
 @dataclass
@@ -46,6 +55,7 @@ class AxisFit:
     fit_rms: float
     hysteresis: float | None
     hysteresis_temp: float | None
+    temp_sensitivity_sd: float
 
 
 @dataclass
@@ -266,6 +276,15 @@ class _TriadArrays:
     offsets: np.ndarray      # (P, 3) pose intercepts minus the stored constant
 
 
+def _model_columns(d: Design, mask: tuple[bool, ...], scale_axis: int | None) -> tuple[list[int], np.ndarray]:
+    """The design columns of a model and the basis of its coefficients that keeps it continuous."""
+    cols = d.columns(mask, scale_axis)
+    z = d.null_basis(cols[: len(cols) - (1 if scale_axis is not None else 0)])
+    if scale_axis is not None:
+        z = np.block([[z, np.zeros((z.shape[0], 1))], [np.zeros((1, z.shape[1])), np.ones((1, 1))]])
+    return cols, z
+
+
 def _fit_axis(name: str, j: int, c: Candidate, d: Design, y: np.ndarray, plan: SweepPlan,
               out: _TriadArrays) -> tuple[AxisFit, str | None]:
     """Axis ``j``'s chosen model fitted on all blocks (coefficients in ``out``), its held-out
@@ -273,10 +292,7 @@ def _fit_axis(name: str, j: int, c: Candidate, d: Design, y: np.ndarray, plan: S
     blocks = plan.blocks
     n_seg = len(d.breaks) + 1
     pose_weight = np.array([blocks.count[blocks.pose == p].sum() for p in range(plan.n_poses)])
-    cols = d.columns(c.mask, j if c.scale else None)
-    z = d.null_basis(cols[: len(cols) - (1 if c.scale else 0)])
-    if c.scale:
-        z = np.block([[z, np.zeros((z.shape[0], 1))], [np.zeros((1, z.shape[1])), np.ones((1, 1))]])
+    cols, z = _model_columns(d, c.mask, j if c.scale else None)
     beta_s, out.model[:, j] = fit_and_predict(d, cols, z, j, plan.fold, out.cv_pred)
     fit_and_predict(d, d.pose_cols, np.eye(len(d.pose_cols)), j, plan.fold, out.cv_before)
     beta = beta_s / d.col_scale[cols]
@@ -289,6 +305,11 @@ def _fit_axis(name: str, j: int, c: Candidate, d: Design, y: np.ndarray, plan: S
             col = int(d.term_cols[s, k])
             out.coeffs[s, j, k] = beta[where[col]] if col in where else 0.0
         out.coeffs[s, j, -1] = h + (beta[where[d.const_cols[s - 1]]] if s > 0 else 0.0)
+    # the fullest candidate's spread: the chosen model's own would leave out what choosing it cost
+    fullest = tuple(any(m[k] for m in plan.masks) for k in range(len(VARIABLE_TERMS)))
+    slope = temperature_slope_sd(d, *_model_columns(d, fullest, j if c.scale else None), y[:, j],
+                                 stretch_ids(blocks.pose, JACKKNIFE_STRETCHES),
+                                 float(blocks.temp.min()), float(blocks.temp.max()))
     scale = None
     if c.scale:
         col = d.scale_cols[j]
@@ -311,7 +332,7 @@ def _fit_axis(name: str, j: int, c: Candidate, d: Design, y: np.ndarray, plan: S
         cv_rms_before_by_segment=segment_rms(y[:, j] - out.cv_before[:, j], d.segment, n_seg),
         cv_rms_after_by_segment=segment_rms(y[:, j] - out.cv_pred[:, j], d.segment, n_seg),
         fit_rms=float(np.sqrt(np.mean(resid**2))),
-        hysteresis=hyst, hysteresis_temp=hyst_t,
+        hysteresis=hyst, hysteresis_temp=hyst_t, temp_sensitivity_sd=slope,
     )
     return axis, message
 
@@ -356,6 +377,7 @@ def fit_triad(name: str, cal: SensorCalibration | None, plan: SweepPlan) -> tupl
         "scale_per_degc": [a.scale_per_degc for a in axes],
         "cv_rms_before": [a.cv_rms_before for a in axes],
         "cv_rms_after": [a.cv_rms_after for a in axes],
+        "temp_sensitivity_sd": [a.temp_sensitivity_sd for a in axes],
     }
     bias_model = ThermalBias(segments, plan.dt_clamp[0], plan.dt_clamp[1], extra)
     return TriadFit(name, bias_model, axes, out.offsets, y, out.model, out.scale_part), messages

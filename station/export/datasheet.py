@@ -11,7 +11,8 @@ Each row says what measured it. Conversions (SI inside, datasheet units out):
 - scale-factor error (K - 1) in ppm from the calibration's scale, nonlinearity and asymmetry in ppm;
 - misalignment: per axis the root-sum-square of its row of S (off-diagonal), mrad;
 - temperature sensitivity of the bias: the least-squares slope of the thermal bias at dT = 0 over the
-  thermal model's temperature range, deg/s/degC and mg/degC.
+  thermal model's temperature range, deg/s/degC and mg/degC, with the jackknife 1-sigma the thermal fit
+  stored (``temp_sensitivity_sd``).
 
 A figure whose section is absent is left out; an axis not measured shows as null (``-``).
 """
@@ -158,11 +159,10 @@ def _thermal_rows(doc: dict[str, Any]) -> list[Row]:
         bias = getattr(model, sensor)
         if bias is None:
             continue
-        temp = np.linspace(bias.t_min, bias.t_max, 101)
-        b = bias.evaluate(temp, np.zeros_like(temp), model.reference_temp)
-        slope = np.polyfit(temp, b, 1)[0]
+        slope = bias.temperature_sensitivity(model.reference_temp)
+        # the 1-sigma is absent from files written before the thermal fit stored it
         rows.append(Row(f"{sensor} bias temperature sensitivity", unit, (slope * factor).tolist(),
-                        [None, None, None],
+                        _scaled(bias.extra.get("temp_sensitivity_sd"), factor),
                         f"slope of the thermal model over {bias.t_min:.1f}..{bias.t_max:.1f} degC (thermal)"))
     return rows
 

@@ -50,4 +50,8 @@ def format_report(fit: ThermalFit, calibrated: dict[str, bool]) -> str:
             lines.append(f"  {'xyz'[j]}: {'+'.join(a.terms):<22} held-out RMS "
                          f"{a.cv_rms_before * factor:.4g} -> {a.cv_rms_after * factor:.4g} {unit}"
                          + per_segment + extra)
+        slope = tri.bias_model.temperature_sensitivity(m.reference_temp)
+        lines.append("  bias temperature sensitivity " + ", ".join(
+            f"{'xyz'[j]} {slope[j] * factor:+.4g} +/- {a.temp_sensitivity_sd * factor:.2g}"
+            for j, a in enumerate(tri.axes)) + f" {unit}/degC (1-sigma)")
     return "\n".join(lines)
