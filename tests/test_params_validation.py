@@ -178,6 +178,8 @@ def line_of(path: Path, text: str) -> int:
     (("thermal", "accel", "segments", 1, "t_min"), 0.0, "before the previous one ends"),
     (("thermal", "gyro", "segments", 0, "coeffs"), [[0.0] * 7] * 2, "must be a list of 3 lists"),
     (("thermal", "gyro", "clamp", "dtemp"), [1.0, -1.0], "not a range"),
+    (("thermal", "gyro", "temp_sensitivity_sd"), [1e-5, "x", 1e-5], "must be a number"),
+    (("thermal", "accel", "temp_sensitivity_sd"), [1e-5, -1e-5, 1e-5], "negative"),
     (("noise", "gyro", "N"), [1e-4, -1e-4, 1e-4], "negative"),
     (("units", "accel"), "g", "this station reads accel in m/s^2"),
     (("accel", "matrix"), [[1, 0, 0], [0, 1, 0], [0, 0, 1e-9]], "singular"),

@@ -261,6 +261,10 @@ def _thermal_triad(c: _Checker, value: Any, keys: Keys, unit: str) -> None:
         c.array(seg["coeffs"], (*at, "coeffs"), (3, len(TERMS)), COEFF_LIMIT,
                 f"{unit} per degC^k (degC/s)^l")
         previous_max = t_max
+    if triad.get("temp_sensitivity_sd") is not None:
+        c.array(triad["temp_sensitivity_sd"], (*keys, "temp_sensitivity_sd"), (3,), COEFF_LIMIT,
+                f"{unit} per degC", nullable=True)
+        _not_negative(c, triad["temp_sensitivity_sd"], (*keys, "temp_sensitivity_sd"))
 
 
 def _noise(c: _Checker, value: Any) -> None:
