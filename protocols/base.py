@@ -137,6 +137,17 @@ class StreamDecoderBase:
             self.stats.resyncs += 1
         return start, found
 
+    def _skip_candidate(self, sync: bytes, pos: int) -> int:
+        """Drop the sync candidate at ``pos``: resume at the next ``sync`` (the bytes between counted as
+        garbage), or keep a trailing first sync byte (not the candidate's own): the second may come next."""
+        self.stats.resyncs += 1
+        buf = self._buf
+        nxt = buf.find(sync, pos + 1)
+        if nxt < 0:
+            nxt = len(buf) - (1 if len(buf) - 1 > pos and buf.endswith(sync[:1]) else 0)
+        self.stats.garbage_bytes += nxt - pos
+        return nxt
+
     def flush(self) -> Decoded:
         """End of stream: whatever is left in the buffer is an incomplete frame."""
         if self._buf:

@@ -272,7 +272,7 @@ class NativeDecoder(StreamDecoderBase):
             length = buf[pos + 3] | (buf[pos + 4] << 8)
             if length > MAX_PAYLOAD:
                 stats.length_errors += 1
-                pos = self._skip_candidate(pos)
+                pos = self._skip_candidate(SYNC, pos)
                 continue
             end = pos + HEADER_SIZE + length + CRC_SIZE
             if len(buf) < end:
@@ -285,7 +285,7 @@ class NativeDecoder(StreamDecoderBase):
                     stats.truncated += 1
                 else:
                     stats.crc_errors += 1
-                pos = self._skip_candidate(pos)
+                pos = self._skip_candidate(SYNC, pos)
                 continue
             payload = body[3:]
             if msg_id in (IMU_SAMPLE, IMU_MAG_SAMPLE):
@@ -309,17 +309,6 @@ class NativeDecoder(StreamDecoderBase):
         stats.samples += len(samples)
         return Decoded(samples, messages)
 
-    def _skip_candidate(self, pos: int) -> int:
-        """Drop the sync candidate at ``pos``: resume at the next one (counted as garbage)."""
-        self.stats.resyncs += 1
-        buf = self._buf
-        nxt = buf.find(SYNC, pos + 1)
-        if nxt < 0:
-            # Keep a trailing first sync byte (not the candidate's own): the second may come next.
-            nxt = len(buf) - (1 if len(buf) - 1 > pos and buf.endswith(SYNC[:1]) else 0)
-        self.stats.garbage_bytes += nxt - pos
-        return nxt
-
     def flush(self) -> Decoded:
         """End of stream: a frame still waiting for bytes is truncated, and good frames after it
         (held back while its claimed length was pending) are still decoded and returned."""
@@ -331,7 +320,7 @@ class NativeDecoder(StreamDecoderBase):
                 self._buf.clear()
                 break
             self.stats.truncated += 1
-            del self._buf[: self._skip_candidate(0)]
+            del self._buf[: self._skip_candidate(SYNC, 0)]
             rest = self.feed(b"")
             batches.append(rest.samples)
             messages += rest.messages

@@ -434,7 +434,7 @@ class XsensDecoder(StreamDecoderBase):
                 break
             if end == _TOO_LONG:
                 stats.length_errors += 1
-                pos = self._skip_candidate(pos)
+                pos = self._skip_candidate(SYNC, pos)
                 continue
             if end == _BAD_SUM:
                 end = self._claimed_end(pos)
@@ -442,14 +442,14 @@ class XsensDecoder(StreamDecoderBase):
                     stats.truncated += 1
                 else:
                     stats.crc_errors += 1
-                pos = self._skip_candidate(pos)
+                pos = self._skip_candidate(SYNC, pos)
                 continue
             verdict = self._believe(pos, end, final)
             if verdict is None:
                 break
             if not verdict:
                 stats.truncated += 1  # a cut frame's header whose checksum passed by chance
-                pos = self._skip_candidate(pos)
+                pos = self._skip_candidate(SYNC, pos)
                 continue
             header = 6 if buf[pos + 3] == EXTENDED_LENGTH else 4
             msg_id = buf[pos + 2]
@@ -673,13 +673,6 @@ class XsensDecoder(StreamDecoderBase):
             gyro = _delta_q_to_rate(packet.delta_q, dt) if packet.delta_q is not None and dt else _NAN3
         return (seq, ticks * _US_PER_TICK, acc, gyro, self._temp)
 
-    def _skip_candidate(self, pos: int) -> int:
-        self.stats.resyncs += 1
-        nxt = self._buf.find(SYNC, pos + 1)
-        nxt = len(self._buf) if nxt < 0 else nxt
-        self.stats.garbage_bytes += nxt - pos
-        return nxt
-
     def flush(self) -> Decoded:
         """End of stream: a frame start left waiting for bytes is truncated; what follows it is
         decoded, so a false start inside garbage does not hide a good last frame."""
@@ -688,7 +681,7 @@ class XsensDecoder(StreamDecoderBase):
         while self._buf:
             if self._buf.startswith(SYNC):
                 self.stats.truncated += 1
-            del self._buf[: self._skip_candidate(0)]
+            del self._buf[: self._skip_candidate(SYNC, 0)]
             out = self._decode(b"", final=True)
             batches.append(out.samples)
             messages += out.messages

@@ -358,3 +358,18 @@ def test_frame_ending_in_the_preamble_byte_is_not_garbage_when_the_stream_is_cut
     got = np.concatenate([dec.feed(f).samples for f in frames])
     assert len(got) == len(samples)
     assert dec.stats.garbage_bytes == 0 and dec.stats.resyncs == 0
+
+
+def test_a_bad_checksum_then_a_frame_cut_after_its_first_preamble_byte_loses_nothing() -> None:
+    # A false start (its checksum fails) and a good frame whose 0xFA ends the chunk: the 0xFA is kept
+    # for the next chunk, not skipped with the false start (found by the fuzz test, seed 0).
+    s = make_samples(2, seed=0)
+    good = [encode_samples(s[i : i + 1]) for i in range(2)]
+    false_start = b"\xfa\xff\x00\x00\x00\x00\x00\x00\x00"  # BID 0, MID 0, LEN 0, checksum 0 (not 1)
+    stream = good[0] + false_start + good[1]
+    cut = len(good[0]) + len(false_start) + 1
+    dec = XsensDecoder()
+    got = np.concatenate([dec.feed(stream[:cut]).samples, dec.feed(stream[cut:]).samples,
+                          dec.flush().samples])
+    assert got["seq"].tolist() == s["seq"].tolist()
+    assert dec.stats.crc_errors == 1 and dec.stats.garbage_bytes == len(false_start)
