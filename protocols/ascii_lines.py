@@ -5,16 +5,18 @@ Lines end in ``\\n``, ``\\r`` or both. Each line is recognised by its start:
 
 - ``Raw:ax,ay,az,gx,gy,gz,mx,my,mz`` (integers; the scales MotionCal assumes): accelerometer
   8192 counts per g (g = 9.80665 m/s^2), gyroscope 16 counts per deg/s, magnetometer 10 counts
-  per uT (ignored);
+  per uT;
 - ``Uni:`` with the same nine fields as decimals in m/s^2, rad/s and uT (Adafruit's sketches);
-- ``$VNYMR,yaw,pitch,roll,mx,my,mz,ax,ay,az,gx,gy,gz*CS`` (m/s^2, rad/s) and
+- ``$VNYMR,yaw,pitch,roll,mx,my,mz,ax,ay,az,gx,gy,gz*CS`` (gauss, m/s^2, rad/s) and
   ``$VNIMU,mx,my,mz,ax,ay,az,gx,gy,gz,temp,pressure*CS`` (temp degC), where CS is the XOR of
   the bytes between ``$`` and ``*`` as two hex digits, or their CRC-16 (XMODEM) as four;
   a counter or status the device appends (``,T...``, ``,S...``) is ignored;
 - any other line is CSV in the configured columns (``parse_columns``); columns ``mx,my,mz`` (all
-  three or none, in uT, mG or G) carry a magnetometer: the batches are then ``MAG_SAMPLE_DTYPE``
-  (a ``nan`` field, or a MotionCal or VectorNav line, is a sample without one; the field those
-  lines carry is not read).
+  three or none, in uT, mG or G) carry a magnetometer (a ``nan`` field is a sample without one).
+
+The batches are ``MAG_SAMPLE_DTYPE`` once the stream has carried a field (mx, my, mz columns, or a
+MotionCal or VectorNav line, whose nine fields always hold one), the field in uT; a CSV line of the
+same stream without one has a NaN field.
 
 These formats carry no sample counter and, except CSV with a time column, no device clock:
 ``seq`` counts the samples and ``t_us`` is ``seq / rate_hz`` at the nominal rate given.
@@ -38,13 +40,14 @@ import numpy as np
 
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase, has_mag
 from protocols.crc import crc16_ccitt_false
-from protocols.mag_batches import rows_to_batch
+from protocols.mag_batches import join_batches, rows_to_batch
 from protocols.units import STANDARD_GRAVITY
 
 MAX_LINE_RATE_HZ = 65535.0  # as SET_RATE's 16 bits; no text link carries more lines a second
 MOTIONCAL_ACC_PER_G = 8192.0
 MOTIONCAL_GYRO_PER_DPS = 16.0
 MOTIONCAL_MAG_PER_UT = 10.0
+UT_PER_GAUSS = 100.0  # VectorNav's magnetometer unit
 
 # Message ids of the lines returned as messages (Message.msg_id), by kind of line.
 MSG_TEXT = 0
@@ -203,6 +206,7 @@ class AsciiDecoder(StreamDecoderBase):
         self._count = 0
         self._first_line = True  # the stream may start in the middle of a line
         self._discarding = False  # inside an over-long line, until its end
+        self._field = self.columns.has_mag  # the stream has carried a magnetic field
 
     @classmethod
     def from_option(cls, option: str) -> AsciiDecoder:
@@ -261,9 +265,9 @@ class AsciiDecoder(StreamDecoderBase):
                 self._line(line, rows, messages)
         if pos:
             del buf[:pos]
-        samples = rows_to_batch(rows, self.columns.has_mag)
+        samples = rows_to_batch(rows, self._field)
         if fast is not None:
-            samples = np.concatenate([fast[1], samples])
+            samples = join_batches([fast[1], samples])
         self.stats.samples += len(samples)
         return Decoded(samples, messages)
 
@@ -335,7 +339,7 @@ class AsciiDecoder(StreamDecoderBase):
             self.stats.garbage_bytes += len(self._buf)
         self._buf.clear()
         self._discarding = False
-        samples = rows_to_batch(rows, self.columns.has_mag)
+        samples = rows_to_batch(rows, self._field)
         self.stats.samples += len(samples)
         return Decoded(samples, messages)
 
@@ -428,10 +432,11 @@ class AsciiDecoder(StreamDecoderBase):
                 raise _Reject("bad_payloads")
             acc = [x * STANDARD_GRAVITY / MOTIONCAL_ACC_PER_G for x in v[0:3]]
             gyro = [math.radians(x / MOTIONCAL_GYRO_PER_DPS) for x in v[3:6]]
+            mag = tuple(x / MOTIONCAL_MAG_PER_UT for x in v[6:9])
         else:
             v = self._numbers(fields)
-            acc, gyro = v[0:3], v[3:6]
-        return None, None, acc, gyro, math.nan
+            acc, gyro, mag = v[0:3], v[3:6], tuple(v[6:9])
+        return None, None, acc, gyro, math.nan, mag
 
     def _vectornav(self, text: str) -> tuple | None:
         body, star, cs = text[1:].partition("*")
@@ -454,12 +459,12 @@ class AsciiDecoder(StreamDecoderBase):
             if len(fields) != 12:
                 raise _Reject("bad_payloads")
             v = self._numbers(fields)
-            return None, None, v[6:9], v[9:12], math.nan
+            return None, None, v[6:9], v[9:12], math.nan, tuple(x * UT_PER_GAUSS for x in v[3:6])
         if head == "VNIMU":
             if len(fields) != 11:
                 raise _Reject("bad_payloads")
             v = self._numbers(fields)
-            return None, None, v[3:6], v[6:9], v[9]
+            return None, None, v[3:6], v[6:9], v[9], tuple(x * UT_PER_GAUSS for x in v[0:3])
         return None
 
     def _csv(self, text: str) -> tuple | None:
@@ -489,7 +494,8 @@ class AsciiDecoder(StreamDecoderBase):
 
     def _row(self, seq: int | None, t: float | None, acc, gyro, temp: float,
              mag: tuple[float, ...] | None = None) -> tuple:
-        """A sample row; with mx, my, mz columns its field (or NaN) as a sixth element."""
+        """A sample row, its field (or NaN) the sixth element (``rows_to_batch`` drops it from a stream
+        that has carried none)."""
         if mag is not None and any(math.isinf(m) or abs(m) > self.max_mag for m in mag):
             raise _Reject("bad_payloads")
         if not all(math.isfinite(a) and abs(a) <= self.max_acc for a in acc):
@@ -506,9 +512,9 @@ class AsciiDecoder(StreamDecoderBase):
         else:
             t_us = round(t * 1e6)
             self.clock_lines += 1
-        if self.columns.has_mag:
-            return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp, _NAN3 if mag is None else mag)
-        return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp)
+        if mag is not None:
+            self._field = True
+        return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp, _NAN3 if mag is None else mag)
 
 
 def _is_number(text: str) -> bool:
@@ -548,27 +554,42 @@ def encode_csv(samples: np.ndarray, columns: str | CsvColumns = DEFAULT_COLUMNS)
     return ("\r\n".join(lines) + "\r\n").encode("ascii") if lines else b""
 
 
+def _fields(samples: np.ndarray, default_ut: tuple[float, float, float]) -> np.ndarray:
+    """(N, 3) field in uT the lines write: a nine-axis batch's own, ``default_ut`` where it has none."""
+    field = np.tile(np.asarray(default_ut, dtype=np.float64), (len(samples), 1))
+    if has_mag(samples):
+        own = samples["mag"].astype(np.float64)
+        known = np.isfinite(own).all(axis=1)
+        field[known] = own[known]
+    return field
+
+
 def encode_motioncal(samples: np.ndarray, mag_ut: tuple[float, float, float] = (20.0, 0.0, -40.0)) -> bytes:
-    """``Raw:`` lines at MotionCal's scales (rounded to whole counts), a constant field."""
+    """``Raw:`` lines at MotionCal's scales (rounded to whole counts); the field of a nine-axis batch, else
+    the constant ``mag_ut``."""
     acc = np.rint(samples["acc"].astype(np.float64) / STANDARD_GRAVITY * MOTIONCAL_ACC_PER_G).astype(np.int64)
     gyro = np.rint(np.degrees(samples["gyro"].astype(np.float64)) * MOTIONCAL_GYRO_PER_DPS).astype(np.int64)
-    mag = ",".join(str(round(m * MOTIONCAL_MAG_PER_UT)) for m in mag_ut)
+    mag = np.rint(_fields(samples, mag_ut) * MOTIONCAL_MAG_PER_UT).astype(np.int64)
     return "".join(
-        f"Raw:{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},{mag}\r\n" for a, g in zip(acc, gyro, strict=True)
+        f"Raw:{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},{m[0]},{m[1]},{m[2]}\r\n"
+        for a, g, m in zip(acc, gyro, mag, strict=True)
     ).encode("ascii")
 
 
 def encode_vectornav(samples: np.ndarray, sentence: str = "VNYMR", crc16: bool = False) -> bytes:
-    """``$VNYMR`` (zero attitude and field) or ``$VNIMU`` sentences, in VectorNav's number formats."""
+    """``$VNYMR`` (zero attitude) or ``$VNIMU`` sentences, in VectorNav's number formats; the field of a
+    nine-axis batch, else zero."""
     out = bytearray()
-    for s in samples:
+    fields = _fields(samples, (0.0, 0.0, 0.0)) / UT_PER_GAUSS
+    for s, field in zip(samples, fields, strict=True):
         acc = ",".join(f"{float(v):+07.3f}" for v in s["acc"])
         gyro = ",".join(f"{float(v):+09.6f}" for v in s["gyro"])
+        mag = ",".join(f"{float(v):+07.4f}" for v in field)
         if sentence == "VNYMR":
-            body = f"VNYMR,+000.000,+000.000,+000.000,+0.0000,+0.0000,+0.0000,{acc},{gyro}"
+            body = f"VNYMR,+000.000,+000.000,+000.000,{mag},{acc},{gyro}"
         elif sentence == "VNIMU":
             temp = float(s["temp"]) if math.isfinite(float(s["temp"])) else 0.0
-            body = f"VNIMU,+0.0000,+0.0000,+0.0000,{acc},{gyro},{temp:+05.1f},+101.325"
+            body = f"VNIMU,{mag},{acc},{gyro},{temp:+05.1f},+101.325"
         else:
             raise ValueError(f"unknown VectorNav sentence {sentence!r}; use VNYMR or VNIMU")
         out += vectornav_sentence(body, crc16)
@@ -577,7 +598,7 @@ def encode_vectornav(samples: np.ndarray, sentence: str = "VNYMR", crc16: bool =
 
 def encode_samples(samples: np.ndarray, kind: str = "csv") -> bytes:
     """Lines of one kind: ``csv`` (the default columns), ``motioncal``, ``vnymr`` or ``vnimu``."""
-    if not has_mag(samples):  # a nine-axis batch keeps its dtype: these lines leave the field out
+    if not has_mag(samples):  # a nine-axis batch keeps its dtype: its field is written
         samples = np.asarray(samples, dtype=SAMPLE_DTYPE)
     if kind == "csv":
         return encode_csv(samples)

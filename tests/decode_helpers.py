@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from protocols.base import Message, StreamDecoderBase
+from protocols.mag_batches import join_batches
 
 
 def feed_ragged(decoder: StreamDecoderBase, data: bytes, seed: int,
@@ -21,4 +22,4 @@ def feed_ragged(decoder: StreamDecoderBase, data: bytes, seed: int,
     out = decoder.flush()
     samples.append(out.samples)
     messages += out.messages
-    return np.concatenate(samples), messages
+    return join_batches(samples), messages  # a nine-axis stream's batches before its first field are six-axis

@@ -112,6 +112,10 @@ def _line_frames(samples: np.ndarray, kind: str) -> list[bytes]:
     return [ascii_lines.encode_samples(samples[i : i + 1], kind) for i in range(len(samples))]
 
 
+def _line_mag_lines(samples: np.ndarray, kind: str) -> list[bytes]:
+    return _line_frames(nine_axis(samples), kind)
+
+
 @dataclass(frozen=True)
 class Case:
     """One decoder under fuzzing: how to make it, its good frames, and the garbage it survives."""
@@ -157,10 +161,11 @@ CASES: list[Case] = [
          _any_garbage, b"\xfd", _BINARY, needs_pymavlink=True),
     Case("ascii-csv", AsciiDecoder, partial(_line_frames, kind="csv"), _line_garbage, b"\n", _LINES,
          lines=True),
-    Case("ascii-motioncal", AsciiDecoder, partial(_line_frames, kind="motioncal"), _any_garbage, b"Raw:",
-         _TAGGED, lines=True),
-    Case("ascii-vectornav", AsciiDecoder, partial(_line_frames, kind="vnymr"), _any_garbage, b"$VNYMR,",
-         _SENTENCES, lines=True),
+    # MotionCal and VectorNav lines always carry a field: nine-axis streams
+    Case("ascii-motioncal-mag", AsciiDecoder, partial(_line_mag_lines, kind="motioncal"), _any_garbage,
+         b"Raw:", _TAGGED, lines=True),
+    Case("ascii-vectornav-mag", AsciiDecoder, partial(_line_mag_lines, kind="vnymr"), _any_garbage,
+         b"$VNYMR,", _SENTENCES, lines=True),
     Case("auto-native", AutoDecoder, _native_frames, _any_garbage, native.SYNC, _BINARY),
     Case("frame", partial(FrameDecoder, describe(SPEC_EXAMPLE)),
          partial(_frame_frames, describe(SPEC_EXAMPLE)), _any_garbage, b"\xaa\x55", _BINARY),

@@ -23,6 +23,7 @@ from protocols.ascii_lines import (
     vectornav_sentence,
 )
 from protocols.base import SAMPLE_DTYPE
+from protocols.mag_batches import with_mag
 
 
 def feed_ragged(decoder, data: bytes, seed: int = 0, max_chunk: int = 41):
@@ -82,6 +83,7 @@ def test_vnymr_fields_and_appended_counter() -> None:
     np.testing.assert_allclose(out.samples["acc"][0], [0.005, 0.344, -9.758], rtol=1e-6)
     np.testing.assert_allclose(out.samples["gyro"][0], [-0.001222, -0.000450, -0.001218], rtol=1e-6)
     assert math.isnan(out.samples["temp"][0])
+    np.testing.assert_allclose(out.samples["mag"][0], [106.40, -25.31, 306.14], rtol=1e-6)  # gauss -> uT
 
 
 def test_vectornav_crc16_and_bad_checksums() -> None:
@@ -98,12 +100,14 @@ def test_vectornav_crc16_and_bad_checksums() -> None:
 
 @pytest.mark.parametrize("kind", ["vnymr", "vnimu"])
 def test_vectornav_round_trip(kind: str) -> None:
-    s = make_samples(50, seed=1)
+    s = with_mag(make_samples(50, seed=1))
+    s["mag"] = np.random.default_rng(4).normal(0.0, 30.0, (50, 3))
     dec = AsciiDecoder(rate_hz=200)
     out, _ = feed_ragged(dec, encode_samples(s, kind), seed=2)
     assert dec.stats.errors == 0 and len(out) == 50
     np.testing.assert_allclose(out["acc"], s["acc"], atol=5e-4)
     np.testing.assert_allclose(out["gyro"], s["gyro"], atol=5e-7)
+    np.testing.assert_allclose(out["mag"], s["mag"], atol=0.005 + 1e-9)  # 1e-4 gauss = 0.01 uT steps
     assert out["seq"].tolist() == list(range(50)) and out["t_us"].tolist() == [i * 5000 for i in range(50)]
     if kind == "vnimu":
         np.testing.assert_allclose(out["temp"], s["temp"], atol=0.05)
@@ -113,21 +117,28 @@ def test_vectornav_round_trip(kind: str) -> None:
 
 
 def test_motioncal_raw_scales() -> None:
-    # 8192 counts per g, 16 counts per deg/s (MotionCal's imuread.h); magnetometer ignored.
+    # 8192 counts per g, 16 counts per deg/s, 10 counts per uT (MotionCal's imuread.h)
     dec = AsciiDecoder()
     out = dec.feed(b"Raw:0,-8192,16384,16,-32,5760,120,-30,400\r\n").samples
     np.testing.assert_allclose(out["acc"][0], [0, -STANDARD_GRAVITY, 2 * STANDARD_GRAVITY], rtol=1e-6)
     np.testing.assert_allclose(out["gyro"][0], np.radians([1, -2, 360]), rtol=1e-6)
+    np.testing.assert_allclose(out["mag"][0], [12.0, -3.0, 40.0], rtol=1e-6)
 
 
 def test_motioncal_round_trip_and_uni_lines() -> None:
-    s = make_samples(40, seed=3)
+    s = with_mag(make_samples(40, seed=3))
+    s["mag"] = np.random.default_rng(5).normal(0.0, 30.0, (40, 3))
+    s["mag"][7] = np.nan  # a sample without a field is written with MotionCal's constant one
     dec = AsciiDecoder()
     out, _ = feed_ragged(dec, encode_samples(s, "motioncal") + b"Uni:0.1,0.2,9.7,0.01,0.02,0.03,20,0,-40\n")
     assert dec.stats.errors == 0 and len(out) == 41
     np.testing.assert_allclose(out["acc"][:40], s["acc"], atol=STANDARD_GRAVITY / 8192 / 2 + 1e-6)
     np.testing.assert_allclose(out["gyro"][:40], s["gyro"], atol=math.radians(1 / 16) / 2 + 1e-7)
+    known = np.arange(40) != 7
+    np.testing.assert_allclose(out["mag"][:40][known], s["mag"][known], atol=0.05 + 1e-9)  # 0.1 uT counts
+    np.testing.assert_allclose(out["mag"][7], [20.0, 0.0, -40.0])
     np.testing.assert_allclose(out["acc"][40], [0.1, 0.2, 9.7], rtol=1e-6)
+    np.testing.assert_allclose(out["mag"][40], [20.0, 0.0, -40.0], rtol=1e-6)
     assert dec.kinds_seen == {"motioncal": 41}
 
 
