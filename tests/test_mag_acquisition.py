@@ -159,6 +159,43 @@ def test_streaming_csv_header_follows_the_first_batch(tmp_path: Path) -> None:
     assert (tmp_path / "e.csv").read_text().startswith("t,ax,ay,az,gx,gy,gz,temp\n")
 
 
+@pytest.mark.parametrize("with_step", [False, True])
+def test_a_field_that_comes_late_widens_the_csv_once(tmp_path: Path, with_step: bool) -> None:
+    six, nine, more = make_samples(10), make_mag_samples(20, first_seq=10), make_mag_samples(5, first_seq=30)
+    w = CsvCaptureWriter(tmp_path / "late.csv", with_step=with_step)
+    w.write(six, ["pose a"] * 10 if with_step else None)
+    w.write(nine, ["pose b"] * 20 if with_step else None)  # the first field: the rows so far get NaN
+    w.write(more, ["pose b"] * 5 if with_step else None)
+    w.close()
+    assert w.rows == 35 and w.field_dropped == 0
+    back = read_capture(tmp_path / "late.csv")
+    assert len(back) == 35 and back.mag is not None and np.isnan(back.mag[:10]).all()
+    np.testing.assert_allclose(back.mag[10:30], nine["mag"], rtol=1e-7)
+    np.testing.assert_allclose(back.acc[:10], six["acc"], rtol=1e-7)
+    if with_step:
+        assert back.step is not None and list(back.step[:10]) == ["pose a"] * 10 and back.step[-1] == "pose b"
+    assert [p.name for p in tmp_path.iterdir()] == ["late.csv"]  # no copy left beside it
+
+
+def test_a_csv_that_cannot_be_widened_stays_whole_and_counts_the_fields_left_out(tmp_path: Path,
+                                                                                 monkeypatch) -> None:
+    import station.acquisition.capture_csv as capture_csv
+
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(capture_csv.os, "replace", full_disk)
+    w = CsvCaptureWriter(tmp_path / "late.csv")
+    w.write(make_samples(10))
+    w.write(make_mag_samples(20, first_seq=10))
+    w.write(make_mag_samples(5, first_seq=30))
+    w.close()
+    assert w.rows == 35 and w.field_dropped == 25
+    back = read_capture(tmp_path / "late.csv")
+    assert len(back) == 35 and back.mag is None
+    assert [p.name for p in tmp_path.iterdir()] == ["late.csv"]
+
+
 def test_h5_mag_dataset_round_trip_and_late_field(tmp_path: Path) -> None:
     six, nine = make_samples(10), make_mag_samples(30, first_seq=10)
     w = H5CaptureWriter(tmp_path / "c.h5")
@@ -195,6 +232,42 @@ def test_recorder_over_a_pty_keeps_the_field(tmp_path: Path, suffix: str) -> Non
     assert back.mag is not None
     n = len(back)
     assert np.allclose(back.mag, sent["mag"][:n].astype(float), equal_nan=True, rtol=1e-7)
+
+
+def test_capture_says_when_a_late_field_could_not_be_kept(tmp_path: Path, monkeypatch, capsys) -> None:
+    import threading
+
+    import station.acquisition.capture_csv as capture_csv
+    from station import cli
+
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(capture_csv.os, "replace", full_disk)
+    six, nine = make_samples(4000), make_mag_samples(1500, first_seq=4000)
+    pty = RawPty()
+    stop = threading.Event()
+
+    def feed() -> None:  # in real time: 4 s without a field (the capture starts in them), then with one
+        for batch in (six, nine):
+            for a in range(0, len(batch), 20):
+                if stop.wait(0.02):
+                    return
+                pty.write(encode_samples(batch[a:a + 20]))
+
+    feeder = threading.Thread(target=feed)
+    feeder.start()
+    try:
+        code = cli.main(["capture", "--port", pty.path, "--duration", "4.5", "-o",
+                         str(tmp_path / "late.csv")])
+    finally:
+        stop.set()
+        feeder.join()
+        pty.close()
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "the magnetic field came after the first rows" in out and "capture to .h5 to keep it" in out
+    assert read_capture(tmp_path / "late.csv").mag is None
 
 
 # ---------------------------------------------------------------------------------- the simulated unit

@@ -167,7 +167,7 @@ class CsvWriter:
     """Appends sample batches to a capture CSV; the caller owns the file handle."""
 
     def __init__(self, fh: IO[str], with_temp: bool = True, with_dtemp: bool = False,
-                 with_step: bool = False, with_mag: bool = False):
+                 with_step: bool = False, with_mag: bool = False, header: bool = True):
         self.fh = fh
         self.columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
         if with_temp:
@@ -178,7 +178,8 @@ class CsvWriter:
             self.columns.extend(MAG_COLUMNS)
         if with_step:
             self.columns.append("step")
-        fh.write(",".join(self.columns) + "\n")
+        if header:
+            fh.write(",".join(self.columns) + "\n")
 
     def write(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, temp: np.ndarray | None = None,
               dtemp: np.ndarray | None = None, step: np.ndarray | list[str] | None = None,
@@ -218,8 +219,11 @@ class CsvCaptureWriter:
 
     Written in place, not atomically, so a capture cut short keeps everything written so far.
     The header waits for the first batch: a batch of ``MAG_SAMPLE_DTYPE`` (a unit with a
-    magnetometer) adds mx, my, mz; later batches without a field write NaN there, and the field
-    of a later batch is not written to a file whose header has no room for it.
+    magnetometer) adds mx, my, mz; later batches without a field write NaN there. A field that first
+    comes after the header (a unit whose first packets carry none) widens the file once: the rows so
+    far are rewritten beside it with NaN in mx, my, mz and the copy replaces the file atomically, so a
+    failure there (disk full) leaves the old file whole; the capture then goes on without the field
+    and :attr:`field_dropped` counts the samples whose field was left out.
     Every batch goes to the OS in whole rows; if a write fails (disk full), the file is cut back
     to the last whole batch so it stays a valid capture CSV, and :class:`OutputFileError` says how
     much was kept. ``t`` is the device clock in seconds (``t_us`` / 1e6, microsecond resolution).
@@ -237,12 +241,43 @@ class CsvCaptureWriter:
             raise OutputFileError(self.path, f"cannot be created: {exc.strerror}; choose another path"
                                   ) from None
         self._good_size = 0
+        self.field_dropped = 0
+        self._widen_failed = False
 
     def _writer(self, with_mag: bool) -> CsvWriter:
-        """The row writer, its header written when first asked for."""
+        """The row writer, its header written when first asked for; widened for a field that comes late."""
         if self._csv is None:
             self._csv = CsvWriter(self._text, with_temp=True, with_step=self._with_step, with_mag=with_mag)
+        elif with_mag and "mx" not in self._csv.columns and not self._widen_failed:
+            self._widen()
         return self._csv
+
+    def _widen(self) -> None:
+        """Rewrite the rows written so far with mx, my, mz (NaN) beside the file, then replace it."""
+        assert self._csv is not None
+        wider = CsvWriter(self._text, with_temp=True, with_step=self._with_step, with_mag=True, header=False)
+        tmp = self.path.with_name(f".{self.path.name}.widen")
+        self._fh.close()
+        try:
+            with open(self.path, encoding="utf-8", newline="") as src, open(tmp, "w", encoding="utf-8",
+                                                                             newline="") as dst:
+                src.readline()
+                dst.write(",".join(wider.columns) + "\n")
+                for line in src:
+                    if self._with_step:
+                        numbers, _, label = line.rstrip("\n").rpartition(",")
+                        dst.write(f"{numbers},nan,nan,nan,{label}\n")
+                    else:
+                        dst.write(line.rstrip("\n") + ",nan,nan,nan\n")
+                dst.flush()
+                os.fsync(dst.fileno())
+            os.replace(tmp, self.path)
+            self._csv = wider
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            self._widen_failed = True  # the file keeps its columns; write() counts the fields left out
+        self._fh = open(self.path, "ab", buffering=0)
+        self._good_size = self._fh.tell()
 
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
         """Append a batch of ``SAMPLE_DTYPE`` or ``MAG_SAMPLE_DTYPE`` samples (and their step labels)
@@ -251,8 +286,10 @@ class CsvCaptureWriter:
             return
         t = samples["t_us"] * 1e-6
         mag = samples["mag"] if has_mag(samples) else None
-        self._writer(mag is not None).write(t, samples["acc"], samples["gyro"], samples["temp"], step=step,
-                                            mag=mag)
+        writer = self._writer(mag is not None)
+        if mag is not None and "mx" not in writer.columns:
+            self.field_dropped += len(samples)
+        writer.write(t, samples["acc"], samples["gyro"], samples["temp"], step=step, mag=mag)
         self._commit()
         self.rows += len(samples)
 

@@ -54,6 +54,7 @@ class H5CaptureWriter:
                  port: str = "", protocol: str = ""):
         self.path = Path(path)
         self.rows = 0
+        self.field_dropped = 0  # never: a field that comes late gets its dataset then
         self._broken = False
         self._labels: list[str] = [""]
         self._label_index = {"": 0}

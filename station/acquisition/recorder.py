@@ -48,6 +48,10 @@ class CaptureWriter(Protocol):
     def rows(self) -> int:
         """Rows written so far."""
 
+    @property
+    def field_dropped(self) -> int:
+        """Samples whose magnetic field the file had no room for (a CSV that could not be widened)."""
+
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
         """Append a batch of ``SAMPLE_DTYPE`` samples, and their step labels if the file has them."""
 
@@ -81,6 +85,10 @@ class _CsvWriterAdapter:
     @property
     def rows(self) -> int:
         return self._writer.rows
+
+    @property
+    def field_dropped(self) -> int:
+        return self._writer.field_dropped
 
     def write(self, samples: np.ndarray, step: np.ndarray | list[str] | None = None) -> None:
         self._writer.write(samples, step)
@@ -232,6 +240,7 @@ class CaptureResult:
     error: DriverError | None = None
     non_increasing: int = 0
     clock_jumps: list[ClockJump] = field(default_factory=list)
+    field_dropped: int = 0  # samples whose magnetic field the file had no room for
 
 
 StatusCallback = Callable[[LinkStats, int, float], None]
@@ -302,7 +311,8 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
         error, ended_by = _no_rows(device, recorder, error, ended_by), "link error"
     return CaptureResult(path=recorder.path, rows=recorder.rows, device_time_s=recorder.device_time_s,
                          link=_with_clock(device.stats, recorder), ended_by=ended_by, error=error,
-                         non_increasing=recorder.non_increasing, clock_jumps=list(recorder.clock_jumps))
+                         non_increasing=recorder.non_increasing, clock_jumps=list(recorder.clock_jumps),
+                         field_dropped=recorder.writer.field_dropped)
 
 
 def _no_rows(device: Device, recorder: Recorder, error: DriverError | None, ended_by: str) -> DriverError:

@@ -91,6 +91,10 @@ def report(result: CaptureResult, out: IO[str]) -> None:
     print(f"link: {link.summary()}, {link.bytes} bytes", file=out)
     if result.non_increasing:
         print(f"left out {result.non_increasing} samples whose device time did not increase", file=out)
+    if result.field_dropped:
+        print(f"the magnetic field came after the first rows and {result.path} could not be rewritten with "
+              f"mx, my, mz (the disk?): the field of {result.field_dropped} samples is not in the file; "
+              "capture to .h5 to keep it", file=out)
     for jump in result.clock_jumps:
         why = ("(a unit restart?); the rows after it are re-based to follow on" if jump.step_s < 0
                else "(a clock set anew, or samples lost that seq does not show?)")
