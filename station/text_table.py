@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 
 def format_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]],
-                 right: Sequence[bool] | None = None) -> str:
+                 right: Sequence[bool] | None = None, rule: bool = True) -> str:
     """The table as lines of text: the title, the header, a rule of dashes under each column, the rows.
 
     Parameters
@@ -23,6 +23,8 @@ def format_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
         The cells, one row per sequence, as many cells as ``header`` has names.
     right : sequence of bool, optional
         Per column, True to align the column to the right (numbers); default all to the left.
+    rule : bool
+        The rule of dashes under the header (False: none).
 
     Returns
     -------
@@ -46,5 +48,6 @@ def format_table(title: str, header: Sequence[str], rows: Sequence[Sequence[str]
                          ).rstrip()
 
     lines = [title] if title else []
-    lines += [line(table[0]), line(["-" * w for w in widths]), *(line(row) for row in table[1:])]
+    lines += [line(table[0]), *([line(["-" * w for w in widths])] if rule else []),
+              *(line(row) for row in table[1:])]
     return "\n".join(lines)

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from station import text_table
 from station.engines.thermal_model import ThermalModel
 
 G = 9.80665  # m/s^2 per g, the datasheets' standard gravity
@@ -205,11 +206,6 @@ def format_table(rows: list[Row]) -> str:
     str
     """
     header = ("figure", "unit", "x", "y", "z", "measured by")
-    table = [header]
-    for r in rows:
-        cells = [_cell(v, u) for v, u in zip(r.values, r.uncertainty, strict=True)]
-        table.append((r.figure, r.unit, *cells, r.measured_by + (f" [{r.interval}]" if r.interval else "")))
-    widths = [max(len(line[i]) for line in table) for i in range(5)]
-    lines = ["  ".join(cell.ljust(w) for cell, w in zip(line[:5], widths, strict=True)) + "  " + line[5]
-             for line in table]
-    return "\n".join(lines)
+    cells = [(r.figure, r.unit, *(_cell(v, u) for v, u in zip(r.values, r.uncertainty, strict=True)),
+              r.measured_by + (f" [{r.interval}]" if r.interval else "")) for r in rows]
+    return text_table.format_table("", header, cells, rule=False)
