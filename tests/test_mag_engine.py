@@ -224,6 +224,17 @@ def test_uncalibrated_accelerometer_is_warned_about() -> None:
     assert any("accelerometer looks uncalibrated" in w for w in result.warnings)
 
 
+def _central_difference(residual, p: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """The Jacobian of ``residual`` at ``p`` by central differences of one absolute step (the fit's
+    parameters are all of order one; test_calib_jacobians' relative steps suit raw counts instead)."""
+    numeric = np.empty((len(residual(p)), len(p)))
+    for k in range(len(p)):
+        dp = np.zeros_like(p)
+        dp[k] = step
+        numeric[:, k] = (residual(p + dp) - residual(p - dp)) / (2 * step)
+    return numeric
+
+
 def test_jacobian_matches_finite_differences() -> None:
     rng = np.random.default_rng(3)
     m = rng.normal(size=(60, 3)) * 40 + 5
@@ -233,12 +244,8 @@ def test_jacobian_matches_finite_differences() -> None:
     for still, d in ((m[:25], down), (np.zeros((0, 3)), np.zeros((0, 3)))):
         problem = JointProblem(m, still, d, 50.0, rng.uniform(0.5, 2, 60), 1.3)
         p = problem.pack(rng.normal(size=3), correction, 0.8)
-        numeric = np.empty((len(problem.residual(p)), len(p)))
-        for k in range(len(p)):
-            step = np.zeros_like(p)
-            step[k] = 1e-6
-            numeric[:, k] = (problem.residual(p + step) - problem.residual(p - step)) / 2e-6
-        np.testing.assert_allclose(problem.jacobian(p), numeric, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(problem.jacobian(p), _central_difference(problem.residual, p), rtol=0,
+                                   atol=1e-6)
     # with the accelerometer's intrinsics estimated (mag_accel eq. (3)), all nine or all but the z bias
     x = rng.normal(size=(25, 3))
     x = 9.8 * x / np.linalg.norm(x, axis=1)[:, None] + 0.1
@@ -249,12 +256,8 @@ def test_jacobian_matches_finite_differences() -> None:
         intrinsics = np.concatenate([rng.normal(0, 0.01, 3), 1 + rng.normal(0, 0.01, 3),
                                      rng.normal(0, 0.1, 3)])
         p = problem.pack(rng.normal(size=3), correction, 0.8, acc.reduced(intrinsics))
-        numeric = np.empty((len(problem.residual(p)), len(p)))
-        for k in range(len(p)):
-            step = np.zeros_like(p)
-            step[k] = 1e-6
-            numeric[:, k] = (problem.residual(p + step) - problem.residual(p - step)) / 2e-6
-        np.testing.assert_allclose(problem.jacobian(p), numeric, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(problem.jacobian(p), _central_difference(problem.residual, p), rtol=0,
+                                   atol=1e-6)
 
 
 def test_plain_fit_agrees_with_magneto_on_a_full_sphere() -> None:
