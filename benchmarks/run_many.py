@@ -43,6 +43,7 @@ import threading
 import time
 from pathlib import Path
 
+from factory import SEQUENCE  # the factory benchmark's sequence: six poses and three turns
 from process_timing import cpu_s
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -107,14 +108,6 @@ limits:
   accel.bias: {max_abs: 80, unit: mg}
 export: [json]
 """
-SEQUENCE = """\
-name: six-and-three-turns
-hold_s: 2
-settle_s: 0.5
-rotation_rate_dps: 180
-steps: [+x, -x, +y, -y, +z, -z, rot+x, rot+y, rot+z]
-"""
-
 
 def station(before: str, *args: str) -> list[str]:
     """The command line of ``imu-station ARGS``, with ``before`` run first (the old device, rates)."""
