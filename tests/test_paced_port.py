@@ -20,7 +20,7 @@ from mocks.device import SimDevice
 from mocks.pty_fleet import FleetUnit, PtyFleet
 from mocks.pty_server import PtyServer
 from protocols import native
-from station.acquisition.turn_ons import _restart as restart_for_turn_on
+from station.acquisition.turn_ons import restart_unit
 
 
 @pytest.fixture
@@ -91,7 +91,7 @@ def test_restart_is_sent_once_and_the_unit_starts_again() -> None:
         dev.restart()
         assert sim.restarts == 1
         # the turn-ons restart any Device through the interface, this one as the threaded one
-        assert restart_for_turn_on(dev) and sim.restarts == 2
+        assert restart_unit(dev) and sim.restarts == 2
 
 
 def test_a_rate_that_does_not_fit_the_command_is_refused(device: PacedPort) -> None:

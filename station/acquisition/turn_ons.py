@@ -33,9 +33,10 @@ class TurnOnError(StationError):
     or a record ended early."""
 
 
-def _restart(device: Device) -> bool:
-    """Restart the unit; False when it answers that it cannot (ACK status 1) or its protocol has no
-    RESTART (a text-line, Xsens, MAVLink or frame-described unit: power-cycle it)."""
+def restart_unit(device: Device) -> bool:
+    """Restart the unit and let the old power-up's samples flush; False when it answers that it cannot
+    (ACK status 1) or its protocol has no RESTART (a text-line, Xsens, MAVLink or frame-described unit:
+    power-cycle it). Another rejection is raised (``CommandRejected``)."""
     try:
         device.restart()
     except CommandUnsupported:
@@ -102,7 +103,7 @@ def record_turn_ons(port: str, folder: Path, turn_ons: int, still_s: float, *, p
         for k in range(turn_ons):
             if k:
                 print(f"turn-on {k + 1}/{turn_ons}: restarting the unit", file=err)
-                if not _restart(device):
+                if not restart_unit(device):
                     if power_cycle is None:
                         raise TurnOnError(f"{port}: the unit cannot restart itself (it answered RESTART "
                                           "with status 1, or its protocol has no RESTART); run characterise "

@@ -17,9 +17,8 @@ from textual import work
 from textual.widgets import Static
 from textual.worker import get_current_worker
 
-from drivers import CommandRejected, CommandUnsupported
 from drivers.errors import DriverError
-from protocols import native
+from station.acquisition.turn_ons import restart_unit
 from station.engines.characterisation_turnon import reduce_record, turn_on_repeatability
 from station.errors import StationError
 from station.export.datasheet import datasheet_rows, format_table
@@ -33,7 +32,6 @@ from station.tui.screens.long_recording import LongRecordingScreen
 COLORS = ("red", "green", "blue")
 TURN_ONS = 5
 STILL_S = 30.0
-RESTART_SETTLE_S = 0.2  # after the ACK: the old power-up's samples are flushed
 UI_PERIOD_S = 0.25
 
 
@@ -88,15 +86,8 @@ class TurnOnsScreen(LongRecordingScreen):
 
     def _restart(self, device: Any, k: int) -> bool:
         """Restart the unit for turn-on ``k``, or have the operator power-cycle it; False if abandoned."""
-        try:
-            device.restart()
-            time.sleep(RESTART_SETTLE_S)
+        if restart_unit(device):
             return True
-        except CommandUnsupported:
-            pass  # a protocol without RESTART: the operator power-cycles it
-        except CommandRejected as exc:
-            if exc.status != native.ACK_UNKNOWN:
-                raise
         self._powered.clear()
         self.post_message(Snapshot({"power_cycle": k}))
         self._powered.wait()
