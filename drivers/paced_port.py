@@ -25,12 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from drivers.errors import CommandRejected
 from drivers.interface import Device
 from drivers.link_stats import LinkStats
 from drivers.polled_port import PolledPort
 from drivers.serial_device import DEFAULT_BAUDRATE, DEFAULT_MAX_BUFFERED, SerialDevice
-from protocols import native
 from protocols.base import Message
 
 READ_PERIOD_S = 0.02  # as the many-unit capture's loop: 50 decoder calls a second whatever the rate
@@ -114,14 +112,6 @@ class PacedPort(PolledPort):
         reads held meanwhile (the samples that arrive wait for the next read)."""
         with self._lock:
             return super().command(command_id, payload, timeout, retries)
-
-    def set_rate(self, rate_hz: int, timeout: float = 1.0) -> None:
-        """Set the output data rate (SET_RATE); raises ``CommandRejected`` if the unit refuses it or the
-        rate does not fit the command."""
-        if not 1 <= rate_hz <= 0xFFFF:
-            raise CommandRejected(f"{self.port}: rate {rate_hz} Hz does not fit SET_RATE (1..65535 Hz)",
-                                  self.port, native.ACK_BAD_ARGUMENT)
-        super().set_rate(rate_hz, timeout)
 
     @property
     def stats(self) -> LinkStats:

@@ -28,7 +28,7 @@ from drivers.errors import DriverError, PortError, PortLost
 from drivers.interface import Device
 from drivers.link_stats import LinkMonitor, LinkStats
 from drivers.message_log import MessageLog, no_answer, unsupported
-from drivers.serial_device import DEFAULT_BAUDRATE, open_serial
+from drivers.serial_device import DEFAULT_BAUDRATE, open_serial, set_rate_payload
 from protocols import native
 from protocols.base import EMPTY_SAMPLES, Message
 from protocols.registry import make_decoder
@@ -206,8 +206,9 @@ class PolledPort(Device):
         self.command(native.RESTART, b"", timeout, retries=0)
 
     def set_rate(self, rate_hz: int, timeout: float = 1.0) -> None:
-        """Set the output data rate (SET_RATE); raises ``CommandRejected`` if the unit refuses it."""
-        self.command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout)
+        """Set the output data rate (SET_RATE); raises ``CommandRejected`` if the unit refuses it or the
+        rate does not fit the command."""
+        self.command(native.SET_RATE, set_rate_payload(self.port, rate_hz), timeout)
 
     def start(self, timeout: float = 1.0) -> None:
         """Start streaming samples (START_STREAM)."""

@@ -73,6 +73,15 @@ def open_serial(port: str, baudrate: int = DEFAULT_BAUDRATE, exclusive: bool = T
         raise PortError(f"{port}: cannot open: {text}", port) from None
 
 
+def set_rate_payload(port: str, rate_hz: int) -> bytes:
+    """SET_RATE's payload for ``rate_hz``; ``CommandRejected`` (bad argument) for a rate its 16 bits
+    cannot hold, before anything is sent."""
+    if not 1 <= rate_hz <= 0xFFFF:
+        raise CommandRejected(f"{port}: rate {rate_hz} Hz does not fit SET_RATE (1..65535 Hz)", port,
+                              native.ACK_BAD_ARGUMENT)
+    return rate_hz.to_bytes(2, "little")
+
+
 class SerialDevice(Device):
     """An IMU on a serial link, read by a background thread.
 
@@ -222,10 +231,7 @@ class SerialDevice(Device):
 
     def set_rate(self, rate_hz: int, timeout: float = 1.0, retries: int = 2) -> None:
         """Set the output data rate (SET_RATE); raises ``CommandRejected`` if the unit refuses it."""
-        if not 1 <= rate_hz <= 0xFFFF:
-            raise CommandRejected(f"{self.port}: rate {rate_hz} Hz does not fit SET_RATE (1..65535 Hz)",
-                                  self.port, native.ACK_BAD_ARGUMENT)
-        self.command(native.SET_RATE, rate_hz.to_bytes(2, "little"), timeout, retries)
+        self.command(native.SET_RATE, set_rate_payload(self.port, rate_hz), timeout, retries)
 
     def start(self, timeout: float = 1.0, retries: int = 2) -> None:
         """Start streaming samples (START_STREAM)."""
