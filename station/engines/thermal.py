@@ -52,11 +52,19 @@ from station.engines.thermal_blocks import (
     make_blocks,
     rate_follows_temp,
     still_poses,
+    stretch_ids,
     with_dtemp,
 )
 from station.engines.thermal_design import VARIABLE_TERMS, cv_sse, design, equal_breaks
 from station.engines.thermal_model import TERMS, DtempFilter, ThermalModel, estimate_dtemp
-from station.engines.thermal_triad import AxisFit, SweepPlan, TriadFit, expected_raw, fit_triad
+from station.engines.thermal_triad import (
+    JACKKNIFE_STRETCHES,
+    AxisFit,
+    SweepPlan,
+    TriadFit,
+    expected_raw,
+    fit_triad,
+)
 from station.errors import EngineInputError
 
 # AxisFit, TriadFit and still_poses live in the stage modules; they are part of this module's interface.
@@ -580,7 +588,8 @@ def fit_thermal(sweep: ThermalSweep, settings: ThermalSettings = ThermalSettings
     fold = fold_ids(blocks.pose, settings.folds)
     options, span_warnings = segment_options(blocks, settings)
     plan = SweepPlan(blocks, fold, settings.folds, len(prep.names), prep.t_ref, options, rate.masks,
-                     dtemp_clamp(blocks, settings.dtemp_margin), settings.gravity, settings.fit_scale)
+                     dtemp_clamp(blocks, settings.dtemp_margin), settings.gravity, settings.fit_scale,
+                     stretch_ids(blocks.pose, JACKKNIFE_STRETCHES))
     warnings = rate.warnings + span_warnings
     triads: dict[str, TriadFit] = {}
     for name in TRIADS:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal_blocks import Blocks, stretch_ids
+from station.engines.thermal_blocks import Blocks
 from station.engines.thermal_design import (
     VARIABLE_TERMS,
     Candidate,
@@ -185,6 +185,7 @@ class SweepPlan:
     dt_clamp: tuple[float, float]           # dT range the model is clamped to, degC/s
     gravity: float
     fit_scale: bool                         # try the scale column of eq. (4)
+    stretch: np.ndarray                     # (B,) jackknife group of each block (JACKKNIFE_STRETCHES)
 
 
 def measured_bias(name: str, cal: SensorCalibration | None, plan: SweepPlan
@@ -308,8 +309,7 @@ def _fit_axis(name: str, j: int, c: Candidate, d: Design, y: np.ndarray, plan: S
     # the fullest candidate's spread: the chosen model's own would leave out what choosing it cost
     fullest = tuple(any(m[k] for m in plan.masks) for k in range(len(VARIABLE_TERMS)))
     slope = temperature_slope_sd(d, *_model_columns(d, fullest, j if c.scale else None), y[:, j],
-                                 stretch_ids(blocks.pose, JACKKNIFE_STRETCHES),
-                                 float(blocks.temp.min()), float(blocks.temp.max()))
+                                 plan.stretch, float(blocks.temp.min()), float(blocks.temp.max()))
     scale = None
     if c.scale:
         col = d.scale_cols[j]
