@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/allan.py --k-monte-carlo 100
 
 Both compute the overlapping Allan deviation of the same float64 rate series at the same cluster sizes
-(station.engines.allan.cluster_sizes: 10 per decade up to N/4), the engine also on one worker thread
+(station.engines.allan.deviation.cluster_sizes: 10 per decade up to N/4), the engine also on one worker thread
 (what is left when the other cores are busy). Times are medians of ``--repeats`` runs in this process;
 peak memory is measured in a fresh subprocess per implementation (VmHWM, with the input series
 included, and above the baseline after making the series). A last part streams 6-axis records of two
@@ -46,14 +46,14 @@ def series(n: int) -> np.ndarray:
 
 
 def run_ours(y: np.ndarray, m: np.ndarray) -> np.ndarray:
-    from station.engines.allan import overlapping_adev
+    from station.engines.allan.deviation import overlapping_adev
 
     return overlapping_adev(y, RATE, m)
 
 
 def run_ours_one_thread(y: np.ndarray, m: np.ndarray) -> np.ndarray:
     """The engine on one worker thread: the speed-up left when the other cores are busy."""
-    from station.engines.allan import overlapping_adev
+    from station.engines.allan.deviation import overlapping_adev
 
     return overlapping_adev(y, RATE, m, workers=1)
 
@@ -76,13 +76,13 @@ def maxrss_mb() -> float:
 
 def child(which: str, n: int) -> None:
     """Run one implementation once and print 'peak baseline' in MB."""
-    from station.engines.allan import cluster_sizes
+    from station.engines.allan.deviation import cluster_sizes
 
     y = series(n)
     m = cluster_sizes(n)
     import allantools  # noqa: F401  - both children load the same modules before the baseline
 
-    import station.engines.allan  # noqa: F401
+    import station.engines.allan.deviation  # noqa: F401
 
     base = maxrss_mb()
     (run_ours if which == "ours" else run_allantools)(y, m)
@@ -92,7 +92,7 @@ def child(which: str, n: int) -> None:
 def child_stream(hours: float) -> None:
     """Stream 6 axes at 1 kHz through integrate_stream + the engine; print 'peak seconds' (MB, s)."""
     from station.acquisition.allan_source import AXES, integrate_stream
-    from station.engines.allan import allan_curve
+    from station.engines.allan.deviation import allan_curve
 
     n = int(hours * 3600 * RATE)
     rows = 200_000
@@ -130,9 +130,9 @@ def k_monte_carlo(runs: int) -> None:
     the IEEE 952 fit of the curve, the reported K (likelihood where it applies), the likelihood alone."""
     from scipy import stats
 
-    from station.engines.allan import allan_curve, integrate_rates
-    from station.engines.allan_fit import ML_METHOD, identify_noise
-    from station.engines.allan_ml import white_walk_ml
+    from station.engines.allan.deviation import allan_curve, integrate_rates
+    from station.engines.allan.fit import ML_METHOD, identify_noise
+    from station.engines.allan.likelihood import white_walk_ml
 
     rate, n_density, n = 200.0, 1e-3, int(2 * 3600 * 200.0)
     readings = {"N^2/tau = K^2 tau/3 at 170 s (K = sqrt(3) N/170)": math.sqrt(3.0) / 170.0,
@@ -188,7 +188,7 @@ def main() -> None:
         child_stream(args.stream_hours)
         return
 
-    from station.engines.allan import cluster_sizes
+    from station.engines.allan.deviation import cluster_sizes
 
     n = args.samples
     y = series(n)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mocks.truth import FLICKER_FLOOR, GM_ADEV_PEAK, NoiseGenerator, NoiseSpec
-from station.engines.allan import (
+from station.engines.allan.deviation import (
     AllanCurve,
     allan_curve,
     alpha_from_slope,
@@ -35,8 +35,8 @@ from station.engines.allan import (
     edf_table,
     integrate_rates,
 )
-from station.engines.allan_fit import AxisNoise, dominant_alpha, fit_axis, identify_noise
-from station.engines.allan_model import ieee_model
+from station.engines.allan.fit import AxisNoise, dominant_alpha, fit_axis, identify_noise
+from station.engines.allan.model import ieee_model
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "adis16405-smac"
 RECORDS = ("adis_16405_imu2.csv.gz", "adis_16405_imu3.csv.gz")
@@ -105,7 +105,7 @@ def adis(plot_dir: Path | None) -> None:
             print(f"{name[11:15]}    {axis.axis}    {out:2d}/{pts:2d} {where!s:14}  {p_out:2d}/{p_pts:2d}"
                   f"                      {m.valid_tau[0]:.3g} .. {m.valid_tau[1]:.4g}   {m.describe()}")
         if plot_dir is not None:
-            from station.export.allan_plot import write_png
+            from station.plots.allan import write_png
 
             write_png(plot_dir / f"{name[:-7]}.png", final, noise, title=name)
     med, peer = statistics.median(fit_times), statistics.median(peer_times)

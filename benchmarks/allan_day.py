@@ -9,7 +9,8 @@ white noise plus a random walk (N and K known), in chunks, so that making it nee
 - ``imu-station allan FILE --json``, the whole command (start-up, reading, integration, every axis, the
   fit), its wall time and peak resident memory (the child's ru_maxrss, from wait4);
 - allantools.oadev on ONE axis of the same file held in memory (read before the clock starts), at the
-  same cluster sizes (``station.engines.allan.cluster_sizes``: 10 per decade up to N/4), its wall time.
+  same cluster sizes (``station.engines.allan.deviation.cluster_sizes``: 10 per decade up to N/4),
+  its wall time.
 
 Prints the medians, the ratio of the command's time for six axes to allantools' for one, the peak memory
 against the 1 GiB budget, the largest relative difference of the two deviations on that axis, N and
@@ -105,7 +106,7 @@ def child_allantools(path: str) -> None:
     import allantools
     import h5py
 
-    from station.engines.allan import cluster_sizes
+    from station.engines.allan.deviation import cluster_sizes
 
     with h5py.File(path, "r") as f:
         y = f["gyro"][:, 0].astype(np.float64)
@@ -121,9 +122,10 @@ def child_phases(path: str, workdir: str) -> None:
     """The command's stages timed in one process: reading and integrating, the curve, the fit, and within
     the fit the likelihood of K and the model choice (their functions wrapped by a timer)."""
     from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
-    from station.engines import allan_fit, allan_model
-    from station.engines.allan import allan_curve, cluster_sizes
-    from station.engines.allan_fit import identify_noise
+    from station.engines.allan import fit as allan_fit
+    from station.engines.allan import model as allan_model
+    from station.engines.allan.deviation import allan_curve, cluster_sizes
+    from station.engines.allan.fit import identify_noise
 
     times = {}
     within: dict[str, list[float]] = {}

@@ -22,8 +22,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from mocks.truth import NoiseGenerator, NoiseSpec
-from station.engines.allan import allan_curve, integrate_rates
-from station.engines.allan_fit import TERMS, identify_noise
+from station.engines.allan.deviation import allan_curve, integrate_rates
+from station.engines.allan.fit import TERMS, identify_noise
 from station.errors import EngineInputError
 
 

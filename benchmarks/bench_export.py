@@ -1,6 +1,6 @@
 """Speed of the exported C ``imu_calib_apply`` against the station's own ``apply_calibration``.
 
-The peer is ``station.engines.correction.apply_calibration`` (numpy, float64, vectorised over the
+The peer is ``station.engines.shared.correction.apply_calibration`` (numpy, float64, vectorised over the
 whole batch), which ``imu-station apply`` runs. The exported C is compiled with ``gcc -O2`` and
 driven one sample at a time, as firmware calls it. Both correct the same samples with a
 three-segment thermal model holding every term. Medians of repeats; the machine is shared.
@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from station.engines.correction import apply_calibration
-from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal_model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
-from station.export.blob import parse_blob
-from station.export.c_export import write_c_export
-from station.export.params_file import ParamsFile
+from station.engines.shared.correction import apply_calibration
+from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
+from station.export.firmware.blob import parse_blob
+from station.export.firmware.c_source import write_c_export
+from station.export.params.file import ParamsFile
 
 DRIVER = r"""
 #include <stdio.h>

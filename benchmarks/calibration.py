@@ -34,15 +34,15 @@ from timing import median_wall_cpu  # noqa: E402
 
 from mocks.rig import handheld_session, sequence_segments, simulate  # noqa: E402
 from mocks.truth import UnitTruth  # noqa: E402
-from station.engines.calibration_common import convert_convention  # noqa: E402
-from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free  # noqa: E402
-from station.engines.calibration_free_gyro import fit_gyroscope, gyro_blocks  # noqa: E402
-from station.engines.calibration_turntable import (  # noqa: E402
+from station.engines.calibration.common import convert_convention  # noqa: E402
+from station.engines.calibration.free import FreeCapture, FreeSettings, calibrate_free  # noqa: E402
+from station.engines.calibration.free_gyro import fit_gyroscope, gyro_blocks  # noqa: E402
+from station.engines.calibration.turntable import (  # noqa: E402
     TurntableCapture,
     TurntableSettings,
     calibrate_turntable,
 )
-from station.engines.static_detect import moving_variance_norm, static_intervals, variance_norm  # noqa: E402
+from station.engines.shared.static_detect import moving_variance_norm, static_intervals, variance_norm  # noqa: E402
 
 XSENS = REPO / "tests" / "data" / "xsens-imu_tk"  # copied into the project with its licence
 IMUCAL_REGIONS = (("+x", "x_p"), ("-x", "x_a"), ("+y", "y_p"), ("-y", "y_a"), ("+z", "z_p"), ("-z", "z_a"),

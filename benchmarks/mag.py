@@ -3,7 +3,7 @@ plain ellipsoid fits, in one run.
 
 Fit time on 20,000 samples (100 Hz, a simulated hand-held session, accelerometer calibrated first)
 against the plain algebraic ellipsoid (a linear least-squares quadric, eq. (6) of
-station.engines.mag_fit, the fit Magneto, magcal and the ground stations build on) and the
+station.engines.magnetometer.fit, the fit Magneto, magcal and the ground stations build on) and the
 station's own plain geometric fit (symmetric C, magnitude residual only: what the joint fit does
 without a gravity reference), and Magneto's fit (Li & Griffiths' ellipsoid-specific least squares,
 written in tests/mag_helpers.py). Then the accuracy of all four, median over seeds, on full-sphere
@@ -36,8 +36,8 @@ from mag_helpers import calibrated_acc, errors, lower_frame, magneto  # noqa: E4
 from timing import median_wall_cpu  # noqa: E402
 
 from mocks.mag_sessions import mag_capture  # noqa: E402
-from station.engines.calibration_mag import MagCapture, MagSettings, calibrate_mag  # noqa: E402
-from station.engines.mag_fit import ellipsoid_fit  # noqa: E402
+from station.engines.magnetometer.calibration import MagCapture, MagSettings, calibrate_mag  # noqa: E402
+from station.engines.magnetometer.fit import ellipsoid_fit  # noqa: E402
 
 SAMPLES = 20_000
 TARGETS = {"full": (0.05, 0.2, 0.1), "desk": (0.4, 1.0, 0.2), "desk-20": (0.4, 1.0, 0.2)}

@@ -28,9 +28,9 @@ import numpy as np
 
 from mocks.chamber import ChamberSweep, chamber_sweep, cubic_rate_unit
 from mocks.truth import ThermalTruth, UnitTruth
-from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal import ThermalSweep, fit_thermal
-from station.engines.thermal_model import estimate_dtemp
+from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.fit import ThermalSweep, fit_thermal
+from station.engines.thermal.model import estimate_dtemp
 
 RATE_HZ = 10.0
 ARDUPILOT_TREF = 35.0

@@ -59,7 +59,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from station.acquisition.capture_h5 import H5CaptureWriter
-    from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+    from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 
     rec, truth = session(args.minutes)
     capture = rec.to_capture()

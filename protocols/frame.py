@@ -19,7 +19,7 @@ A description with all three of ``mx``, ``my``, ``mz`` is a unit with a magnetom
 ``MAG_SAMPLE_DTYPE``, the field in microtesla as the fields' scales make it. With only some of them
 the samples carry no field (they stay in :attr:`FrameDecoder.last_values`).
 
-The station reads description files (``station.frame_file``) and registers its reader here with
+The station reads description files (``station.frames.reader``) and registers its reader here with
 :func:`set_description_reader`, so ``make_decoder("frame:board.yaml")`` works wherever a protocol is
 named; this layer reads no files itself.
 """
@@ -73,13 +73,13 @@ def decoder_from_option(path: str) -> FrameDecoder:
     Raises
     ------
     StationError
-        No path, no reader installed (import ``station.frame_file``), or the reader's refusal.
+        No path, no reader installed (import ``station.frames.reader``), or the reader's refusal.
     """
     if not path:
         raise StationError("frame needs its description file: --protocol frame:FILE.yaml")
     if _reader is None:
-        raise StationError("frame descriptions are read by the station: import station.frame_file first, or "
-                           "build FrameDecoder(describe({...}))")
+        raise StationError("frame descriptions are read by the station: import station.frames.reader first, "
+                           "or build FrameDecoder(describe({...}))")
     return FrameDecoder(_reader(path))
 
 

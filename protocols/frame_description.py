@@ -3,7 +3,7 @@
 :func:`describe` checks a description given as plain values (what a YAML or JSON file holds) against
 ``shared/specs/frame-description.md`` and returns a :class:`FrameDescription`, which
 ``protocols.frame`` compiles into a decoder. Reading the file is the station's job
-(``station.frame_file``: this layer reads no files); a broken description raises
+(``station.frames.reader``: this layer reads no files); a broken description raises
 :class:`FrameDescriptionError`, which names the key (``fields[3].at``) and the field, so the
 reader can add the file and the line.
 """

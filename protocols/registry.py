@@ -26,7 +26,8 @@ DECODERS: dict[str, Callable[[], StreamDecoderBase]] = {
 # ``ascii:@50``), the IMU message of ``mavlink`` (``mavlink:SCALED_IMU2``), the packets of ``xsens``
 # that make the samples (``xsens:hr`` for AccelerationHR / RateOfTurnHR, ``xsens:normal``) and/or the
 # local field that scales its normalised MagneticField to microtesla (``xsens:field=49.5``), the
-# description file of a board's own frames for ``frame`` (``frame:board.yaml``, read by station.frame_file).
+# description file of a board's own frames for ``frame`` (``frame:board.yaml``, read by
+# station.frames.reader).
 DECODER_OPTIONS: dict[str, Callable[[str], StreamDecoderBase]] = {
     "ascii": AsciiDecoder.from_option,
     "xsens": XsensDecoder.from_option,

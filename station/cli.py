@@ -175,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # frame descriptions (--protocol frame:FILE.yaml, a plan's protocol) are readable by every command that
     # talks to a unit; those that only read files skip the reader and protocols.frame (30 ms of start-up)
     if args.command not in FILE_ONLY_COMMANDS:
-        from station import frame_file  # noqa: F401
+        from station.frames import reader  # noqa: F401
     try:
         return int(args._run(args) or ExitCode.OK)
     except StationError as exc:

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal_model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
-from station.export.params_file import ParamsFile
+from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
+from station.export.params.file import ParamsFile
 
 FIELD_UT = 48.5
 G_SENSITIVITY_SD = 0.1 * np.pi / 180 / 9.80665  # 0.1 deg/s per g, in rad/s per m/s^2

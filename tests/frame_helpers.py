@@ -135,7 +135,7 @@ def example_stream(name: str, desc: FrameDescription, n: int = 600) -> tuple[byt
 
 
 def main() -> None:
-    from station.frame_file import load_description
+    from station.frames.reader import load_description
 
     DATA.mkdir(parents=True, exist_ok=True)
     for name in EXAMPLES:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocks.truth import UnitTruth
-from station.engines.calibration_common import triangular_correction
+from station.engines.calibration.common import triangular_correction
 
 
 def polar(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -14,9 +14,9 @@ from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
 from protocols.base import SAMPLE_DTYPE
 from station import cli
 from station.acquisition.capture_csv import write_csv
-from station.engines.allan import overlapping_adev
-from station.engines.sensor_model import SensorCalibration
-from station.export.params_file import ParamsFile
+from station.engines.allan.deviation import overlapping_adev
+from station.engines.shared.sensor_model import SensorCalibration
+from station.export.params.file import ParamsFile
 
 GYRO = NoiseSpec(N=[3e-4, 4e-4, 5e-4], K=[2e-5, 2e-5, 2e-5])
 ACCEL = NoiseSpec(N=[2e-3, 2e-3, 3e-3], K=[3e-4, 3e-4, 3e-4])

@@ -16,7 +16,7 @@ import pytest
 from allantools import ci as at_ci
 
 from station.acquisition.allan_source import integrate_stream
-from station.engines import allan
+from station.engines.allan import deviation as allan
 from station.errors import EngineInputError
 
 NBS14_10_FREQ = [892.0, 809.0, 823.0, 798.0, 671.0, 644.0, 883.0, 903.0, 677.0]
@@ -107,7 +107,7 @@ def test_threads_blocks_and_memmap_give_the_same_numbers(tmp_path):
 
 
 def test_compiled_sums_match_long_double_sums():
-    from station.engines.allan_kernel import add_block
+    from station.engines.allan._kernel import add_block
 
     # a drifting rate: after the mean is removed the phase still spans far more than its second
     # differences, where forming 2 x_{i+m} or reassociating the terms would lose digits

@@ -12,10 +12,15 @@ from scipy.signal import lfilter
 
 from mocks.rig import Static, simulate
 from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
-from station.engines.allan import allan_curve, integrate_rates
-from station.engines.allan_fit import B_FACTOR, ML_METHOD, TERMS, fit_axis, identify_noise, model_avar
-from station.engines.allan_ml import autocovariance, block_length, negative_log_likelihood, white_walk_ml
-from station.export.allan_report import noise_section
+from station.engines.allan.deviation import allan_curve, integrate_rates
+from station.engines.allan.fit import B_FACTOR, ML_METHOD, TERMS, fit_axis, identify_noise, model_avar
+from station.engines.allan.likelihood import (
+    autocovariance,
+    block_length,
+    negative_log_likelihood,
+    white_walk_ml,
+)
+from station.export.params.noise import noise_section
 
 ML = ML_METHOD
 

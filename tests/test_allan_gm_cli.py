@@ -13,7 +13,7 @@ from mocks.rig import Static, simulate
 from mocks.truth import FLICKER_FLOOR, GM_ADEV_PEAK, NoiseSpec, SensorTruth, UnitTruth
 from station import cli
 from station.acquisition.capture_csv import write_csv
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 
 RATE = 20.0
 SIGMA, TAU_C = 3e-4, 60.0

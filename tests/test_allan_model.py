@@ -1,4 +1,4 @@
-"""The noise model chosen by the data (station.engines.allan_model): exact curves give their terms back,
+"""The noise model chosen by the data (station.engines.allan.model): exact curves give their terms back,
 the Gauss-Markov and sinusoid curves agree with the spectral integral, Gauss-Markov processes injected in
 simulated records are recovered, the sensor's filter is modelled, and the equivalent N and K and the
 ``--gm`` discrete forms hold what they promise."""
@@ -14,10 +14,15 @@ from scipy import integrate
 from scipy.signal import lfilter
 
 from mocks.truth import FLICKER_FLOOR, GM_ADEV_PEAK, NoiseGenerator, NoiseSpec
-from station.engines.allan import allan_curve, confidence_interval, integrate_rates, overlapping_adev
-from station.engines.allan_equivalent import white_walk_equivalent
-from station.engines.allan_fit import _profile_stddev, gauss_markov_avar, identify_noise
-from station.engines.allan_model import (
+from station.engines.allan.deviation import (
+    allan_curve,
+    confidence_interval,
+    integrate_rates,
+    overlapping_adev,
+)
+from station.engines.allan.equivalent import white_walk_equivalent
+from station.engines.allan.fit import _profile_stddev, gauss_markov_avar, identify_noise
+from station.engines.allan.model import (
     Estimate,
     GaussMarkov,
     NoiseModel,
@@ -27,8 +32,8 @@ from station.engines.allan_model import (
     select_model,
     sinusoid_avar,
 )
-from station.export.gm_yaml import discrete_gm, gm_yaml
-from station.export.params_file import gauss_markov_of
+from station.export.estimators.gauss_markov import discrete_gm, gm_yaml
+from station.export.params.file import gauss_markov_of
 
 
 def _allan_of_psd(psd, tau: float) -> float:

@@ -14,8 +14,8 @@ from mocks.rig import Static, simulate
 from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
 from station import cli
 from station.acquisition.capture_csv import write_csv
-from station.engines.allan import allan_curve, cluster_sizes
-from station.engines.allan_fit import K_CROSSING_FRACTION, identify_noise, missing_terms
+from station.engines.allan.deviation import allan_curve, cluster_sizes
+from station.engines.allan.fit import K_CROSSING_FRACTION, identify_noise, missing_terms
 
 GYRO = NoiseSpec(N=[3e-4, 4e-4, 5e-4], K=[2e-5, 2e-5, 2e-5])
 ACCEL = NoiseSpec(N=[2e-3, 2e-3, 3e-3], K=[3e-4, 3e-4, 3e-4])

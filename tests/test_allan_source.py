@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from station.acquisition.allan_source import capture_chunks, integrate_stream
-from station.engines import allan
+from station.engines.allan import deviation as allan
 from station.errors import EngineInputError
 
 

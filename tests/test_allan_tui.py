@@ -11,9 +11,9 @@ from textual_plotext import PlotextPlot
 from tui_helpers import svg_rows
 
 from mocks.truth import FLICKER_FLOOR, GM_ADEV_PEAK, NoiseGenerator, NoiseSpec
-from station.engines.allan import allan_curve, integrate_rates
-from station.engines.allan_fit import identify_noise
-from station.export.allan_plot import render_png
+from station.engines.allan.deviation import allan_curve, integrate_rates
+from station.engines.allan.fit import identify_noise
+from station.plots.allan import render_png
 from station.tui.plot import draw
 from station.tui.screens.allan import AXES, adev_series
 

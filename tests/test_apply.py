@@ -15,8 +15,8 @@ from station import cli
 from station.acquisition.capture import Capture
 from station.acquisition.capture_csv import read_csv, write_csv
 from station.commands.apply import apply_params
-from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal_model import (
+from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.model import (
     TERMS,
     DtempFilter,
     ThermalBias,
@@ -24,7 +24,7 @@ from station.engines.thermal_model import (
     ThermalSegment,
     estimate_dtemp,
 )
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 
 
 def _truth() -> UnitTruth:

@@ -22,8 +22,8 @@ import pytest
 from export_params import make_params
 
 from protocols.crc import crc32
-from station.export import blob as blobfmt
-from station.export.c_export import DEFAULT_MAX_SEGMENTS, write_c_export
+from station.export.firmware import blob as blobfmt
+from station.export.firmware.c_source import DEFAULT_MAX_SEGMENTS, write_c_export
 
 HARNESS = Path(__file__).with_name("test_export_harness.c")
 CC = ["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]

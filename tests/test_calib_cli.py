@@ -12,7 +12,7 @@ from mocks.rig import handheld_session, sequence_segments, simulate
 from mocks.truth import UnitTruth
 from station import cli
 from station.acquisition.capture_csv import write_csv
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 
 
 @pytest.fixture(scope="module")

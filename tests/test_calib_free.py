@@ -13,8 +13,8 @@ import pytest
 
 from mocks.rig import handheld_session, simulate
 from mocks.truth import UnitTruth
-from station.engines.calibration_common import convert_convention
-from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
+from station.engines.calibration.common import convert_convention
+from station.engines.calibration.free import FreeCapture, FreeSettings, calibrate_free
 from station.errors import EngineInputError
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from station.engines.calibration_free import _still_samples
+from station.engines.calibration.free import _still_samples
 
 
 def test_imu_tk_still_period_ends_at_the_sample_nearest_t0_plus_s() -> None:

@@ -8,15 +8,14 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
-from station.engines import quaternion as quat
-from station.engines.calibration_common import (
+from station.engines.calibration.common import (
     convert_convention,
     pose_vector,
     rotation_of,
     triangular_correction,
 )
-from station.engines.calibration_free_accel import acc_jacobian, acc_residual
-from station.engines.calibration_free_gyro import (
+from station.engines.calibration.free_accel import acc_jacobian, acc_residual
+from station.engines.calibration.free_gyro import (
     GyroBlocks,
     GyroModel,
     bias_sensitivity,
@@ -24,8 +23,9 @@ from station.engines.calibration_free_gyro import (
     gyro_jacobian,
     gyro_residual,
 )
-from station.engines.earth import normal_gravity
-from station.engines.static_detect import moving_variance_norm, static_intervals
+from station.engines.shared import quaternion as quat
+from station.engines.shared.earth import normal_gravity
+from station.engines.shared.static_detect import moving_variance_norm, static_intervals
 
 
 def central_difference(fun, p: np.ndarray, rel: float = 1e-6) -> np.ndarray:

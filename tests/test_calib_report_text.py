@@ -11,8 +11,8 @@ import pytest
 import yaml
 from test_cli_startup import _loaded
 
-from station.phase_line import CLEAR, PhaseLine
-from station.text_table import format_table
+from station.common.table import format_table
+from station.console.phase_line import CLEAR, PhaseLine
 
 
 def test_table_columns_aligned_under_a_rule() -> None:

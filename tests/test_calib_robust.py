@@ -15,11 +15,11 @@ from mocks.rig import handheld_session, sequence_segments, simulate
 from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
 from station import cli
 from station.acquisition.capture_csv import write_csv
-from station.engines.calibration_common import convert_convention, covariance
-from station.engines.calibration_free import FreeCapture, FreeSettings, _check_gyro_saturation, calibrate_free
-from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+from station.engines.calibration.common import convert_convention, covariance
+from station.engines.calibration.free import FreeCapture, FreeSettings, _check_gyro_saturation, calibrate_free
+from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.errors import EngineInputError
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 
 DEG = np.pi / 180
 

@@ -24,8 +24,8 @@ from imucal.ferraris_calibration import FerrarisSignalRegions
 
 from mocks.rig import Move, Rotation, Static, sequence_segments, simulate
 from mocks.truth import UnitTruth
-from station.engines.calibration_static import fit_poses, six_position
-from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+from station.engines.calibration._static import fit_poses, six_position
+from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.errors import EngineInputError
 
 HOLD_S = 60.0

@@ -25,10 +25,10 @@ from protocols import native
 from station import cli
 from station.acquisition.capture import read_capture
 from station.acquisition.capture_csv import write_csv
-from station.engines.calibration_turntable import TurntableCapture, calibrate_turntable
-from station.engines.calibration_turntable_gsens import fit_g_sensitivity
-from station.engines.characterisation_scale import rate_steps, scale_linearity
-from station.engines.characterisation_turnon import (
+from station.engines.calibration.turntable import TurntableCapture, calibrate_turntable
+from station.engines.calibration.turntable_gsens import fit_g_sensitivity
+from station.engines.characterisation.scale import rate_steps, scale_linearity
+from station.engines.characterisation.turn_on import (
     allan_points,
     mean_noise,
     reduce_record,
@@ -36,7 +36,7 @@ from station.engines.characterisation_turnon import (
     turn_on_repeatability,
 )
 from station.errors import EngineInputError
-from station.export.datasheet import datasheet_rows, format_table
+from station.report.datasheet import datasheet_rows, format_table
 from tests.export_params import make_params
 
 G = 9.80665

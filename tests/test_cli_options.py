@@ -1,6 +1,6 @@
 """Every numeric option of every command refuses a value outside its range: exit 4, one line naming
 the option and the allowed range, no traceback. The port and protocol options are the same for
-every command that opens a unit (station/cli_options.py)."""
+every command that opens a unit (station/console/options.py)."""
 
 from __future__ import annotations
 
@@ -168,7 +168,7 @@ def test_output_has_its_out_alias() -> None:
 def test_source_date_epoch_out_of_range(epoch: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                         capsys: pytest.CaptureFixture[str]) -> None:
     """The export date from the environment is range-checked as an option is (it was an OSError)."""
-    from station.export.params_file import ParamsFile
+    from station.export.params.file import ParamsFile
 
     params = tmp_path / "p.yaml"
     ParamsFile().save(params)

@@ -15,9 +15,9 @@ from serial.tools import list_ports
 from serial.tools.list_ports_common import ListPortInfo
 from test_factory_records import make_record
 
+from drivers.ports import describe_port, list_serial_ports
 from station.cli import main
 from station.factory.records import Measurement, RecordStore
-from station.ports import describe_port, list_serial_ports
 
 
 def _cli(*argv: str, cwd: Path | None = None) -> subprocess.CompletedProcess:

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from station import cli, cli_options
+from station import cli
+from station.console import options
 
 HEAVY = ("numpy", "scipy", "matplotlib", "h5py", "textual", "serial", "yaml", "rich")
 
@@ -52,7 +53,7 @@ def test_a_command_still_loads_what_it_needs() -> None:
 
 def test_help_loads_no_record_store_nor_frame_reader() -> None:
     modules, _ = _loaded(["--help"], every=True)
-    assert not modules & {"station.factory.records", "sqlite3", "station.frame_file", "protocols.frame"}
+    assert not modules & {"station.factory.records", "sqlite3", "station.frames.reader", "protocols.frame"}
 
 
 def test_free_calibration_loads_only_what_it_uses(tmp_path) -> None:
@@ -71,8 +72,8 @@ def test_free_calibration_loads_only_what_it_uses(tmp_path) -> None:
             "upper", "--initial-still", "50", "--json"]
     modules, shown = _loaded(argv, every=True)
     assert '"method": "free' in shown
-    assert "numpy" in modules and "station.engines.calibration_free" in modules
-    unneeded = {"scipy", "station.engines.calibration_turntable", "station.frame_file", "protocols.frame",
+    assert "numpy" in modules and "station.engines.calibration.free" in modules
+    unneeded = {"scipy", "station.engines.calibration.turntable", "station.frames.reader", "protocols.frame",
                 "matplotlib", "h5py"}
     assert not modules & unneeded, sorted(modules & unneeded)
 
@@ -99,16 +100,16 @@ def test_the_names_help_shows_are_the_registries() -> None:
     from drivers import DEFAULT_BAUDRATE
     from mocks.device import ENCODERS, SCENARIOS
     from protocols.registry import DECODER_OPTIONS, DECODERS
-    from station.engines import allan_fit, allan_terms
+    from station.engines.allan import fit, terms
     from station.export.writers import FORMATS, MAX_INSTANCE
     from station.factory.records import OUTCOMES
 
-    assert cli_options.DEFAULT_BAUDRATE == DEFAULT_BAUDRATE
-    assert cli_options.PROTOCOLS == tuple(sorted(DECODERS))
-    assert cli_options.PROTOCOL_OPTIONS == tuple(DECODER_OPTIONS)
-    assert cli_options.EXPORT_FORMATS == FORMATS
-    assert cli_options.EXPORT_MAX_INSTANCE == MAX_INSTANCE
-    assert cli_options.SIM_SCENARIOS == tuple(SCENARIOS)
-    assert cli_options.RECORD_OUTCOMES == OUTCOMES
-    assert cli_options.SIM_ENCODERS == tuple(sorted(ENCODERS))
-    assert allan_fit.TERMS is allan_terms.TERMS
+    assert options.DEFAULT_BAUDRATE == DEFAULT_BAUDRATE
+    assert options.PROTOCOLS == tuple(sorted(DECODERS))
+    assert options.PROTOCOL_OPTIONS == tuple(DECODER_OPTIONS)
+    assert options.EXPORT_FORMATS == FORMATS
+    assert options.EXPORT_MAX_INSTANCE == MAX_INSTANCE
+    assert options.SIM_SCENARIOS == tuple(SCENARIOS)
+    assert options.RECORD_OUTCOMES == OUTCOMES
+    assert options.SIM_ENCODERS == tuple(sorted(ENCODERS))
+    assert fit.TERMS is terms.TERMS

@@ -28,8 +28,8 @@ from mocks.truth import UnitTruth
 from station.acquisition.capture import read_capture
 from station.acquisition.sequences import builtin
 from station.cli import main
-from station.export.blob import parse_blob
-from station.export.params_file import ParamsFile
+from station.export.firmware.blob import parse_blob
+from station.export.params.file import ParamsFile
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -23,8 +23,8 @@ from mocks.device import SimDevice
 from mocks.pty_server import PtyServer
 from mocks.truth import UnitTruth
 from station import cli
-from station.export.params_file import ParamsFile
-from station.text import printable
+from station.common.text import printable
+from station.export.params.file import ParamsFile
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
 

@@ -11,9 +11,9 @@ import pytest
 from mocks.rig import sequence_segments, simulate
 from mocks.truth import UnitTruth
 from protocols.units import STANDARD_GRAVITY
-from station.engines.calibration_free import FreeCapture, FreeSettings
-from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
-from station.engines.thermal import ThermalSettings, ThermalSweep
+from station.engines.calibration.free import FreeCapture, FreeSettings
+from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+from station.engines.thermal.fit import ThermalSettings, ThermalSweep
 from station.errors import EngineInputError
 
 N = 300
@@ -102,7 +102,7 @@ def test_settings_are_validated_on_construction() -> None:
 
 def test_the_stages_compose_to_the_report() -> None:
     """calibrate_turntable is its stages in turn: the accelerometer stage's M and b are the report's."""
-    from station.engines.calibration_turntable import accel_calibration, fit_accelerometer
+    from station.engines.calibration.turntable import accel_calibration, fit_accelerometer
 
     truth = UnitTruth.random(5)
     rec = simulate(truth, sequence_segments("six-position", True, hold_s=8.0), rate_hz=100.0, seed=5)

@@ -19,7 +19,7 @@ from protocols.errors import ExitCode, StationError
 from protocols.mavlink import MavlinkUnavailable
 from station import cli
 from station.acquisition.sequences import SequenceError, pose_vector
-from station.export.blob import BlobError
+from station.export.firmware.blob import BlobError
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("protocols", "drivers", "mocks", "station")

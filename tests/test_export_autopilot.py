@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 from export_params import BREAKS, cubic_params, make_params
 
-from station.engines.correction import apply_calibration
-from station.export.ardupilot import build_ardupilot, render_ardupilot
-from station.export.params_file import ParamsFile
-from station.export.px4 import build_px4, render_px4
+from station.engines.shared.correction import apply_calibration
+from station.export.autopilot.ardupilot import build_ardupilot, render_ardupilot
+from station.export.autopilot.px4 import build_px4, render_px4
+from station.export.params.file import ParamsFile
 
 G = 9.80665
 POSES = np.repeat(np.eye(3), 2, axis=0) * np.tile([1.0, -1.0], 3)[:, None]

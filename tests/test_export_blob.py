@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from export_params import make_params
 
-from station.engines.thermal_model import ThermalSegment
-from station.export import blob as blobfmt
-from station.export.params_file import ParamsFile
+from station.engines.thermal.model import ThermalSegment
+from station.export.firmware import blob as blobfmt
+from station.export.params.file import ParamsFile
 
 V1_BLOBS = Path(__file__).parent / "data" / "blob-v1"
 

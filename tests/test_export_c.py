@@ -22,11 +22,11 @@ import pytest
 from export_params import BREAKS, make_params
 
 from protocols.crc import crc32
-from station.engines.correction import apply_calibration, apply_mag
-from station.engines.thermal_model import estimate_dtemp
-from station.export import blob as blobfmt
-from station.export.c_export import c_comment_text, c_string_literal, write_c_export
-from station.export.sections import g_sensitivity, mag_calibration
+from station.engines.shared.correction import apply_calibration, apply_mag
+from station.engines.thermal.model import estimate_dtemp
+from station.export.firmware import blob as blobfmt
+from station.export.firmware.c_source import c_comment_text, c_string_literal, write_c_export
+from station.export.params.sections import g_sensitivity, mag_calibration
 
 HARNESS = Path(__file__).with_name("test_export_harness.c")
 V1_BLOBS = Path(__file__).parent / "data" / "blob-v1"

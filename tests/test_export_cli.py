@@ -12,8 +12,8 @@ import yaml
 from export_params import make_params
 
 from station.cli import main
-from station.export.blob import parse_blob
-from station.export.params_file import ParamsFile
+from station.export.firmware.blob import parse_blob
+from station.export.params.file import ParamsFile
 
 
 @pytest.fixture

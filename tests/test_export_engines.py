@@ -20,8 +20,8 @@ from mocks.truth import UnitTruth
 from station.acquisition.capture import read_capture
 from station.acquisition.capture_csv import write_csv
 from station.cli import main
-from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
-from station.export.params_file import ParamsFile
+from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
+from station.export.params.file import ParamsFile
 
 SWEEP = ChamberSweep(low_degc=0.0, high_degc=40.0, start_degc=20.0, ramp_degc_per_min=4.0, soak_s=120.0)
 

@@ -23,11 +23,11 @@ from export_params import FIELD_UT, make_params
 from test_export_autopilot import pose_inputs, read_ardupilot, read_px4
 
 from station.cli import main
-from station.engines.correction import apply_calibration
-from station.export.ardupilot import build_ardupilot, render_ardupilot
-from station.export.blob import FLAG_MAG, parse_blob
-from station.export.params_file import ParamsFile
-from station.export.px4 import build_px4, render_px4
+from station.engines.shared.correction import apply_calibration
+from station.export.autopilot.ardupilot import build_ardupilot, render_ardupilot
+from station.export.autopilot.px4 import build_px4, render_px4
+from station.export.firmware.blob import FLAG_MAG, parse_blob
+from station.export.params.file import ParamsFile
 
 G = 9.80665
 FIELDS = np.vstack([np.eye(3), -np.eye(3), np.random.default_rng(5).normal(0.0, 1.0, (200, 3))])
@@ -218,8 +218,8 @@ def test_simulated_nine_axis_unit_through_apply_the_c_and_the_autopilots(tmp_pat
 
     from mocks.mag_sessions import mag_capture
     from station.acquisition.capture_csv import read_csv, write_csv
-    from station.engines.sensor_model import SensorCalibration
-    from station.export.c_export import write_c_export
+    from station.engines.shared.sensor_model import SensorCalibration
+    from station.export.firmware.c_source import write_c_export
 
     capture, truth = mag_capture("desk", seed=3)
     mag = truth.mag

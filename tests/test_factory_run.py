@@ -19,7 +19,7 @@ from mocks.truth import UnitTruth
 from station.acquisition.capture import read_capture
 from station.factory.plan import SCHEMA
 from station.factory.records import RecordStore, RunRecord, sha256_file
-from station.factory.trend_plot import trend_series, write_trend_plot
+from station.plots.trend import trend_series, write_trend_plot
 
 REPO = Path(__file__).resolve().parents[1]
 SEEDS = (21, 22, 23, 24)

@@ -39,7 +39,7 @@ def test_capture_records_a_boards_own_frames_through_a_pty(tmp_path: Path, capsy
 
 
 def test_a_shipped_description_by_name_and_the_python_api(tmp_path: Path) -> None:
-    import station.frame_file  # noqa: F401  (installs the reader of frame: descriptions, as the CLI does)
+    import station.frames.reader  # noqa: F401  (installs the reader of frame: descriptions, as the CLI does)
 
     stream = (Path(__file__).parent / "data" / "frames" / "mpu6050_dump.bin").read_bytes()
     with BytePty.chunked(stream, chunk=500, period_s=0.01, delay_s=0.5) as pty:
@@ -77,7 +77,7 @@ def test_the_tui_connect_screen_offers_and_shows_the_frame_protocol(tmp_path: Pa
 
     from tui_helpers import screen_text, wait_for
 
-    import station.frame_file  # noqa: F401  (installs the reader of frame: descriptions, as the CLI does)
+    import station.frames.reader  # noqa: F401  (installs the reader of frame: descriptions, as the CLI does)
     from station.tui.app import StationApp
     from station.tui.config import TuiConfig
 

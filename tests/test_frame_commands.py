@@ -13,7 +13,7 @@ from frame_helpers import DATA, SPEC_EXAMPLE, damaged_stream, plain_frames, stil
 
 from protocols.frame_description import describe
 from station.cli import main
-from station.frame_file import load_decoder, load_description, shipped_descriptions
+from station.frames.reader import load_decoder, load_description, shipped_descriptions
 
 
 def _variant(tmp_path: Path, name: str, **changes: object) -> Path:

@@ -1,4 +1,4 @@
-"""Frame description files (``station/frame_file.py``): the manual's example is read as written; a file
+"""Frame description files (``station/frames/reader.py``): the manual's example is read as written; a file
 that breaks a rule is refused naming the file, line, key and field, before any port opens (exit 4);
 hostile YAML is refused quickly; the shipped examples decode their recordings."""
 
@@ -15,7 +15,7 @@ from frame_helpers import DATA, example_stream
 from protocols.units import STANDARD_GRAVITY
 from station.cli import main
 from station.errors import InputFileError
-from station.frame_file import load_decoder, load_description, shipped_descriptions
+from station.frames.reader import load_decoder, load_description, shipped_descriptions
 
 ROOT = Path(__file__).resolve().parent.parent
 MANUAL = ROOT / "docs" / "reference" / "frame-description.md"

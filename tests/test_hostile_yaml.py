@@ -1,5 +1,5 @@
 """Hostile YAML is refused quickly and within bounded memory, by the one reader every YAML input
-goes through (``station.yaml_file``): parameter files (``export``, the merge of ``calibrate``,
+goes through (``station.common.yaml_file``): parameter files (``export``, the merge of ``calibrate``,
 ``allan`` and ``thermal``), sequence files and plan files.
 """
 
@@ -15,10 +15,10 @@ import pytest
 
 from station import cli
 from station.acquisition.sequences import load_yaml
+from station.common.yaml_file import MAX_BYTES, MAX_DEPTH, MAX_NODES, read_yaml
 from station.errors import InputFileError
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 from station.factory.plan import load_plan
-from station.yaml_file import MAX_BYTES, MAX_DEPTH, MAX_NODES, read_yaml
 
 MEMORY_BOUND = 32 * 2**20  # bytes of Python allocations while refusing
 

@@ -19,9 +19,12 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("protocols", "drivers", "mocks", "station")
 STDLIB = frozenset(sys.stdlib_module_names)
 
-# Station modules every station layer may import: the version, the exception root, atomic file
-# writing and the bounded YAML reader are the house's plumbing, not a layer.
-STATION_CORE = ("station", "station.errors", "station.files", "station.yaml_file")
+# Station modules every station layer may import: the version, the exception root and station.common
+# (atomic file writing, the bounded YAML reader, printable text and tables, lazy exports) are the
+# house's plumbing, not a layer.
+STATION_CORE = ("station.errors", "station.common")
+# ``from station import __version__``: the package itself, not everything under it.
+STATION_ROOT = "station"
 # The lowest layer's constants and exception root: importable from everywhere, that is why they live there.
 PROTOCOL_CORE = ("protocols.units", "protocols.errors")
 
@@ -54,11 +57,20 @@ RULES = (
          # A simulated recording handed to the engines as the station's Capture (tests and the
          # chamber's sweeps use it); imported lazily so the simulator alone never loads the station.
          exceptions=(("mocks/rig.py", "station.acquisition.capture"),)),
-    # numba: the Allan deviation's inner loop, compiled (station/engines/allan_kernel.py).
-    Rule("station/engines/", ("station.engines", "station.errors", *PROTOCOL_CORE), ("numpy", "scipy",
-                                                                                   "numba"),
+    # numba: the Allan deviation's inner loop, compiled (station/engines/allan/_kernel.py).
+    # station.common.lazy: a subject package's __init__ names its public functions without importing them.
+    Rule("station/engines/", ("station.engines", "station.errors", "station.common.lazy", *PROTOCOL_CORE),
+         ("numpy", "scipy", "numba"),
          "engines import numpy and scipy only: arrays in, results out, no files, devices or printing",
+         # The World Magnetic Model is pygeomag's coefficients and series, pure Python, no file read.
+         exceptions=(("station/engines/magnetometer/geomagnetic.py", "pygeomag"),),
          no_io=True),
+    # The plumbing every layer uses: the standard library, pyyaml for the bounded reader.
+    Rule("station/common/", ("station.common", "station.errors", *PROTOCOL_CORE), ("yaml",),
+         "station.common imports nothing of the station but errors: every layer imports it"),
+    # Frame descriptions: read (acquisition's level), checked live on a port, guessed from bytes.
+    Rule("station/frames/", ("station.frames", "drivers", "protocols", *STATION_CORE), ("numpy", "yaml"),
+         "frames import drivers and protocols, as acquisition does"),
     # h5py and rosbags read and write the capture files and bags; pyyaml the sequence files.
     Rule("station/acquisition/", ("station.acquisition", "drivers", "protocols", *STATION_CORE),
          ("numpy", "yaml", "h5py", "rosbags"),
@@ -66,13 +78,15 @@ RULES = (
     # Engines: their result types and the pure functions that evaluate them (the error an autopilot
     # leaves is computed with the station's own correction); protocols.crc: the blob's CRC-32 is
     # the protocols' one implementation; matplotlib draws the PNGs written beside an export.
-    Rule("station/export/", ("station.export", "station.engines", "protocols.crc", *PROTOCOL_CORE,
-                             *STATION_CORE), ("numpy", "yaml", "matplotlib"),
+    Rule("station/export/", ("station.export", "station.engines", "station.plots", "protocols.crc",
+                             *PROTOCOL_CORE, *STATION_CORE), ("numpy", "yaml"),
          "export imports the engines' result types and pyyaml"),
-    Rule("station/report/", ("station.report", "station.export", "station.engines", "station.factory.records",
-                             *PROTOCOL_CORE, *STATION_CORE), ("numpy", "jinja2", "matplotlib", "yaml"),
+    Rule("station/report/", ("station.report", "station.export", "station.engines", "station.plots",
+                             "station.factory.records", *PROTOCOL_CORE, *STATION_CORE),
+         ("numpy", "jinja2", "yaml"),
          "report imports export, the engines' result types and the factory records"),
-    # Figures of the engines' results, as export's plots are.
+    # Every figure the station draws (PNG and inline SVG), from the engines' result types and arrays:
+    # below export and report, which draw with it.
     Rule("station/plots/", ("station.plots", "station.engines", *PROTOCOL_CORE, *STATION_CORE),
          ("numpy", "matplotlib"), "plots import the engines' result types and matplotlib"),
 )
@@ -82,10 +96,14 @@ TOP = (
      "station.commands is imported by nothing but station/cli.py"),
     ("station.tui", ("station/cli.py", "station/commands/", "station/tui/"),
      "station.tui is imported by nothing but station/cli.py and the commands"),
+    # What the commands and screens show on a terminal while they run: acquisition and the factory
+    # would import upward if it lived below them.
+    ("station.console", ("station/cli.py", "station/commands/", "station/tui/", "station/console/"),
+     "station.console is imported by nothing but station/cli.py, the commands and the TUI"),
 )
 # Modules that read or write files or devices: the engines import none of them.
-IO_MODULES = ("pathlib", "io", "shutil", "tempfile", "h5py", "yaml", "serial", "station.files", "drivers",
-              "mocks", "sqlite3", "socket", "subprocess")
+IO_MODULES = ("pathlib", "io", "shutil", "tempfile", "h5py", "yaml", "serial", "station.common.files",
+              "drivers", "mocks", "sqlite3", "socket", "subprocess")
 
 
 def _source_files() -> list[Path]:
@@ -141,7 +159,7 @@ def violations(rel: str, source: str) -> list[str]:
             continue
         if top in STDLIB:
             continue
-        allowed = (any(_under(module, p) for p in rule.project) if top in PACKAGES
+        allowed = (any(_under(module, p) for p in rule.project) or module == STATION_ROOT if top in PACKAGES
                    else top in rule.third_party)
         if not allowed and any(rel == f and _under(module, m) for f, m in rule.exceptions):
             allowed = True
@@ -172,7 +190,8 @@ def test_the_rules_cover_every_folder_of_the_design() -> None:
     folders = {r.folder for r in RULES}
     assert {"protocols/", "drivers/", "mocks/", "station/engines/", "station/acquisition/",
             "station/export/"} <= folders
-    assert {layer for layer, _, _ in TOP} == {"station.commands", "station.tui"}
+    assert {"station/common/", "station/frames/", "station/plots/", "station/report/"} <= folders
+    assert {layer for layer, _, _ in TOP} == {"station.commands", "station.tui", "station.console"}
 
 
 @pytest.mark.parametrize(("rel", "source", "expected"), [
@@ -217,7 +236,7 @@ def test_a_violation_names_file_line_and_rule(rel: str, source: str, expected: s
     ("station/engines/x.py", "from protocols.units import STANDARD_GRAVITY\nimport scipy.linalg\n"),
     ("protocols/mavlink.py", "from pymavlink.dialects.v20 import ardupilotmega\n"),
     ("mocks/rig.py", "from station.acquisition.capture import Capture\n"),
-    ("station/export/blob.py", "from protocols.crc import crc32\n"),
+    ("station/export/firmware/blob.py", "from protocols.crc import crc32\n"),
 ])
 def test_what_the_design_allows_passes(rel: str, source: str) -> None:
     assert violations(rel, source) == []

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from station.engines.levenberg_marquardt import least_squares_lm
+from station.engines.shared.levenberg_marquardt import least_squares_lm
 
 T = np.linspace(0.0, 4.0, 60)
 Y = 2.5 * np.exp(-1.3 * T) + 0.5 + 0.01 * np.random.default_rng(3).standard_normal(len(T))

@@ -21,12 +21,12 @@ from mocks.pty_server import PtyServer
 from station import cli
 from station.acquisition.capture_csv import write_csv
 from station.acquisition.recorder import record
-from station.engines.calibration_mag import MagCapture, calibrate_mag
-from station.engines.sensor_model import SensorCalibration
+from station.engines.magnetometer.calibration import MagCapture, calibrate_mag
+from station.engines.magnetometer.geomagnetic import field_at
+from station.engines.shared.sensor_model import SensorCalibration
 from station.errors import ExitCode
-from station.export.params_file import ParamsFile
-from station.export.sections import mag_calibration
-from station.geomagnetic import field_at
+from station.export.params.file import ParamsFile
+from station.export.params.sections import mag_calibration
 
 
 @pytest.fixture(scope="module")

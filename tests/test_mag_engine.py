@@ -13,10 +13,10 @@ from mag_helpers import calibrated_acc, errors, lower_frame, magneto, polar
 from mocks.mag_sessions import mag_capture, nine_axis_unit
 from mocks.magnetometer import EarthField
 from mocks.truth import UnitTruth
-from station.engines.calibration_mag import MagCalibration, MagCapture, MagSettings, calibrate_mag
-from station.engines.mag_accel import ALL, NO_Z_BIAS, PoseAccel
-from station.engines.mag_coverage import CELLS, cell_bounds, cell_centres, cell_index, field_coverage
-from station.engines.mag_fit import JointProblem, ellipsoid_fit
+from station.engines.magnetometer.accel import ALL, NO_Z_BIAS, PoseAccel
+from station.engines.magnetometer.calibration import MagCalibration, MagCapture, MagSettings, calibrate_mag
+from station.engines.magnetometer.coverage import CELLS, cell_bounds, cell_centres, cell_index, field_coverage
+from station.engines.magnetometer.fit import JointProblem, ellipsoid_fit
 from station.errors import EngineInputError
 
 

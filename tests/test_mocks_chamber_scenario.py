@@ -20,8 +20,8 @@ from mocks.protocol_sim import parse_sim_url
 from mocks.truth import STANDARD_GRAVITY, ThermalTruth, UnitTruth
 from station import cli
 from station.acquisition.capture import read_capture
-from station.engines.thermal_model import estimate_dtemp
-from station.export.params_file import ParamsFile
+from station.engines.thermal.model import estimate_dtemp
+from station.export.params.file import ParamsFile
 
 mocks.register_sim_url()
 

@@ -20,8 +20,8 @@ from mocks.truth import (
     ThermalTruth,
     UnitTruth,
 )
-from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal_model import ThermalBias, ThermalSegment
+from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.model import ThermalBias, ThermalSegment
 
 
 def noise(spec: NoiseSpec, n: int, rate_hz: float, seed: int) -> np.ndarray:

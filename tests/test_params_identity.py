@@ -13,15 +13,15 @@ from mocks.rig import Static, sequence_segments, simulate
 from mocks.truth import UnitTruth
 from station import cli
 from station.acquisition.capture_h5 import H5CaptureWriter
+from station.common.files import sha256_file
 from station.errors import InputFileError
-from station.export.params_file import (
+from station.export.params.file import (
     ParamsFile,
     UnitMismatchError,
     merge_sections,
     open_for_unit,
     unit_conflict,
 )
-from station.files import sha256_file
 
 
 def _h5(path: Path, recording) -> Path:

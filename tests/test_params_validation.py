@@ -27,8 +27,8 @@ from station import cli
 from station.acquisition.capture import Capture
 from station.acquisition.capture_csv import read_csv, write_csv
 from station.errors import InputFileError
-from station.export.blob import parse_blob
-from station.export.params_file import ParamsFile
+from station.export.firmware.blob import parse_blob
+from station.export.params.file import ParamsFile
 
 N_FILES = 240
 FORMATS = ("c", "bin", "json", "yaml", "px4", "ardupilot")

@@ -18,14 +18,14 @@ from report_helpers import check_page, chromium, cli, not_blank, pdf_pages, scre
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import Capture
 from station.acquisition.capture_csv import write_csv
-from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal_model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
-from station.export.params_file import ParamsFile
+from station.common.files import sha256_file
+from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
+from station.export.params.file import ParamsFile
 from station.factory.plan import SCHEMA as PLAN_SCHEMA
 from station.factory.records import RecordStore
-from station.files import sha256_file
+from station.plots.certificate import pose_residuals, thermal_points
 from station.report import parameters
-from station.report.cert_plots import pose_residuals, thermal_points
 
 RATE = 100.0
 POSES = ("+x", "-x", "+y", "-y", "+z", "-z")

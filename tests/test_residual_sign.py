@@ -8,8 +8,8 @@ import pytest
 
 from mocks.rig import handheld_session, sequence_segments, simulate
 from mocks.truth import UnitTruth
-from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
-from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+from station.engines.calibration.free import FreeCapture, FreeSettings, calibrate_free
+from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 
 G = 9.80665
 

@@ -14,8 +14,8 @@ from mocks.chamber import ChamberSweep, chamber_sweep, cubic_rate_unit
 from station import cli
 from station.acquisition.capture_csv import read_csv, write_csv
 from station.acquisition.capture_h5 import H5CaptureWriter
-from station.engines.sensor_model import SensorCalibration
-from station.export.params_file import ParamsFile
+from station.engines.shared.sensor_model import SensorCalibration
+from station.export.params.file import ParamsFile
 
 SWEEP = ChamberSweep(low_degc=0.0, high_degc=45.0, start_degc=20.0, ramp_degc_per_min=4.0, soak_s=240.0)
 

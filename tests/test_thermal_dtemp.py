@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from station.engines.thermal_model import DtempFilter, estimate_dtemp
+from station.engines.thermal.model import DtempFilter, estimate_dtemp
 
 
 def firmware_loop(t_s: np.ndarray, temp: np.ndarray, tau_s: float) -> np.ndarray:

@@ -9,9 +9,9 @@ import pytest
 
 from mocks.chamber import ChamberRun, ChamberSweep, chamber_sweep, cubic_rate_unit
 from mocks.truth import NoiseSpec, ThermalTruth, UnitTruth
-from station.engines.sensor_model import SensorCalibration
-from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
-from station.engines.thermal_model import TERMS, ThermalBias, ThermalSegment, estimate_dtemp
+from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
+from station.engines.thermal.model import TERMS, ThermalBias, ThermalSegment, estimate_dtemp
 from station.errors import EngineInputError
 
 SWEEP = ChamberSweep(low_degc=-10.0, high_degc=50.0, start_degc=20.0, ramp_degc_per_min=3.0, soak_s=300.0)

@@ -15,7 +15,7 @@ from tui_helpers import wait_for
 
 from station.acquisition.capture import read_capture
 from station.acquisition.sequences import builtin
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
 from station.tui.screens.results import ResultsScreen

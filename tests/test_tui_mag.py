@@ -18,7 +18,7 @@ from tui_helpers import screen_text, shown, wait_for
 from mocks.mag_sessions import nine_axis_unit
 from protocols.base import MAG_SAMPLE_DTYPE
 from station.acquisition.capture import read_capture
-from station.engines.mag_coverage import CELLS, field_coverage
+from station.engines.magnetometer.coverage import CELLS, field_coverage
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
 from station.tui.mag_art import MISSING, NOW, VISITED, disc_directions, hemispheres

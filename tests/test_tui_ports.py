@@ -1,4 +1,4 @@
-"""The connect screen lists the serial ports with what pyserial knows of them (station.ports, as
+"""The connect screen lists the serial ports with what pyserial knows of them (drivers.ports, as
 ``imu-station ports``)."""
 
 from __future__ import annotations

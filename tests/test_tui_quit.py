@@ -15,7 +15,7 @@ import pytest
 from tui_helpers import ideal_run, results_ready, screen_text, wait_for
 
 from station.errors import ExitCode
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
 from station.tui.screens.ask import AskScreen

@@ -18,7 +18,7 @@ from mocks.truth import UnitTruth
 from station.acquisition.capture import read_capture
 from station.acquisition.runner import RunResult
 from station.acquisition.sequences import RotationStep, builtin
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 from station.tui.app import StationApp
 from station.tui.art import bar, pose_art, rotation_art
 from station.tui.config import TuiConfig
@@ -93,7 +93,7 @@ def test_log_log_plot_draws_a_falling_line_with_its_axes_labels_and_legend():
 
 
 def test_limits_flag_what_is_outside():
-    from station.engines.sensor_model import SensorCalibration
+    from station.engines.shared.sensor_model import SensorCalibration
 
     good = SensorCalibration.from_parts([1.01, 0.99, 1.0], np.zeros((3, 3)), [0.1, 0, 0], residual_rms=0.01)
     assert all(v.passed for v in evaluate("accel", good, ACCEL_LIMITS, "m/s^2"))

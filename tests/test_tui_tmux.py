@@ -14,7 +14,7 @@ import pytest
 
 from station.acquisition.capture import read_capture
 from station.acquisition.sequences import builtin
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 
 pytestmark = [
     pytest.mark.timeout(300),

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 
 pytestmark = [
     pytest.mark.timeout(300),

@@ -10,7 +10,7 @@ import pytest
 from tui_helpers import shown, svg_rows, wait_for
 
 from protocols import native
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
 from station.tui.screens.ask import AskScreen

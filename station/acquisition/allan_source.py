@@ -2,7 +2,8 @@
 
 Any input (capture CSV, station capture file, ROS bag) is read in chunks; the six axes are appended to
 float64 files; then each file is turned in place into the demeaned cumulative sum of
-``station.engines.allan`` eq. (1), which the engine reads through ``np.memmap``. Memory stays bounded by one
+``station.engines.allan.deviation`` eq. (1), which the engine reads through ``np.memmap``. Memory stays
+bounded by one
 input chunk (at most 200,000 rows) plus the engine's cache blocks, whatever the length of the record;
 the disk holds 6 x 8 bytes per sample (4.1 GB for 24 h at 1 kHz) in a temporary folder removed afterwards.
 

@@ -206,7 +206,7 @@ class CsvWriter:
 
 def write_csv(path: str | Path, capture: Capture) -> None:
     """Write a whole capture atomically."""
-    from station.files import atomic_open
+    from station.common.files import atomic_open
 
     with atomic_open(path, "w") as fh:
         w = CsvWriter(fh, with_temp=capture.temp is not None, with_dtemp=capture.dtemp is not None,

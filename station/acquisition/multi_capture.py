@@ -51,7 +51,7 @@ from station.acquisition.recorder import (
     _no_rows,
     _with_clock,
 )
-from station.text import printable
+from station.common.text import printable
 
 READ_PERIOD_S = 0.02  # a pty holds ~20 KB: 0.4 s of a 1 kHz unit, far more than a turn
 WRITE_PERIOD_S = 1.0  # the HDF5 writer costs ~1 ms a call whatever the rows: fewer, larger batches

@@ -22,7 +22,7 @@ from drivers import (
     open_device,
 )
 from station.acquisition.recorder import CaptureResult, record
-from station.text import printable
+from station.common.text import printable
 
 StatusCallback = Callable[[LinkStats, int, float], None]
 """``on_status(link statistics, rows written, device seconds recorded)``, called as the capture goes."""

@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from station.common.yaml_file import read_yaml
 from station.errors import InputFileError, StationError
-from station.yaml_file import read_yaml
 
 SCHEMA = "imu-station/sequence/1"
 SIX_POSITION = ("+x", "-x", "+y", "-y", "+z", "-z")

@@ -9,8 +9,8 @@ from collections import Counter
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
-from station.cli_options import RATE_HZ, add_output_option, add_replace_option, number
-from station.engines.allan_terms import TERMS
+from station.console.options import RATE_HZ, add_output_option, add_replace_option, number
+from station.engines.allan.terms import TERMS
 from station.errors import EngineInputError, ExitCode
 
 if TYPE_CHECKING:
@@ -129,8 +129,8 @@ def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: 
     EngineInputError
         Naming the terms, the axes, the record's length and the length needed (exit 4).
     """
-    from station.engines.allan_fit import missing_terms
-    from station.export import allan_report
+    from station.engines.allan.fit import missing_terms
+    from station.export.params import noise
 
     missing = missing_terms(noise, terms or DEFAULT_TERMS, duration_s)
     if terms is None:
@@ -146,7 +146,7 @@ def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: 
         length = (f"a still record of at least {_length(max(needed))}" if needed
                   else "a longer record (this one shows no sign of it)")
         axes = ", ".join(m.axis for m in of_term)
-        parts.append(f"{term} ({allan_report.NAMES[term]}) is not resolved on {axes} "
+        parts.append(f"{term} ({noise.NAMES[term]}) is not resolved on {axes} "
                      f"({of_term[0].axis}: {of_term[0].reason}); it needs {length}")
     raise EngineInputError(
         f"{source}: the record ({_length(duration_s)}) is too short for the terms asked for "
@@ -184,11 +184,12 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     """
     # the engines load here, not when --help is asked for
     from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
-    from station.engines.allan import allan_curve, cluster_sizes
-    from station.engines.allan_fit import identify_noise
-    from station.export import allan_report, kalibr
-    from station.export.params_file import merge_sections, open_for_unit, to_plain
-    from station.files import atomic_write_text
+    from station.common.files import atomic_write_text
+    from station.engines.allan.deviation import allan_curve, cluster_sizes
+    from station.engines.allan.fit import identify_noise
+    from station.export.estimators import kalibr
+    from station.export.params import noise
+    from station.export.params.file import merge_sections, open_for_unit, to_plain
 
     if args.per_decade < 10:
         raise EngineInputError(f"--per-decade {args.per_decade}: use at least 10 points per decade")
@@ -216,7 +217,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
                 refuse_short_record(noise, args.terms, curve.duration_s, str(args.input))
     source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
               "timing_problems": timing.problems()}
-    section = to_plain(allan_report.noise_section(noise, curve, source, horizon_s=args.horizon))
+    section = to_plain(noise.noise_section(noise, curve, source, horizon_s=args.horizon))
     outputs: dict[str, str] = {}
     rostopic = args.rostopic or args.topic or "/imu0"
     texts = {}
@@ -227,17 +228,17 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     if args.orbslam3:
         texts[args.orbslam3] = kalibr.orbslam3_snippet(section)
     if args.gm:
-        from station.export.gm_yaml import gm_yaml
+        from station.export.estimators.gauss_markov import gm_yaml
 
         texts[args.gm] = gm_yaml(section, args.gm_rate)
     for path, text in texts.items():
         atomic_write_text(path, text)
         outputs[str(path)] = "written"
     if args.curve:
-        allan_report.write_curve_csv(args.curve, curve)
+        noise.write_curve_csv(args.curve, curve)
         outputs[str(args.curve)] = "written"
     if args.plot:
-        from station.export.allan_plot import write_png
+        from station.plots.allan import write_png
 
         write_png(args.plot, curve, noise, title=f"imu-station allan {args.input.name}")
         outputs[str(args.plot)] = "written"
@@ -249,7 +250,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Analyse the recording and print the noise terms (or the JSON result)."""
-    from station.export import allan_report
+    from station.export.params import noise
 
     result = analyse(args, sys.stderr)
     section = result["noise"]
@@ -263,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
           f"{rec['tau_range_s'][1]:.4g} s")
     for problem in rec["timing_problems"]:
         print(f"warning: {problem}")
-    for line in allan_report.summary_lines(section):
+    for line in noise.summary_lines(section):
         print(line)
     for path, what in result["outputs"].items():
         print(f"{path}: {what}")

@@ -7,12 +7,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import add_output_option
+from station.console.options import add_output_option
 from station.errors import ExitCode
 
 if TYPE_CHECKING:
     from station.acquisition.capture import Capture
-    from station.export.params_file import ParamsFile
+    from station.export.params.file import ParamsFile
 
 NAME = "apply"
 HELP = "apply a parameter file (matrix, bias, thermal, g-sensitivity, mag) to every sample of a capture"
@@ -65,9 +65,9 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
         Per section (accel, gyro, g-sensitivity, thermal, mag), how it was applied.
     """
     from station.acquisition.capture import Capture
-    from station.engines.correction import apply_calibration, apply_mag
-    from station.engines.thermal_model import estimate_dtemp
-    from station.export.sections import g_sensitivity, mag_calibration
+    from station.engines.shared.correction import apply_calibration, apply_mag
+    from station.engines.thermal.model import estimate_dtemp
+    from station.export.params.sections import g_sensitivity, mag_calibration
 
     dtemp = capture.dtemp
     g_matrix = g_sensitivity(params)
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
 
     from station.acquisition.capture import read_capture
     from station.acquisition.capture_csv import write_csv
-    from station.export.params_file import ParamsFile
+    from station.export.params.file import ParamsFile
 
     params = ParamsFile.load(args.params)
     quiet = not sys.stderr.isatty()

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from protocols.units import STANDARD_GRAVITY
-from station.cli_options import (
+from station.console.options import (
     DURATION_S,
     MAX_GRAVITY,
     MIN_GRAVITY,
@@ -21,12 +21,12 @@ from station.cli_options import (
     number,
     positive,
 )
+from station.console.phase_line import PhaseLine
 from station.errors import ExitCode, StationError
-from station.phase_line import PhaseLine
 
 if TYPE_CHECKING:
     from station.acquisition.capture import Capture
-    from station.engines.calibration_common import CalibrationReport
+    from station.engines.calibration.common import CalibrationReport
 
 NAME = "calibrate"
 HELP = ("accelerometer and gyroscope scale, misalignment and bias from a capture (turntable or hand-held); "
@@ -158,7 +158,7 @@ def mag_field(args: argparse.Namespace) -> tuple[float | None, float | None, str
         if args.latitude is None or args.longitude is None:
             raise StationError("the World Magnetic Model needs both --latitude and --longitude (and "
                                "--height, --date if known); or give the field's magnitude with --field UT")
-        from station.geomagnetic import field_at
+        from station.engines.magnetometer.geomagnetic import field_at
 
         model = field_at(args.latitude, args.longitude, args.height,
                          args.date or datetime.datetime.now(datetime.UTC).date())
@@ -171,11 +171,12 @@ def run_mag(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from station.acquisition.capture import read_capture
-    from station.engines.calibration_mag import MagCapture, MagSettings, calibrate_mag
+    from station.console.mag_summary import mag_report_dict, print_mag_report
+    from station.engines.magnetometer.calibration import MagCapture, MagSettings, calibrate_mag
     from station.errors import InputFileError
-    from station.export.params_file import merge_sections, open_for_unit
-    from station.export.params_mag import MAG, mag_section
-    from station.mag_summary import mag_report_dict, print_mag_report
+    from station.export.params.file import merge_sections, open_for_unit
+    from station.export.params.magnetometer import mag_section
+    from station.export.params.sections import MAG
 
     field, dip, field_source = mag_field(args)  # refuse bad options before reading a long capture
     with PhaseLine(sys.stderr) as phase:
@@ -201,7 +202,7 @@ def run_mag(args: argparse.Namespace) -> int:
             " (accelerometer corrected with its accel section)" if accel is not None
             else " (accelerometer estimated from the still poses)" if cal.accel_estimated else "")
     if args.plot:
-        from station.plots.mag_plot import plot_mag
+        from station.plots.magnetometer import plot_mag
 
         plot_mag(cal, capture.t, capture.mag, args.plot,
                  f"imu-station calibrate --method mag {args.input.name}")
@@ -239,7 +240,7 @@ def local_gravity(args: argparse.Namespace) -> float:
     StationError
         Both --gravity and --latitude, or either outside its range.
     """
-    from station.engines.earth import normal_gravity
+    from station.engines.shared.earth import normal_gravity
 
     if args.gravity is not None and args.latitude is not None:
         raise StationError("give either --gravity or --latitude/--height, not both")
@@ -276,7 +277,7 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
     rate = args.rate if args.rate is not None else capture.device.get("rate_hz")
     rate = float(rate) if rate is not None else None
     if method == "turntable":
-        from station.engines.calibration_turntable import (
+        from station.engines.calibration.turntable import (
             TurntableCapture,
             TurntableSettings,
             calibrate_turntable,
@@ -285,7 +286,7 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
         latitude = None if args.no_earth_rate else args.latitude
         return calibrate_turntable(TurntableCapture(capture.t, capture.acc, capture.gyro, capture.step, rate),
                                    TurntableSettings(gravity=gravity, latitude_deg=latitude))
-    from station.engines.calibration_free import FreeCapture, FreeSettings, calibrate_free
+    from station.engines.calibration.free import FreeCapture, FreeSettings, calibrate_free
 
     settings = FreeSettings.imu_tk() if args.imu_tk else FreeSettings(window_s=args.window)
     settings = dataclasses.replace(settings, gravity=gravity, convention=args.convention)
@@ -297,7 +298,7 @@ def calibrate_capture(capture: Capture, args: argparse.Namespace) -> Calibration
 
 def report_dict(report: CalibrationReport, source: str) -> dict[str, Any]:
     """The report as the JSON ``--json`` prints: method, gravity, both triads, poses, warnings."""
-    from station.export.params_file import sensor_to_dict, to_plain
+    from station.export.params.file import sensor_to_dict, to_plain
 
     out: dict[str, Any] = {"source": source, "method": report.method, "gravity": report.gravity}
     for name in ("accel", "gyro"):
@@ -322,7 +323,7 @@ def print_report(report: CalibrationReport, out: IO[str]) -> None:
     """Every parameter with its 1-sigma, the per-pose residuals and the warnings, as plain-text tables."""
     import numpy as np
 
-    from station.text_table import format_table
+    from station.common.table import format_table
 
     blocks = [f"{report.method} calibration, g = {report.gravity:.6f} m/s^2"]
     numbers = (False, True, True, True)
@@ -380,7 +381,7 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from station.files import atomic_open
+    from station.common.files import atomic_open
 
     statics = [p for p in report.poses if p.get("kind", "static") == "static"]
     rotations = [p for p in report.poses if "angle_error_deg" in p]
@@ -408,7 +409,7 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
     from station.acquisition.capture import read_capture
-    from station.export.params_file import merge_sections, open_for_unit
+    from station.export.params.file import merge_sections, open_for_unit
 
     if args.method == "mag":
         return run_mag(args)

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from station.cli_options import DEFAULT_BAUDRATE, DURATION_S, add_output_option, add_port_options, number
+from station.console.options import DEFAULT_BAUDRATE, DURATION_S, add_output_option, add_port_options, number
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
@@ -217,7 +217,7 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
 def run(args: argparse.Namespace) -> int:
     """Capture, print the summary, and exit with the capture's outcome."""
     from station.acquisition.port_capture import capture_to_file
-    from station.status_line import CaptureStatusLine
+    from station.console.status_line import CaptureStatusLine
 
     if len(args.port) > 1:
         return run_many(args)
@@ -244,7 +244,7 @@ def run_many(args: argparse.Namespace) -> int:
     """Capture every ``--port`` at once into the directory ``-o``, print one summary line per unit,
     and exit with the worst outcome."""
     from station.acquisition.multi_capture import capture_many
-    from station.multi_status import UnitStatusLines
+    from station.console.multi_status import UnitStatusLines
 
     if args.protocol == "auto":
         raise StationError("--protocol auto reads one port; with several, name the protocol (native, ...)")

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from station.cli_options import (
+from station.console.options import (
     DURATION_S,
     add_output_option,
     add_port_options,
@@ -128,7 +128,7 @@ def _record(args: argparse.Namespace, folder: Path) -> list[Path]:
     from station.acquisition.port_capture import prepare_device
     from station.acquisition.rate_table import record_rate_steps
     from station.acquisition.turn_ons import record_turn_ons
-    from station.status_line import CaptureStatusLine
+    from station.console.status_line import CaptureStatusLine
 
     paths = []
     if args.turn_ons is not None:
@@ -152,10 +152,10 @@ def _analyse(paths: list[Path], level: float | None) -> tuple[dict[str, Any], di
     """Read the captures, sort them into turn-on records and rate captures, run the engines; returns
     the section's keys and what is known of the unit."""
     from station.acquisition.capture import read_capture
-    from station.engines.allan import ONE_SIGMA
-    from station.engines.characterisation_scale import rate_steps, scale_linearity
-    from station.engines.characterisation_turnon import reduce_record, turn_on_repeatability
-    from station.export.params_characterisation import repeatability_keys, scale_keys
+    from station.engines.allan.deviation import ONE_SIGMA
+    from station.engines.characterisation.scale import rate_steps, scale_linearity
+    from station.engines.characterisation.turn_on import reduce_record, turn_on_repeatability
+    from station.export.params.characterisation import repeatability_keys, scale_keys
 
     stills, steps, rate_files = [], [], []
     device: dict[str, Any] = {}
@@ -186,7 +186,7 @@ def _analyse(paths: list[Path], level: float | None) -> tuple[dict[str, Any], di
 
 
 def _lines(keys: dict[str, Any]) -> list[str]:
-    from station.export.datasheet import datasheet_rows, format_table
+    from station.report.datasheet import datasheet_rows, format_table
 
     rows = datasheet_rows({"characterisation": keys})
     return format_table(rows).splitlines() if rows else []
@@ -194,8 +194,8 @@ def _lines(keys: dict[str, Any]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Record or read the captures, compute the figures, merge them, print them (and the datasheet)."""
-    from station.export.params_characterisation import merged
-    from station.export.params_file import ParamsFile, merge_sections, open_for_unit
+    from station.export.params.characterisation import merged
+    from station.export.params.file import ParamsFile, merge_sections, open_for_unit
 
     _check_options(args)
     result: dict[str, Any] = {}
@@ -223,8 +223,8 @@ def run(args: argparse.Namespace) -> int:
                            capture=paths[0] if len(paths) == 1 else None, replace=args.replace)
             result["output"] = str(args.output)
     if args.datasheet:
-        from station.export.datasheet import datasheet_rows, format_table
-        from station.export.params_file import to_plain
+        from station.export.params.file import to_plain
+        from station.report.datasheet import datasheet_rows, format_table
 
         source = args.params or args.output
         rows = datasheet_rows(to_plain(ParamsFile.load(source).to_dict()))

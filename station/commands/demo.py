@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from protocols.units import STANDARD_GRAVITY
-from station.cli_options import MAX_SPEED, SEED, SPEED, add_output_option, check_range, describe_range
+from station.common.text import printable
+from station.console.options import MAX_SPEED, SEED, SPEED, add_output_option, check_range, describe_range
 from station.errors import ExitCode, StationError
-from station.text import printable
 
 if TYPE_CHECKING:
     import numpy as np
@@ -37,8 +37,8 @@ if TYPE_CHECKING:
     from station.acquisition.operator import ScriptedOperator
     from station.acquisition.recorder import CaptureResult
     from station.acquisition.runner import LiveStatus, RunResult
-    from station.engines.calibration_common import CalibrationReport
-    from station.engines.sensor_model import SensorCalibration
+    from station.engines.calibration.common import CalibrationReport
+    from station.engines.shared.sensor_model import SensorCalibration
 
 NAME = "demo"
 HELP = "run the station on a simulated unit: no hardware, no arguments needed"
@@ -130,7 +130,7 @@ def start_simulated_unit(ctx: DemoContext) -> None:
 def capture_samples(ctx: DemoContext) -> None:
     """Capture ``ctx.seconds`` of device clock into ``out_dir/capture.h5``, as `imu-station capture` does."""
     from station.acquisition.port_capture import capture_to_file
-    from station.status_line import CaptureStatusLine
+    from station.console.status_line import CaptureStatusLine
 
     ctx.out_dir.mkdir(parents=True, exist_ok=True)
     ctx.capture_path = ctx.out_dir / "capture.h5"
@@ -281,8 +281,8 @@ def calibrate_unit(ctx: DemoContext) -> None:
     import numpy as np
 
     from station.acquisition.capture import read_capture
-    from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
-    from station.export.params_file import ParamsFile
+    from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+    from station.export.params.file import ParamsFile
 
     assert ctx.sequence_path is not None
     capture = read_capture(ctx.sequence_path)
@@ -361,10 +361,10 @@ def export_firmware(ctx: DemoContext) -> None:
 
     import numpy as np
 
-    from station.engines.correction import apply_calibration
-    from station.export.c_export import BLOB_NAME, write_c_export
-    from station.export.params_file import ParamsFile
-    from station.export.sections import g_sensitivity
+    from station.engines.shared.correction import apply_calibration
+    from station.export.firmware.c_source import BLOB_NAME, write_c_export
+    from station.export.params.file import ParamsFile
+    from station.export.params.sections import g_sensitivity
 
     assert ctx.params_path is not None
     params = ParamsFile.load(ctx.params_path)

@@ -6,7 +6,13 @@ import argparse
 import json
 from pathlib import Path
 
-from station.cli_options import EXPORT_FORMATS, EXPORT_MAX_INSTANCE, add_output_option, describe_range, number
+from station.console.options import (
+    EXPORT_FORMATS,
+    EXPORT_MAX_INSTANCE,
+    add_output_option,
+    describe_range,
+    number,
+)
 from station.errors import ExitCode, StationError
 
 NAME = "export"
@@ -72,7 +78,7 @@ def _refuse_own_input(params: str, output: str, fmt: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export the parameter file and print the report (text, or JSON with ``--json``)."""
-    from station.export.params_file import ParamsFile
+    from station.export.params.file import ParamsFile
     from station.export.writers import AUTOPILOTS, MAX_INSTANCE, report_lines, write_export
 
     # The range depends on --format, so it is checked here rather than by argparse.

@@ -7,13 +7,13 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import BAUD, DURATION_S, port
+from station.console.options import BAUD, DURATION_S, port
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
     from rich.console import Group
 
-    from station.frame_check import CheckReport
+    from station.frames.check import CheckReport
 
 NAME = "frame"
 HELP = "check a frame description (frame:FILE.yaml) against a unit, or guess one from raw bytes"
@@ -101,9 +101,9 @@ def _check(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    from station.frame_check import check_bytes, watch_port
-    from station.frame_file import load_decoder, load_description
-    from station.yaml_file import read_bytes
+    from station.common.yaml_file import read_bytes
+    from station.frames.check import check_bytes, watch_port
+    from station.frames.reader import load_decoder, load_description
 
     desc = load_description(args.description)
     console = Console()
@@ -120,8 +120,8 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _guess(args: argparse.Namespace) -> int:
-    from station.frame_guess import MIN_FRAMES, guess, to_yaml
-    from station.yaml_file import read_bytes
+    from station.common.yaml_file import read_bytes
+    from station.frames.guess import MIN_FRAMES, guess, to_yaml
 
     raw = read_bytes(args.raw, "does not exist; give the raw capture's path", MAX_RAW_BYTES)
     found = guess(raw)

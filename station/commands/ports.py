@@ -31,8 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the ports, one a line (or as JSON)."""
-    from station.ports import list_serial_ports
-    from station.text import printable
+    from drivers.ports import list_serial_ports
+    from station.common.text import printable
 
     ports = list_serial_ports()
     if args.json:

@@ -9,10 +9,10 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import RECORD_OUTCOMES, add_db_arguments, add_output_option, db_url
+from station.common.files import atomic_write_text
+from station.common.text import printable
+from station.console.options import RECORD_OUTCOMES, add_db_arguments, add_output_option, db_url
 from station.errors import ExitCode, StationError
-from station.files import atomic_write_text
-from station.text import printable
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
 
     # the record store (sqlite3, uuid, hashlib) loads when a command runs, not for --help
     from station.factory.records import RecordStore, utc_now
-    from station.factory.trend_plot import left_out, write_trend_plot
+    from station.plots.trend import left_out, write_trend_plot
 
     url = db_url(args)
     if "://" not in url and not Path(url).exists():

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import add_db_arguments, add_output_option, db_url
+from station.console.options import add_db_arguments, add_output_option, db_url
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
@@ -73,12 +73,12 @@ def _stage(text: str) -> None:
 
 def _from_params(args: argparse.Namespace) -> Certificate:
     from station.acquisition.capture import read_capture
-    from station.engines.calibration_common import CalibrationReport
-    from station.export.params_file import ParamsFile
+    from station.common.files import sha256_file
+    from station.engines.calibration.common import CalibrationReport
+    from station.export.params.file import ParamsFile
     from station.factory.measure import measure
     from station.factory.plan import load_plan
     from station.factory.run import CALIBRATION_QUANTITIES
-    from station.files import sha256_file
     from station.report.certificate import Certificate, capture_file
 
     params = ParamsFile.load(args.params)
@@ -143,7 +143,10 @@ def run(args: argparse.Namespace) -> int:
     cert.operator = args.operator or ""
     cert.on_stage = _stage
     notes = write_certificate(cert, args.output)
-    serial = cert.record.serial if cert.record is not None else cert.params.device.get("serial", "?")
+    if cert.record is not None:
+        serial = cert.record.serial
+    else:
+        serial = cert.params.device.get("serial", "?") if cert.params is not None else "?"
     print(f"{args.output}: calibration certificate of unit {serial}")
     for note in notes:
         print(f"imu-station report: note: {note}", file=sys.stderr)

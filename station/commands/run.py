@@ -11,10 +11,10 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from station.cli_options import DURATION_S, SEED, add_db_arguments, check_range, db_url, files_root, port
-from station.cli_options import protocol as protocol_name
+from station.common.text import printable
+from station.console.options import DURATION_S, SEED, add_db_arguments, check_range, db_url, files_root, port
+from station.console.options import protocol as protocol_name
 from station.errors import StationError
-from station.text import printable
 
 if TYPE_CHECKING:
     from station.factory.records import RunRecord

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import (
+from station.console.options import (
     MAX_SEED,
     SEED,
     add_db_arguments,
@@ -18,7 +18,7 @@ from station.cli_options import (
     number,
     port,
 )
-from station.cli_options import protocol as protocol_name
+from station.console.options import protocol as protocol_name
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:

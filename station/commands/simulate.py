@@ -10,7 +10,15 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.cli_options import DURATION_S, MAX_SPEED, SEED, SIM_ENCODERS, SIM_SCENARIOS, SPEED, check_range
+from station.console.options import (
+    DURATION_S,
+    MAX_SPEED,
+    SEED,
+    SIM_ENCODERS,
+    SIM_SCENARIOS,
+    SPEED,
+    check_range,
+)
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:

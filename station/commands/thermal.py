@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from protocols.units import STANDARD_GRAVITY
-from station.cli_options import (
+from station.console.options import (
     GRAVITY,
     MAX_GRAVITY,
     MIN_GRAVITY,
@@ -110,7 +110,7 @@ def _joins(text: str) -> list[float]:
 
 
 def _terms(text: str) -> list[str]:
-    from station.engines.thermal_model import TERMS
+    from station.engines.thermal.model import TERMS
 
     names = [v.strip() for v in text.split(",") if v.strip()]
     unknown = [n for n in names if n not in TERMS]
@@ -125,9 +125,9 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from station.acquisition.capture import read_capture
-    from station.engines.thermal import ThermalSettings, ThermalSweep, fit_thermal
-    from station.export.params_file import merge_sections, open_for_unit, to_plain
-    from station.export.thermal_report import format_report
+    from station.console.thermal_report import format_report
+    from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
+    from station.export.params.file import merge_sections, open_for_unit, to_plain
 
     err = Console(stderr=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         fit = fit_thermal(sweep, settings, progress=lambda done: progress.update(task, completed=done))
         if args.plot:
             progress.update(task, description=f"plotting {args.plot}")
-            from station.plots.thermal_plot import plot_thermal
+            from station.plots.thermal import plot_thermal
 
             plot_thermal(fit, args.plot)
         progress.update(task, description=f"writing {args.output}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from station.cli_options import (
+from station.console.options import (
     EXPORT_FORMATS,
     MAX_SPEED,
     SEED,

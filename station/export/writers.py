@@ -20,14 +20,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from station.common.files import atomic_write_bytes, atomic_write_text
 from station.errors import StationError
-from station.export import ardupilot, c_export, json_export, px4
-from station.export.autopilot import AutopilotExport
-from station.export.blob import CARRIED, SERIAL_SIZE, STATION_ID_SIZE, build_blob, fixed_utf8
-from station.export.loss_plot import plot_losses
-from station.export.params_file import ParamsFile
-from station.export.sections import left_out, present
-from station.files import atomic_write_bytes, atomic_write_text
+from station.export.autopilot import ardupilot, px4
+from station.export.autopilot.shared import AutopilotExport, reference_temp, thermal_range
+from station.export.firmware import c_source
+from station.export.firmware.blob import CARRIED, SERIAL_SIZE, STATION_ID_SIZE, build_blob, fixed_utf8
+from station.export.params import json_document
+from station.export.params.file import ParamsFile
+from station.export.params.sections import left_out, present
+from station.plots.autopilot_loss import plot_losses
 
 DEFAULT_NAMES = {"bin": "imu_calib.bin", "json": "imu_calib.json", "yaml": "imu_calib.yaml",
                  "px4": "imu_calib.params", "ardupilot": "imu_calib.param"}
@@ -193,7 +195,7 @@ def _file_target(out: Path, fmt: str) -> Path:
 def _write_c(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
     if out.exists() and not out.is_dir():
         raise StationError(f"{out}: is a file; --format c writes three files into a directory")
-    return c_export.write_c_export(params, out, settings.station_id, settings.exported_utc), None
+    return c_source.write_c_export(params, out, settings.station_id, settings.exported_utc), None
 
 
 def _write_bin(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
@@ -204,13 +206,13 @@ def _write_bin(params: ParamsFile, out: Path, settings: ExportSettings) -> Writt
 
 def _write_json(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
     path = _file_target(out, "json")
-    atomic_write_text(path, json_export.render_json(params, settings.station_id, settings.exported))
+    atomic_write_text(path, json_document.render_json(params, settings.station_id, settings.exported))
     return [path], None
 
 
 def _write_yaml(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
     path = _file_target(out, "yaml")
-    atomic_write_text(path, json_export.render_yaml(params, settings.station_id, settings.exported))
+    atomic_write_text(path, json_document.render_yaml(params, settings.station_id, settings.exported))
     return [path], None
 
 
@@ -308,7 +310,10 @@ def write_export(params: ParamsFile, fmt: str, out: str | Path, *, source: str |
         if params.accel is None and params.gyro is None:
             result.notes.append(f"--plot {plot}: not written, the file has no accel or gyro offsets to draw")
         else:
-            plot_losses(params, autopilot, plot)
+            if autopilot.offsets is None:
+                raise ValueError("the export carries no offset function to plot")
+            plot_losses({"accel": params.accel, "gyro": params.gyro}, params.thermal, autopilot.target,
+                        autopilot.offsets, thermal_range(params), reference_temp(params), plot)
             result.files.append(Path(plot))
     if carried is not None:
         skipped = left_out(params, carried, fmt)

@@ -22,8 +22,8 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from station.common.text import printable
 from station.errors import ExitCode
-from station.text import printable
 
 # Worst last: a configuration error says more about the line than a unit's failure does.
 SEVERITY = (ExitCode.OK, ExitCode.OUT_OF_LIMITS, ExitCode.ABORTED, ExitCode.TIMEOUT, ExitCode.DEVICE,

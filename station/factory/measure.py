@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from station.engines.calibration_common import CalibrationReport
+from station.engines.calibration.common import CalibrationReport
 from station.factory.plan import QUANTITIES, SI_UNIT, UNITS, Plan
 from station.factory.records import Measurement
 

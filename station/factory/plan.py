@@ -47,8 +47,8 @@ import yaml
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition import sequences
 from station.acquisition.sequences import Sequence
+from station.common.yaml_file import read_yaml
 from station.errors import InputFileError, StationError
-from station.yaml_file import read_yaml
 
 SCHEMA = "imu-station/plan/1"
 G0 = STANDARD_GRAVITY
@@ -277,7 +277,7 @@ def run_protocol(protocol: str, relative_to: Path | None = None) -> tuple[str, i
         raise StationError(f"protocol {protocol!r}: an unattended run reads the native protocol (it asks the "
                            "unit its serial and sets its rate) or a board's own frames described in YAML, "
                            "frame:FILE.yaml")
-    from station.frame_file import load_description, resolve
+    from station.frames.reader import load_description, resolve
 
     file = Path(option)
     if relative_to is not None and not file.is_absolute() and (relative_to / file).is_file():

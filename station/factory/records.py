@@ -22,8 +22,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from station.common.files import sha256_file
 from station.errors import ExitCode, StationError
-from station.files import sha256_file
 
 SCHEMA = "imu-station/record/1"
 OUTCOMES = ("PASS", "FAIL", "ABORTED", "TIMEOUT", "ERROR")

@@ -43,10 +43,12 @@ from station.acquisition.operator import Action, BaseOperator, Operator, Prompt,
 from station.acquisition.recorder import Recorder
 from station.acquisition.runner import RecorderSink, RunOptions, RunResult, SequenceRunner
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
-from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
-from station.engines.earth import normal_gravity
+from station.common.files import atomic_write_text
+from station.common.text import printable
+from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+from station.engines.shared.earth import normal_gravity
 from station.errors import StationError
-from station.export.params_file import ParamsFile
+from station.export.params.file import ParamsFile
 from station.export.writers import DEFAULT_NAMES, write_export
 from station.factory.measure import measure
 from station.factory.plan import Plan
@@ -60,10 +62,8 @@ from station.factory.records import (
     utc_now,
 )
 from station.factory.simrig import SimulatedUnit, simulated_rig
-from station.files import atomic_write_text
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT, RAW_CAPTURE
 from station.report.certificate import CaptureFile, from_record, write_certificate
-from station.text import printable
 
 log = logging.getLogger("imu_station.factory")
 

@@ -77,7 +77,7 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float,
     device = SimDevice(truth, seed=unit.seed, rate_hz=rate_hz, scenario="still")
     if protocol != "native":
         from mocks.frame_unit import speak_frames
-        from station.frame_file import load_description
+        from station.frames.reader import load_description
 
         speak_frames(device, load_description(protocol.partition(":")[2]))
     server = PtyServer(device, faults=faults, block_s=0.05, speed=unit.speed)

@@ -15,14 +15,15 @@ from pathlib import Path
 from typing import Any
 
 import station
+from station.common.files import atomic_write_text, sha256_file
 from station.errors import StationError
-from station.export.datasheet import datasheet_rows
-from station.export.params_file import SECTIONS, ParamsFile
+from station.export.params.file import SECTIONS, ParamsFile
 from station.factory.records import Measurement, RunRecord
-from station.files import atomic_write_text, sha256_file
-from station.report import cert_plots, parameters
+from station.plots import certificate as cert_plots
+from station.plots.certificate import Samples
+from station.report import parameters
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT
-from station.report.cert_plots import Samples
+from station.report.datasheet import datasheet_rows
 from station.report.html import number, render
 
 REPORTED_SECTIONS = (*SECTIONS, "mag", "characterisation")
@@ -145,7 +146,7 @@ def _sections(cert: Certificate) -> list[dict[str, Any]]:
 
 
 def _datasheet(params: ParamsFile | None) -> list[dict[str, Any]]:
-    """The unit's datasheet figures (``station.export.datasheet``): per axis value and 1-sigma or interval."""
+    """The unit's datasheet figures (``station.report.datasheet``): per axis value and 1-sigma or interval."""
     if params is None:
         return []
     rows = []

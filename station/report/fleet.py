@@ -23,7 +23,7 @@ import numpy as np
 import station
 from station.errors import StationError
 from station.factory.records import RecordStore, utc_now
-from station.report.fleet_svg import chart_svg
+from station.plots.fleet_chart import chart_svg
 from station.report.html import render
 from station.report.spc import Capability, ControlChart, capability, individuals_chart
 
@@ -203,7 +203,7 @@ def fleet_json(fleet: Fleet) -> dict[str, Any]:
 
 
 def measurement_svg(fleet: Fleet, name: str) -> str:
-    """Histogram against the limits beside the individuals chart (see :mod:`station.report.fleet_svg`)."""
+    """Histogram against the limits beside the individuals chart (see :mod:`station.plots.fleet_chart`)."""
     s, chart = fleet.series[name], fleet.charts[name]
     return chart_svg(s.values, chart.beyond, s.low, s.high, (chart.center, chart.lcl, chart.ucl),
                      s.unit)

@@ -10,21 +10,12 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from protocols.units import STANDARD_GRAVITY
-from station.export.allan_report import NAMES as NOISE_NAMES
-from station.export.allan_report import UNITS as NOISE_UNITS
-from station.export.params_file import ParamsFile
+from station.common.units import DEG, PEOPLE
+from station.engines.allan.terms import NAMES as NOISE_NAMES
+from station.engines.allan.terms import UNITS as NOISE_UNITS
+from station.export.params.file import ParamsFile
 
-DEG = 180.0 / math.pi
 AXES = "xyz"
-PEOPLE = {
-    "mg": 1e3 / STANDARD_GRAVITY,  # from m/s^2
-    "deg/h": DEG * 3600.0,  # from rad/s
-    "deg": DEG,  # from rad
-    "ppm": 1e6,  # from a ratio
-    "%": 1e2,  # from a fraction
-    "uT": 1.0,  # the magnetometer's section is in microtesla already
-}
 BIAS_UNIT = {"accel": "mg", "gyro": "deg/h", "mag": "uT"}
 _RESIDUAL_UNIT = {"m/s^2": "mg", "rad/s": "deg/h", "rad": "deg", "uT": "uT"}
 SENSOR_NAMES = {"accel": "accelerometer", "gyro": "gyroscope", "mag": "magnetometer"}

@@ -12,8 +12,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from station.common.files import atomic_write_bytes
 from station.errors import OutputFileError, StationError
-from station.files import atomic_write_bytes
 
 BROWSERS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 TIMEOUT_S = 120.0

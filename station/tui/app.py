@@ -14,7 +14,7 @@ from textual.screen import Screen
 
 from station.acquisition.runner import RunResult
 from station.errors import ExitCode, StationError
-from station.export.params_file import UnitMismatchError
+from station.export.params.file import UnitMismatchError
 from station.tui.config import TuiConfig
 from station.tui.limits import limits_name
 from station.tui.saving import REPLACE_KEY, recovery_path

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import Capture
-from station.engines.calibration_common import CalibrationReport
-from station.engines.calibration_turntable import TurntableCapture, TurntableSettings, calibrate_turntable
+from station.engines.calibration.common import CalibrationReport
+from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.errors import EngineInputError
 
 

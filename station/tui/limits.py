@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from station.engines.calibration_common import CalibrationReport
-from station.engines.sensor_model import SensorCalibration
+from station.engines.calibration.common import CalibrationReport
+from station.engines.shared.sensor_model import SensorCalibration
 from station.factory.measure import measure
 from station.factory.plan import Plan
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from rich.text import Text
 
-from station.engines.mag_coverage import cell_index
+from station.engines.magnetometer.coverage import cell_index
 
 VISITED, MISSING, NOW = "█", "·", "◆"
 

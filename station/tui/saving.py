@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from station.export.params_file import ParamsFile, merge_sections
+from station.export.params.file import ParamsFile, merge_sections
 
 REPLACE_KEY = "r"
 """The key that starts a parameter file of another unit afresh, in the TUI's question."""
@@ -15,7 +15,7 @@ REPLACE_KEY = "r"
 def save_sections(path: Path, device: dict[str, Any], sections: dict[str, Any], *,
                   capture: Path | None = None, replace: bool = False) -> None:
     """Merge ``sections`` (``accel``, ``gyro``, ``noise``, ``thermal``) into the file at ``path``, as
-    the commands do (:func:`~station.export.params_file.merge_sections`): the file's other sections
+    the commands do (:func:`~station.export.params.file.merge_sections`): the file's other sections
     are kept, a section given as None is left as it is, each written section records its source.
 
     Parameters

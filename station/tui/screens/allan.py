@@ -10,11 +10,16 @@ from textual import work
 from textual.widgets import Static
 
 from station.acquisition.allan_source import AXES
-from station.engines.allan import AllanCurve, allan_curve, cluster_sizes, integrate_rates, overlapping_adev
-from station.engines.allan_fit import AxisNoise, identify_noise
+from station.engines.allan.deviation import (
+    AllanCurve,
+    allan_curve,
+    cluster_sizes,
+    integrate_rates,
+    overlapping_adev,
+)
+from station.engines.allan.fit import AxisNoise, identify_noise
 from station.errors import StationError
-from station.export import allan_report
-from station.export.params_file import to_plain
+from station.export.params.file import to_plain
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, draw
 from station.tui.pump import pump
@@ -145,7 +150,7 @@ class AllanScreen(LongRecordingScreen):
             rate = Recording.rate_hz(samples)
             phase = integrate_rates(rates, rate)
             curve, noise = identify_noise(allan_curve(phase, rate, AXES), phase)  # as the allan command
-            section = to_plain(allan_report.noise_section(noise, curve, {"source": self.session.name}))
+            section = to_plain(noise.noise_section(noise, curve, {"source": self.session.name}))
         except StationError as exc:
             self.post_message(LinkFailed(exc))
             return
@@ -155,7 +160,7 @@ class AllanScreen(LongRecordingScreen):
         """The fitted lines over the curves, and the noise terms of every axis."""
         curve, noise, section = fit
         draw_adev(self, curve.tau, curve.adev, noise, curve)
-        text = Text("\n".join(allan_report.summary_lines(section)))
+        text = Text("\n".join(noise.summary_lines(section)))
         if self.recording.path is not None:
             text.append(f"\nrecording in {self.recording.path}")
         self.query_one("#side", Static).update(text)

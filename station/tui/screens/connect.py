@@ -12,9 +12,9 @@ from textual.widgets import Footer, Header, OptionList, Static
 from textual.widgets.option_list import Option
 
 from drivers.errors import DriverError
+from drivers.ports import SerialPort, list_serial_ports
 from protocols.registry import DECODERS
-from station.ports import SerialPort, list_serial_ports
-from station.text import printable
+from station.common.text import printable
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.screens.station_screen import StationScreen
 from station.tui.session import SIMULATED, Session, open_session

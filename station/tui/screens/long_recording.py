@@ -13,7 +13,7 @@ from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
 from station.errors import StationError
-from station.export.params_file import UnitMismatchError
+from station.export.params.file import UnitMismatchError
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.recording import open_recording
 from station.tui.saving import REPLACE_KEY, existing_section, save_sections

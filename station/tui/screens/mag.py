@@ -2,9 +2,9 @@
 
 The screen draws the two halves of the sphere of field directions (in the sensor's axes) with the
 cells already visited, marks where the field points now, and says which way to turn next (the
-largest missing group of directions, :meth:`station.engines.mag_coverage.MagCoverage.advice`).
+largest missing group of directions, :meth:`station.engines.magnetometer.coverage.MagCoverage.advice`).
 Directions are taken from the hard-iron centre estimated so far (the least-squares sphere through
-the readings, :func:`station.engines.mag_fit.sphere_fit`, once they spread enough; raw before).
+the readings, :func:`station.engines.magnetometer.fit.sphere_fit`, once they spread enough; raw before).
 The step finishes by itself at :data:`TARGET_SHARE` of the sphere; Enter finishes it earlier once
 the calibration can use the share (``MIN_COVERAGE``; below ``WARN_COVERAGE`` it warns, and says
 so). Everything read is recorded to the magnetometer capture (``TuiConfig.mag_capture_path``), for
@@ -27,9 +27,9 @@ from textual.widgets import Footer, Header, ProgressBar, Static
 
 from protocols.base import has_mag
 from station.acquisition.recorder import Recorder
-from station.engines.calibration_mag import MIN_COVERAGE, WARN_COVERAGE
-from station.engines.mag_coverage import CELLS, MagCoverage, direction_label, field_coverage
-from station.engines.mag_fit import sphere_fit
+from station.engines.magnetometer.calibration import MIN_COVERAGE, WARN_COVERAGE
+from station.engines.magnetometer.coverage import CELLS, MagCoverage, direction_label, field_coverage
+from station.engines.magnetometer.fit import sphere_fit
 from station.errors import StationError
 from station.tui.art import bar
 from station.tui.mag_art import hemispheres

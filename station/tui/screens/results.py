@@ -16,10 +16,10 @@ from textual.containers import VerticalScroll
 from textual.widgets import Footer, Header, Static
 
 from station.acquisition.runner import RunResult
-from station.engines.calibration_common import CalibrationReport
-from station.engines.sensor_model import SensorCalibration
+from station.engines.calibration.common import CalibrationReport
+from station.engines.shared.sensor_model import SensorCalibration
 from station.errors import StationError
-from station.export.params_file import ParamsFile, UnitMismatchError
+from station.export.params.file import ParamsFile, UnitMismatchError
 from station.export.writers import write_export
 from station.tui.calibrate import calibrate_run
 from station.tui.limits import (

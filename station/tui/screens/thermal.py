@@ -10,10 +10,10 @@ from textual import work
 from textual.widgets import Static
 
 from station.acquisition.runner import samples_to_capture
-from station.engines.thermal import ThermalSweep, fit_thermal
+from station.console.thermal_report import format_report
+from station.engines.thermal.fit import ThermalSweep, fit_thermal
 from station.errors import StationError
-from station.export.params_file import ParamsFile
-from station.export.thermal_report import format_report
+from station.export.params.file import ParamsFile
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, draw
 from station.tui.pump import pump

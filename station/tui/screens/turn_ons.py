@@ -19,11 +19,11 @@ from textual.worker import get_current_worker
 
 from drivers.errors import DriverError
 from station.acquisition.turn_ons import restart_unit
-from station.engines.characterisation_turnon import reduce_record, turn_on_repeatability
+from station.engines.characterisation.turn_on import reduce_record, turn_on_repeatability
 from station.errors import StationError
-from station.export.datasheet import datasheet_rows, format_table
-from station.export.params_characterisation import merged, repeatability_keys
-from station.export.params_file import ParamsFile
+from station.export.params.characterisation import merged, repeatability_keys
+from station.export.params.file import ParamsFile
+from station.report.datasheet import datasheet_rows, format_table
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, draw
 from station.tui.screens.ask import AskScreen
