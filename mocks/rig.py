@@ -24,6 +24,10 @@ Segments (labels as in ``shared/specs/capture-csv.md``):
 
 A segment whose attitude differs from the current one without a ``Move`` before it gets an
 implicit ``Move(DEFAULT_MOVE_S)``, so the attitude is always continuous.
+
+Why this module is long: the timeline of poses and turns, the temperature profile and the
+sampler that turns both into a recording are the simulated unit's one truth path; its pieces share
+the attitude integration and are tested together as one rig.
 """
 
 from __future__ import annotations

@@ -22,6 +22,10 @@ the samples carry no field (they stay in :attr:`FrameDecoder.last_values`).
 The station reads description files (``station.frames.reader``) and registers its reader here with
 :func:`set_description_reader`, so ``make_decoder("frame:board.yaml")`` works wherever a protocol is
 named; this layer reads no files itself.
+
+Why this module is long: ``FrameDecoder``'s vectorised run and its resync rules are one
+state machine over one buffer, kept beside the record type it views the buffer as; the description
+itself and the checksums already have their own modules (``frame_description``, ``frame_checksums``).
 """
 
 from __future__ import annotations

@@ -33,6 +33,10 @@ option ``xsens:field=UT``: the local field magnitude) the decoder scales it to m
 returns ``MAG_SAMPLE_DTYPE`` batches from the first packet that carries one on (NaN in samples
 whose packet has none); without, the field is left out and the packets that carried one are
 counted in ``mag_unscaled``. In all four precisions, like the inertial items.
+
+Why this module is long: the MTData2 data identifiers (the table of item names, formats
+and precisions), the decoder and the encoder the simulated unit uses are one protocol's reference;
+the table is a third of it, and the decoder and encoder must agree on it line for line.
 """
 
 from __future__ import annotations

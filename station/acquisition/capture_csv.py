@@ -20,7 +20,7 @@ from typing import IO
 import numpy as np
 
 from protocols.base import has_mag
-from station.acquisition.capture import Capture
+from station.acquisition.capture_data import Capture
 from station.errors import InputFileError, OutputFileError
 
 REQUIRED = ("t", "ax", "ay", "az", "gx", "gy", "gz")

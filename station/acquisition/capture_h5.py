@@ -31,7 +31,7 @@ import numpy as np
 
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, has_mag
 from station import __version__
-from station.acquisition.capture import Capture
+from station.acquisition.capture_data import Capture
 from station.errors import InputFileError, OutputFileError
 
 SCHEMA = "imu-station/capture/1"

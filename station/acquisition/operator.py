@@ -17,12 +17,10 @@ import enum
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
+from station.acquisition.run_records import LiveStatus, RunResult, StepRecord
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
-
-if TYPE_CHECKING:
-    from station.acquisition.runner import LiveStatus, RunResult, StepRecord
 
 
 class Action(enum.Enum):

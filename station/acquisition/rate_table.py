@@ -24,7 +24,7 @@ import numpy as np
 from drivers import Device
 from drivers.turntable import Turntable
 from station.acquisition.capture_csv import write_csv
-from station.acquisition.runner import samples_to_capture
+from station.acquisition.sinks import samples_to_capture
 from station.errors import StationError
 
 STEADY_FRACTION = 0.002  # a step's samples within 0.2 % of the plateau (and noise) count as steady

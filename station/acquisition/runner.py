@@ -30,39 +30,35 @@ The runner is blocking: the TUI runs it in a thread worker, a factory script cal
 
 from __future__ import annotations
 
-import enum
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from drivers.errors import DriverError
 from drivers.interface import Device
 from drivers.link_stats import LinkStats
-from protocols.base import SAMPLE_DTYPE, has_mag
-from protocols.mag_batches import join_batches
+from protocols.base import SAMPLE_DTYPE
 from station.acquisition import checks
-from station.acquisition.capture import Capture
 from station.acquisition.checks import Limits
 from station.acquisition.clock_guard import ClockGuard
 from station.acquisition.operator import Action, Operator, Prompt
-from station.acquisition.recorder import Recorder
+
+# What a run reports lives below both this module and the operator's (which receives it), so the
+# two do not import each other; the sinks live apart from the state machine. All stay importable
+# from here, where callers have always found them.
+from station.acquisition.run_records import LiveStatus as LiveStatus
+from station.acquisition.run_records import RunResult as RunResult
+from station.acquisition.run_records import State as State
+from station.acquisition.run_records import StepRecord as StepRecord
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
-
-
-class State(enum.Enum):
-    """Where the runner is in the sequence (the TUI shows it)."""
-
-    STARTING = "starting"
-    PLACING = "placing"
-    CAPTURING = "capturing"
-    SETTLING = "settling"
-    ROTATING = "rotating"
-    REVIEW = "review"
-    DONE = "done"
+from station.acquisition.sinks import MemorySink as MemorySink
+from station.acquisition.sinks import RecorderSink as RecorderSink
+from station.acquisition.sinks import SampleSink as SampleSink
+from station.acquisition.sinks import samples_to_capture as samples_to_capture
 
 
 @dataclass(frozen=True)
@@ -82,172 +78,6 @@ class RunOptions:
     max_attempts: int = 3
     confirm_start: bool = True
     read_timeout_s: float = 0.05
-
-
-@dataclass
-class LiveStatus:
-    """What the operator sees, at most ~20 times a second."""
-
-    index: int
-    total: int
-    step: Step
-    state: State
-    attempt: int
-    message: str
-    stillness: checks.Stillness | None = None
-    pose: checks.PoseCheck | None = None
-    progress: float = 0.0  # of the automatic capture (hold or settle), 0..1
-    angle_deg: float | None = None  # integrated turn of a rotation step
-    target_deg: float | None = None
-    acc_mean: tuple[float, float, float] | None = None
-    gyro_mean: tuple[float, float, float] | None = None
-    temp: float | None = None
-    rate_hz: float = 0.0
-    lost: int = 0
-    link_errors: int = 0
-
-
-@dataclass
-class StepRecord:
-    """What happened to one step: ``status`` accepted, skipped, failed or aborted."""
-
-    label: str
-    kind: str
-    status: str
-    attempts: int
-    samples: int = 0
-    duration_s: float = 0.0
-    problems: list[str] = field(default_factory=list)
-    pose: checks.PoseCheck | None = None
-    rotation: checks.RotationCheck | None = None
-    saturation: checks.Saturation | None = None
-    dropouts: checks.Dropouts | None = None
-
-    @property
-    def ok(self) -> bool:
-        """True when the step was accepted with no problem noted."""
-        return self.status == "accepted" and not self.problems
-
-
-@dataclass
-class RunResult:
-    """The outcome of a run: ``completed``, ``aborted``, ``timeout`` or ``link-error`` (``error`` set)."""
-
-    outcome: str
-    capture: Capture
-    steps: list[StepRecord]
-    sequence: Sequence
-    error: BaseException | None = None
-    reason: str = ""
-
-    @property
-    def accepted(self) -> list[str]:
-        """The labels of the accepted steps, in order."""
-        return [s.label for s in self.steps if s.status == "accepted"]
-
-    @property
-    def skipped(self) -> list[str]:
-        """The labels of the steps the operator (or a review) skipped, in order."""
-        return [s.label for s in self.steps if s.status == "skipped"]
-
-    def summary(self) -> str:
-        """One line for the operator: the outcome, steps captured of the sequence, steps skipped
-        (a completed run may still lack some) and samples recorded."""
-        return (f"Run {self.outcome}: {len(self.accepted)} of {len(self.sequence)} steps captured, "
-                f"{len(self.skipped)} skipped, {len(self.capture)} samples.")
-
-
-class SampleSink(Protocol):
-    """Where samples go once their label is final (in memory, or streamed to a capture file)."""
-
-    def write(self, samples: np.ndarray, label: str, link: dict[str, Any] | None = None) -> None:
-        """Take a batch of samples recorded during ``label`` ("" between steps), with the link
-        statistics at that time."""
-
-
-class MemorySink:
-    """Keeps the labelled samples and builds a :class:`Capture` of them."""
-
-    def __init__(self) -> None:
-        self._chunks: list[tuple[np.ndarray, str]] = []
-
-    def write(self, samples: np.ndarray, label: str, link: dict[str, Any] | None = None) -> None:
-        """Keep the batch and its label in memory (``link`` is not kept: :meth:`capture` takes it)."""
-        if len(samples):
-            self._chunks.append((samples, label))
-
-    def __len__(self) -> int:
-        return sum(len(c) for c, _ in self._chunks)
-
-    def capture(self, device: dict[str, Any] | None = None, link: dict[str, Any] | None = None,
-                source: str = "") -> Capture:
-        """Everything written so far as one labelled :class:`Capture`.
-
-        Parameters
-        ----------
-        device, link : dict, optional
-            The unit's info and the link statistics, kept in the capture.
-        source : str
-            Where the samples came from.
-
-        Returns
-        -------
-        Capture
-        """
-        samples = join_batches([c for c, _ in self._chunks])
-        labels = np.empty(len(samples), dtype=object)
-        i = 0
-        for chunk, label in self._chunks:
-            labels[i:i + len(chunk)] = label
-            i += len(chunk)
-        return samples_to_capture(samples, labels, device, link, source)
-
-
-class RecorderSink:
-    """Streams the labelled samples to a capture file through the capture recorder."""
-
-    def __init__(self, recorder: Recorder, device: Device | None = None):
-        self.recorder = recorder
-        self.device = device
-
-    def write(self, samples: np.ndarray, label: str, link: dict[str, Any] | None = None) -> None:
-        """Write the batch, labelled, to the recorder's capture file, with ``link`` (by default the
-        device's statistics) for the file's next flush."""
-        self.recorder.step = label
-        if link is None and self.device is not None:
-            link = self.device.stats.as_dict()
-        self.recorder.write(samples, link)
-
-
-def samples_to_capture(samples: np.ndarray, labels: np.ndarray | None = None, device: dict | None = None,
-                       link: dict | None = None, source: str = "") -> Capture:
-    """A :class:`Capture` (SI, t in seconds of device clock) from ``SAMPLE_DTYPE`` records.
-
-    Parameters
-    ----------
-    samples : ndarray of SAMPLE_DTYPE or MAG_SAMPLE_DTYPE
-        With ``MAG_SAMPLE_DTYPE`` the capture's ``mag`` holds the field (uT).
-    labels : ndarray of str, optional
-        Step label of each sample.
-    device, link : dict, optional
-    source : str
-
-    Returns
-    -------
-    Capture
-    """
-    temp = samples["temp"].astype(float)
-    return Capture(
-        t=samples["t_us"].astype(np.float64) * 1e-6,
-        acc=samples["acc"].astype(np.float64),
-        gyro=samples["gyro"].astype(np.float64),
-        temp=temp if len(temp) and np.isfinite(temp).any() else None,
-        step=labels,
-        device=dict(device or {}),
-        link=dict(link or {}),
-        source=source,
-        mag=samples["mag"].astype(np.float64) if has_mag(samples) else None,
-    )
 
 
 def _mean3(vectors: np.ndarray) -> tuple[float, float, float]:

@@ -10,6 +10,10 @@ driver reads it, the sequence runner walks the twelve-position + rotation sequen
 simulated operator moving the unit, the recorder writes the labelled capture file, and the
 calibration, the parameter file and the firmware export are the ones ``calibrate`` and
 ``export`` use. Only the last comparison looks at the simulator's truth.
+
+Why this module is long: the demo is one story told in order (unit, capture, sequence,
+calibration, export, comparison with the truth), each step a short function the next one reads;
+splitting it would scatter the one page a newcomer reads to see the whole job.
 """
 
 from __future__ import annotations

@@ -19,6 +19,10 @@ Outcome and exit code: PASS 0, FAIL 1 (a measurement outside its limits, or the 
 another serial), ABORTED 2 (a step kept failing its checks, the calibration could not be
 determined, Ctrl-C), ERROR 3 (device, table or link error), TIMEOUT 5 (the plan's run or step
 time was exceeded). Whatever happens, the record is saved with every file written so far.
+
+Why this module is long: ``UnitRun`` is the run's state machine (phases, stop reasons,
+the record it fills); its phases read and write the same record and log, so they are methods of
+one object, and the operators that drive a table or the simulated rig are its two plugs.
 """
 
 from __future__ import annotations

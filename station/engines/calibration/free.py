@@ -15,6 +15,11 @@ interval's gravity direction into the next one's, r_k = R_k^T u_k - u_{k+1} (eq.
 :func:`calibrate_free` takes a :class:`FreeCapture` (the arrays, checked once) and
 :class:`FreeSettings`, and runs the stages below in turn: the initial still period, the
 threshold trials of the accelerometer fit, the gyroscope fit over the moves, the uncertainties.
+
+Why this module is long: the method's stages (still detection, threshold trials,
+moves, stage results) share the settings and the capture of one call; the accelerometer and
+gyroscope numerics (residuals, Jacobians) are already in ``free_accel`` and ``free_gyro``, and
+what is left is the method as the paper lays it out, section by section.
 """
 
 from __future__ import annotations

@@ -27,6 +27,11 @@ is then rescaled so that det C = 1 (the geometric mean of the ellipsoid's semi-a
 (3) is unchanged by a common scale of C and F, and (2) scales with it. The result's matrix A = C^-1
 splits (left polar decomposition) into A = P R: P symmetric (the soft iron's shape and scale) and R
 the rotation from the accelerometer's axes to the magnetometer's (``alignment``).
+
+Why this module is long: the fit's stages (start, accelerometer, joint solve,
+result) share the capture, the settings and the accumulating notes of one call; apart, each stage
+would take and return the same half-dozen objects, and the numbered list above reads as one function.
+The numerics they call are already in ``fit``, ``inputs``, ``accel`` and ``coverage``.
 """
 
 from __future__ import annotations

@@ -31,6 +31,10 @@ This module holds the entry point :func:`fit_thermal` (a :class:`ThermalSweep` a
 :class:`ThermalSettings` in, a :class:`ThermalFit` out) and its stages; the work is done in
 ``blocks`` (poses, blocks, folds), ``design`` (design and term selection) and
 ``triad`` (the fit of one triad).
+
+Why this module is long: it holds the engine's input, settings and result types and the
+top-level stages over them (hold, blocks, rate terms, tau, segments); the stages' numerics are
+already in ``blocks``, ``design`` and ``triad``, and what is left is the pipeline a reader follows.
 """
 
 from __future__ import annotations
