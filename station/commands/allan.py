@@ -130,7 +130,7 @@ def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: 
         Naming the terms, the axes, the record's length and the length needed (exit 4).
     """
     from station.engines.allan.fit import missing_terms
-    from station.export.params import noise
+    from station.export.params import noise as noise_file
 
     missing = missing_terms(noise, terms or DEFAULT_TERMS, duration_s)
     if terms is None:
@@ -146,7 +146,7 @@ def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: 
         length = (f"a still record of at least {_length(max(needed))}" if needed
                   else "a longer record (this one shows no sign of it)")
         axes = ", ".join(m.axis for m in of_term)
-        parts.append(f"{term} ({noise.NAMES[term]}) is not resolved on {axes} "
+        parts.append(f"{term} ({noise_file.NAMES[term]}) is not resolved on {axes} "
                      f"({of_term[0].axis}: {of_term[0].reason}); it needs {length}")
     raise EngineInputError(
         f"{source}: the record ({_length(duration_s)}) is too short for the terms asked for "
@@ -188,7 +188,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     from station.engines.allan.deviation import allan_curve, cluster_sizes
     from station.engines.allan.fit import identify_noise
     from station.export.estimators import kalibr
-    from station.export.params import noise
+    from station.export.params import noise as noise_file
     from station.export.params.file import merge_sections, open_for_unit, to_plain
 
     if args.per_decade < 10:
@@ -217,7 +217,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
                 refuse_short_record(noise, args.terms, curve.duration_s, str(args.input))
     source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
               "timing_problems": timing.problems()}
-    section = to_plain(noise.noise_section(noise, curve, source, horizon_s=args.horizon))
+    section = to_plain(noise_file.noise_section(noise, curve, source, horizon_s=args.horizon))
     outputs: dict[str, str] = {}
     rostopic = args.rostopic or args.topic or "/imu0"
     texts = {}
@@ -235,7 +235,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
         atomic_write_text(path, text)
         outputs[str(path)] = "written"
     if args.curve:
-        noise.write_curve_csv(args.curve, curve)
+        noise_file.write_curve_csv(args.curve, curve)
         outputs[str(args.curve)] = "written"
     if args.plot:
         from station.plots.allan import write_png
@@ -250,7 +250,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Analyse the recording and print the noise terms (or the JSON result)."""
-    from station.export.params import noise
+    from station.export.params import noise as noise_file
 
     result = analyse(args, sys.stderr)
     section = result["noise"]
@@ -264,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
           f"{rec['tau_range_s'][1]:.4g} s")
     for problem in rec["timing_problems"]:
         print(f"warning: {problem}")
-    for line in noise.summary_lines(section):
+    for line in noise_file.summary_lines(section):
         print(line)
     for path, what in result["outputs"].items():
         print(f"{path}: {what}")

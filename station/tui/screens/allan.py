@@ -19,6 +19,7 @@ from station.engines.allan.deviation import (
 )
 from station.engines.allan.fit import AxisNoise, identify_noise
 from station.errors import StationError
+from station.export.params import noise as noise_file
 from station.export.params.file import to_plain
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import Series, draw
@@ -150,7 +151,7 @@ class AllanScreen(LongRecordingScreen):
             rate = Recording.rate_hz(samples)
             phase = integrate_rates(rates, rate)
             curve, noise = identify_noise(allan_curve(phase, rate, AXES), phase)  # as the allan command
-            section = to_plain(noise.noise_section(noise, curve, {"source": self.session.name}))
+            section = to_plain(noise_file.noise_section(noise, curve, {"source": self.session.name}))
         except StationError as exc:
             self.post_message(LinkFailed(exc))
             return
@@ -160,7 +161,7 @@ class AllanScreen(LongRecordingScreen):
         """The fitted lines over the curves, and the noise terms of every axis."""
         curve, noise, section = fit
         draw_adev(self, curve.tau, curve.adev, noise, curve)
-        text = Text("\n".join(noise.summary_lines(section)))
+        text = Text("\n".join(noise_file.summary_lines(section)))
         if self.recording.path is not None:
             text.append(f"\nrecording in {self.recording.path}")
         self.query_one("#side", Static).update(text)
