@@ -48,6 +48,9 @@ RULES = (
          # The MAVLink decoder wraps pymavlink's message definitions (the optional 'mavlink' extra);
          # it is imported lazily and its absence is a StationError.
          exceptions=(("protocols/mavlink.py", "pymavlink"),)),
+    # Lab instruments: pymodbus frames Modbus (no hand-written framing or CRC).
+    Rule("drivers/instruments/", ("drivers", *PROTOCOL_CORE, "protocols"), ("serial", "pymodbus"),
+         "instrument drivers import protocols, pyserial and pymodbus"),
     # numpy: samples travel as numpy batches (design rule), so the drivers' buffers hold them.
     Rule("drivers/", ("drivers", *PROTOCOL_CORE, "protocols"), ("serial", "numpy"),
          "drivers import protocols, pyserial and numpy"),
@@ -68,6 +71,9 @@ RULES = (
     # The plumbing every layer uses: the standard library, pyyaml for the bounded reader.
     Rule("station/common/", ("station.common", "station.errors", *PROTOCOL_CORE), ("yaml",),
          "station.common imports nothing of the station but errors: every layer imports it"),
+    # The instruments as the station uses them: description files read, limits, safe states.
+    Rule("station/instruments/", ("station.instruments", "drivers", "protocols", *STATION_CORE), (),
+         "station.instruments imports the instrument drivers and the station's plumbing"),
     # Frame descriptions: read (acquisition's level), checked live on a port, guessed from bytes.
     Rule("station/frames/", ("station.frames", "drivers", "protocols", *STATION_CORE), ("numpy", "yaml"),
          "frames import drivers and protocols, as acquisition does"),
