@@ -150,6 +150,7 @@ class SimDevice:
         self.commands: dict[str, int] = {}
         self.restartable = restartable
         self.restarts = 0
+        self.powered = True  # a bench supply's output (power()); off: silent, deaf, no samples
         self.base_truth = self.truth  # the unit at its first power-up; self.truth is the current turn-on's
         self._seed = seed
         self._power_up_rate = rate_hz
@@ -188,6 +189,8 @@ class SimDevice:
             The encoded answers.
         """
         with self._lock:
+            if not self.powered:
+                return b""  # an unpowered unit hears nothing: the bytes are lost, as on a real link
             decoded = self._decoder.feed(data)
             return b"".join(self._answer(m.msg_id, m.payload) for m in decoded.messages)
 
@@ -237,11 +240,31 @@ class SimDevice:
         self.streaming = True
         self.seq = 0
 
+    def power(self, on: bool) -> None:
+        """The supply's output (``mocks.instruments``): off, the unit is silent (no samples, no answers to
+        commands); on, it boots as after a RESTART (new turn-on biases, seq and its clock from 0). Switching
+        to the state it is already in does nothing.
+
+        Parameters
+        ----------
+        on : bool
+            The output's new state.
+        """
+        with self._lock:
+            if on == self.powered:
+                return
+            self.powered = on
+            if on:
+                # Half a command heard before the power went is gone with the unit's RAM.
+                self._decoder = native.NativeDecoder()
+                self._restart()
+
     # --- samples ---------------------------------------------------------------------------
 
     def produce(self, t_s: float) -> np.ndarray:
         """Every sample due at or before ``t_s`` (``SAMPLE_DTYPE``). While streaming is stopped the
-        unit still runs (time, motion and noise go on) but nothing is returned and seq holds.
+        unit still runs (time, motion and noise go on) but nothing is returned and seq holds; while
+        unpowered (:meth:`power`) likewise, and the next power-up starts its clock from there.
 
         Parameters
         ----------
@@ -258,7 +281,7 @@ class SimDevice:
                 return np.zeros(0, dtype=SAMPLE_DTYPE)
             rec = self.sampler.next(n)
             self.timeline.prune(float(rec.t[0]))
-            if not self.streaming:
+            if not self.streaming or not self.powered:
                 return np.zeros(0, dtype=SAMPLE_DTYPE)
             samples = rec.samples()
             samples["seq"] = (self.seq + np.arange(n)) % (1 << 32)
