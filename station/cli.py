@@ -44,6 +44,7 @@ COMMANDS = [
     "records",
     "report",
     "ports",
+    "instrument",
 ]
 
 

@@ -21,6 +21,11 @@ units, the run's time limits and the export formats::
       gyro.bias:          {max_abs: 2, unit: deg/s}
       link.lost_fraction: {max: 0.001}
     export: [c, json]
+    instruments:                    # the lab's instruments (shared/specs/instruments.md), with limits
+      chamber: {url: "votsch://10.0.0.5", min_c: -40, max_c: 85, max_gradient: 3}
+      table: {url: "acutrol://10.0.0.7:5000", max_rate_dps: 400, max_accel_dps2: 200}
+      supply: {url: "scpi://10.0.0.9", max_v: 12, max_a: 1}
+      on_abort: {chamber: hold, table: stop, supply: keep}   # or chamber: stop | setpoint:23, supply: off
 
 Every limit applies to each component of its quantity (the three axes of a bias, the six
 off-diagonal terms of a misalignment) and is written in the unit it names. Every mistake is
@@ -49,6 +54,8 @@ from station.acquisition import sequences
 from station.acquisition.sequences import Sequence
 from station.common.yaml_file import read_yaml
 from station.errors import InputFileError, StationError
+from station.instruments.bench import InstrumentPlan, OnAbort, check_on_abort
+from station.instruments.limits import Limits
 
 SCHEMA = "imu-station/plan/1"
 G0 = STANDARD_GRAVITY
@@ -78,12 +85,17 @@ SI_UNIT = {"acceleration": "m/s^2", "rate": "rad/s", "angle": "rad", "ratio": ""
 EXPORT_FORMATS = ("c", "bin", "json", "yaml", "px4", "ardupilot")
 METHODS = ("turntable",)
 
-_TOP = {"schema", "name", "sequence", "device", "engine", "run", "limits", "export"}
+_TOP = {"schema", "name", "sequence", "device", "engine", "run", "limits", "export", "instruments"}
 _SEQUENCE = {"name", "file", "rotations", "hold_s", "rotation_rate_dps", "settle_s"}
 _DEVICE = {"rate_hz", "protocol"}
 _ENGINE = {"method", "gravity", "latitude", "height"}
 _RUN = {"timeout_s", "step_timeout_s", "max_attempts"}
 _LIMIT = {"min", "max", "max_abs", "unit"}
+_INSTRUMENTS = {"chamber", "table", "supply", "on_abort"}
+# Each instrument's URL and the limits of its kind (station.instruments.limits.Limits).
+_INSTRUMENT_KEYS = {"chamber": {"url", "min_c", "max_c", "max_gradient"},
+                    "table": {"url", "max_rate_dps", "max_accel_dps2"},
+                    "supply": {"url", "max_v", "max_a"}}
 
 
 @dataclass(frozen=True)
@@ -127,6 +139,7 @@ class Plan:
     max_attempts: int = 2
     limits: tuple[LimitSpec, ...] = ()
     export: tuple[str, ...] = ()
+    instruments: InstrumentPlan | None = None
 
     @property
     def asks_serial(self) -> bool:
@@ -245,6 +258,8 @@ def load_plan(path: str | Path) -> Plan:
         fields["limits"] = _limits(r, top["limits"])
     if "export" in top:
         fields["export"] = _export(r, top["export"])
+    if "instruments" in top:
+        fields["instruments"] = _instruments(r, top["instruments"])
     return Plan(path=path, sha256=hashlib.sha256(raw).hexdigest(), **fields)
 
 
@@ -419,3 +434,44 @@ def _export(r: _Reader, node: yaml.Node) -> tuple[str, ...]:
             raise r.fail(item, f"export format {fmt!r} is listed twice", column="export")
         out.append(fmt)
     return tuple(out)
+
+
+def _instruments(r: _Reader, node: yaml.Node) -> InstrumentPlan:
+    """``instruments:``: each kind's URL and limits, and ``on_abort``."""
+    section = r.mapping(node, _INSTRUMENTS, "'instruments'")
+    urls: dict[str, str] = {}
+    limits: dict[str, float] = {}
+    for kind, keys in _INSTRUMENT_KEYS.items():
+        if kind not in section:
+            continue
+        entry = r.mapping(section[kind], keys, f"'instruments.{kind}'")
+        if "url" not in entry:
+            raise r.fail(section[kind], f"'instruments.{kind}' has no 'url' (e.g. {_EXAMPLE_URL[kind]})",
+                         column="url")
+        url = r.scalar(entry["url"], "'url'")
+        if "://" not in url:
+            raise r.fail(entry["url"], f"'url' {url!r} is not an instrument URL; write e.g. "
+                         f"{_EXAMPLE_URL[kind]}", column="url")
+        urls[kind] = url
+        for key in keys - {"url"}:
+            if key in entry:
+                limits[key] = r.number(entry[key], key, positive=key not in ("min_c", "max_c"))
+    if "min_c" in limits and "max_c" in limits and limits["min_c"] >= limits["max_c"]:
+        raise r.fail(section["chamber"], f"'min_c' {limits['min_c']:g} must be below 'max_c' "
+                     f"{limits['max_c']:g}", column="min_c")
+    on_abort = OnAbort()
+    if "on_abort" in section:
+        actions = r.mapping(section["on_abort"], {"chamber", "table", "supply"}, "'instruments.on_abort'")
+        chosen = {}
+        for kind, action_node in actions.items():
+            action = r.scalar(action_node, f"'on_abort.{kind}'")
+            problem = check_on_abort(kind, action)
+            if problem is not None:
+                raise r.fail(action_node, problem, column=kind)
+            chosen[kind] = action
+        on_abort = OnAbort(**chosen)
+    return InstrumentPlan(**urls, limits=Limits(**limits, source=f"the plan {r.path.name}"),
+                          on_abort=on_abort)
+
+
+_EXAMPLE_URL = {"chamber": "votsch://10.0.0.5", "table": "acutrol://10.0.0.7:5000", "supply": "scpi://10.0.0.9"}
