@@ -14,6 +14,7 @@ from scipy import integrate
 from scipy.signal import lfilter
 
 from mocks.truth import FLICKER_FLOOR, GM_ADEV_PEAK, NoiseGenerator, NoiseSpec
+from station.engines.allan.correlated_bias import _profile_stddev
 from station.engines.allan.deviation import (
     allan_curve,
     confidence_interval,
@@ -21,7 +22,7 @@ from station.engines.allan.deviation import (
     overlapping_adev,
 )
 from station.engines.allan.equivalent import white_walk_equivalent
-from station.engines.allan.fit import _profile_stddev, gauss_markov_avar, identify_noise
+from station.engines.allan.fit import gauss_markov_avar, identify_noise
 from station.engines.allan.model import (
     Estimate,
     GaussMarkov,

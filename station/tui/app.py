@@ -21,10 +21,8 @@ from station.tui.saving import REPLACE_KEY, recovery_path
 from station.tui.screens.ask import AskScreen
 from station.tui.screens.connect import ConnectScreen
 from station.tui.screens.help import HelpScreen
+from station.tui.screens.station_screen import StationHost, UnsavedResults
 from station.tui.session import Session
-
-if TYPE_CHECKING:
-    from station.tui.screens.results import ResultsScreen
 
 
 class StationApp(App[int]):
@@ -60,7 +58,7 @@ class StationApp(App[int]):
         self.saved: list[str] = []
         self.results_failed = False
         self.calibration_failed = False
-        self.pending: ResultsScreen | None = None  # results computed and not yet saved
+        self.pending: UnsavedResults | None = None  # results computed and not yet saved
         self.recovered: Path | None = None
 
     def on_mount(self) -> None:
@@ -156,14 +154,14 @@ class StationApp(App[int]):
         where = f"save to {out}" if out is not None else "no --out was given"
         self.ask_to_save(results, then, f"The calibration is not saved ({where}).", str(out or "params.yaml"))
 
-    def ask_to_save(self, results: ResultsScreen, then: Callable[[], object], question: str,
+    def ask_to_save(self, results: UnsavedResults, then: Callable[[], object], question: str,
                     path: str, other_unit: bool = False) -> None:
         """Ask to save ``results`` (to an editable file name), discard them, or go back.
 
         Parameters
         ----------
-        results : ResultsScreen
-            The screen holding the calibration.
+        results : UnsavedResults
+            The results screen holding the calibration.
         then : callable
             What to do once saved or discarded.
         question : str
@@ -227,3 +225,9 @@ class StationApp(App[int]):
         except (NotImplementedError, RuntimeError, ValueError):
             pass  # never installed (see on_mount)
         self.close_session()
+
+
+if TYPE_CHECKING:
+    # The screens reach the app through StationHost (they cannot import it: it imports them); this is where
+    # mypy checks that the app is one.
+    _HOST: type[StationHost] = StationApp

@@ -1,4 +1,4 @@
-"""Overlapping Allan deviation of IMU rate records, its equivalent degrees of freedom and confidence interval.
+"""Overlapping Allan deviation of IMU rate records, with the EDF and confidence interval of each point.
 
 The record of one axis, ``y_k`` (rate or specific force, sampled every ``tau0 = 1 / rate_hz``), is first
 integrated into the demeaned cumulative sum (the "phase" of the frequency-stability literature)
@@ -15,10 +15,9 @@ of ``x`` a block reads stay in the CPU cache between cluster sizes. Block ranges
 compiled loop releases the GIL). Rows that are read-only file maps (``np.memmap``) have their pages
 released once read, so a day-long record held on disk never becomes resident as a whole.
 
-Uncertainty: the equivalent degrees of freedom of each point follow C. A. Greenhall and W. J. Riley,
-"Uncertainty of stability variances based on finite differences", Proc. 35th PTTI Meeting (2003),
-eqs. (7)-(13) and tables 2-3, for the unmodified (F = m), overlapping (S = m) Allan variance (d = 2).
-The confidence interval is the chi-square interval of NIST SP 1065, eq. 45.
+Uncertainty: each point's equivalent degrees of freedom (Greenhall and Riley 2003) and chi-square
+interval (NIST SP 1065, eq. 45) are computed in :mod:`station.engines.allan.uncertainty`; its public
+functions are importable from here too, where they were first.
 """
 
 from __future__ import annotations
@@ -31,11 +30,17 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special, stats
 
+# The EDF and interval of each point are the uncertainty module's. Callers import its names from here too
+# (the aliases re-export them), and tests/test_allan_engine.py checks the exact white-phase EDF against
+# Greenhall's kernels through this module.
+from station.engines.allan.uncertainty import ONE_SIGMA as ONE_SIGMA
+from station.engines.allan.uncertainty import _basic_sum as _basic_sum
+from station.engines.allan.uncertainty import _sz as _sz
+from station.engines.allan.uncertainty import alpha_from_slope, confidence_interval, edf_table
+from station.engines.allan.uncertainty import greenhall_edf as greenhall_edf
 from station.errors import EngineInputError
 
-ONE_SIGMA = float(special.erf(1.0 / math.sqrt(2.0)))  # 0.6827: the "68 %" interval
 BLOCK = 131_072  # phase points per block: its windows stay in L2/L3 cache for every m
 MIN_SAMPLES = 16
 INTEGRATE_ROWS = 1 << 20
@@ -322,163 +327,6 @@ def nonoverlapping_adev(rates: np.ndarray, rate_hz: float, cluster_sizes: Sequen
     return out
 
 
-# --- Greenhall & Riley (2003): equivalent degrees of freedom, d = 2 (Allan), F = m, S = m ----------------
-
-_J_MAX = 100
-# Table 2 (unmodified variances, d = 2): 1/edf ~ (a0 - a1 / r) / r for large J; alpha -> (a0, a1)
-_TABLE2 = {1: (790.0, 410.0), 0: (2.0 / 3.0, 1.0 / 3.0), -1: (0.852, 0.375), -2: (1.079, 0.368)}
-_TABLE3_ALPHA1 = (15.23, 12.0)  # Table 3, alpha = +1, d = 2: (b0, b1)
-
-
-def _sw(t: np.ndarray, alpha: int) -> np.ndarray:
-    """Eq. (7): the generalized autocovariance kernel of power-law noise ``S_x ~ f^(alpha - 2)``."""
-    t = np.asarray(t, dtype=np.float64)
-    a = np.abs(t)
-    if alpha % 2 == 0:
-        return -a if alpha == 2 else a ** (3 - alpha)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = t ** (2 - (alpha - 1)) * np.log(a)
-    return np.where(a == 0, 0.0, out)
-
-
-def _sx(t: np.ndarray, f: float, alpha: int) -> np.ndarray:
-    """Eq. (8): the kernel after the averaging filter of factor F (F = inf: its limit)."""
-    if math.isinf(f):
-        return _sw(t, alpha + 2)
-    return f * f * (2.0 * _sw(t, alpha) - _sw(t - 1.0 / f, alpha) - _sw(t + 1.0 / f, alpha))
-
-
-def _sz(t: np.ndarray, f: float, alpha: int) -> np.ndarray:
-    """Eq. (9), d = 2: the kernel after the second difference."""
-    return (6.0 * _sx(t, f, alpha) - 4.0 * _sx(t - 1.0, f, alpha) - 4.0 * _sx(t + 1.0, f, alpha)
-            + _sx(t - 2.0, f, alpha) + _sx(t + 2.0, f, alpha))
-
-
-def _basic_sum(j_terms: int, m_terms: float, s: float, f: float, alpha: int) -> float:
-    """Eq. (10): sz(0)^2 + (1 - J/M) sz(J/S)^2 + 2 sum_{j=1}^{J-1} (1 - j/M) sz(j/S)^2."""
-    j = np.arange(1, j_terms, dtype=np.float64)
-    first = float(_sz(np.array(0.0), f, alpha)) ** 2
-    second = (1.0 - j_terms / m_terms) * float(_sz(np.array(j_terms / s), f, alpha)) ** 2
-    third = 2.0 * float(np.sum((1.0 - j / m_terms) * _sz(j / s, f, alpha) ** 2))
-    return first + second + third
-
-
-def greenhall_edf(alpha: int, m: int, n_phase: int) -> float:
-    """Equivalent degrees of freedom of one overlapping Allan variance point.
-
-    Greenhall & Riley (2003), d = 2, unmodified (F = m), overlapping (S = m): eqs. (10)-(13) with
-    L = m/F + m d, M = 1 + floor(S (N - L) / m), J = min(M, (d + 1) S), r = M / S; cases 2 (alpha <= 0)
-    and 3 (alpha = 1) with J_max = 100 and tables 2-3. For alpha = 2 (white phase noise: quantization)
-    the second differences are correlated at lags 0, m, 2m only (covariances 6, -4, 1), which gives
-    exactly ``edf = 36 M^2 / (36 M + 32 (M - m)+ + 2 (M - 2m)+)``; for r > d this is Greenhall's case 4.
-
-    Parameters
-    ----------
-    alpha : int
-        Power-law exponent of the fractional-frequency (rate) spectrum, S_y ~ f^alpha: 2 white phase
-        (quantization), 1 flicker phase, 0 white rate (N), -1 flicker rate (B), -2 random walk (K).
-    m : int
-        Averaging factor.
-    n_phase : int
-        Number of phase points P (samples + 1).
-
-    Returns
-    -------
-    float
-        Equivalent degrees of freedom.
-    """
-    m = int(m)
-    big_m = n_phase - 2 * m  # M = 1 + floor(m (P - 1 - 2m) / m)
-    if big_m < 1:
-        raise EngineInputError(f"cluster size {m} is too large for {n_phase - 1} samples")
-    if alpha == 2:
-        return 36.0 * big_m**2 / (36.0 * big_m + 32.0 * max(big_m - m, 0) + 2.0 * max(big_m - 2 * m, 0))
-    if alpha not in _TABLE2:
-        raise ValueError(f"alpha must be one of 2, 1, 0, -1, -2 for the Allan variance, got {alpha}")
-    s = float(m)
-    j_terms = min(big_m, 3 * m)
-    r = big_m / s
-    if alpha == 1:  # case 3
-        b0, b1 = _TABLE3_ALPHA1
-        if j_terms <= _J_MAX:
-            inv = _basic_sum(j_terms, big_m, s, float(m), 1) / (float(_sz(np.array(0.0), float(m), 1)) ** 2
-                                                                 * big_m)
-        elif r > 3:
-            a0, a1 = _TABLE2[1]
-            inv = (a0 - a1 / r) / ((b0 + b1 * math.log(m)) ** 2 * r)
-        else:
-            mp = _J_MAX / r
-            inv = _basic_sum(_J_MAX, _J_MAX, mp, mp, 1) / ((b0 + b1 * math.log(m)) ** 2 * _J_MAX)
-        return 1.0 / inv
-    # case 2: unmodified, alpha <= 0
-    if j_terms <= _J_MAX:
-        f = float(m) if 3 * m <= _J_MAX else math.inf
-        inv = _basic_sum(j_terms, big_m, s, f, alpha) / (float(_sz(np.array(0.0), f, alpha)) ** 2 * big_m)
-    elif r > 3:
-        a0, a1 = _TABLE2[alpha]
-        inv = (a0 - a1 / r) / r
-    else:
-        mp = _J_MAX / r
-        inv = _basic_sum(_J_MAX, _J_MAX, mp, math.inf, alpha) / (
-            float(_sz(np.array(0.0), math.inf, alpha)) ** 2 * _J_MAX)
-    return 1.0 / inv
-
-
-def confidence_interval(adev: np.ndarray, edf: np.ndarray, level: float = ONE_SIGMA
-                        ) -> tuple[np.ndarray, np.ndarray]:
-    """Chi-square confidence interval of Allan deviations (NIST SP 1065, eq. 45).
-
-    ``sigma_lo = sigma sqrt(edf / chi2_{(1+level)/2}(edf))``,
-    ``sigma_hi = sigma sqrt(edf / chi2_{(1-level)/2}(edf))``.
-
-    Parameters
-    ----------
-    adev : ndarray
-        Allan deviations.
-    edf : ndarray
-        Their equivalent degrees of freedom (same shape).
-    level : float
-        Confidence level (default one sigma, 0.683).
-
-    Returns
-    -------
-    tuple of ndarray
-        (sigma_lo, sigma_hi).
-    """
-    adev = np.asarray(adev, dtype=np.float64)
-    edf = np.asarray(edf, dtype=np.float64)
-    tail = (1.0 - level) / 2.0
-    lo = adev * np.sqrt(edf / stats.chi2.ppf(1.0 - tail, edf))
-    hi = adev * np.sqrt(edf / stats.chi2.ppf(tail, edf))
-    return lo, hi
-
-
-def alpha_from_slope(tau: np.ndarray, adev: np.ndarray) -> np.ndarray:
-    """Power-law noise type at each point from the local log-log slope mu of sigma^2 ~ tau^mu.
-
-    mu = -2: alpha = 2 (white phase; the Allan variance cannot tell it from flicker phase), mu = -1:
-    alpha = 0, mu = 0: alpha = -1, mu >= +1: alpha = -2 (rate ramp has no finite-difference EDF at d = 2
-    and takes the random-walk one). Columns of ``adev`` are axes.
-
-    Parameters
-    ----------
-    tau : ndarray, (M,)
-        Averaging times, s.
-    adev : ndarray, (M, axes)
-        Allan deviations.
-
-    Returns
-    -------
-    ndarray of int, (M, axes)
-        alpha per point and axis.
-    """
-    logt = np.log(np.asarray(tau, dtype=np.float64))
-    logv = 2.0 * np.log(np.asarray(adev, dtype=np.float64))
-    if len(logt) < 2:
-        return np.zeros(logv.shape, dtype=np.int64)
-    mu = np.gradient(logv, logt, axis=0)
-    return np.select([mu < -1.5, mu < -0.5, mu < 0.5], [2, 0, -1], default=-2).astype(np.int64)
-
 
 @dataclass
 class AllanCurve:
@@ -523,31 +371,6 @@ class AllanCurve:
                           lo, hi, np.asarray(alpha, dtype=np.int64))
 
 
-def edf_table(alpha: np.ndarray, m: np.ndarray, n_phase: int) -> np.ndarray:
-    """Greenhall EDF for every (cluster size, axis); equal (alpha, m) pairs are computed once.
-
-    Parameters
-    ----------
-    alpha : ndarray of int, (M, axes)
-        Noise type per point and axis.
-    m : ndarray of int, (M,)
-        Cluster sizes.
-    n_phase : int
-        Phase points of the record (N + 1).
-
-    Returns
-    -------
-    ndarray, (M, axes)
-    """
-    alpha = np.asarray(alpha, dtype=np.int64)
-    out = np.empty(alpha.shape, dtype=np.float64)
-    cache: dict[tuple[int, int], float] = {}
-    for (i, j), a in np.ndenumerate(alpha):
-        key = (int(a), int(m[i]))
-        if key not in cache:
-            cache[key] = greenhall_edf(key[0], key[1], n_phase)
-        out[i, j] = cache[key]
-    return out
 
 
 def allan_curve(phase: np.ndarray | Sequence[np.ndarray], rate_hz: float, axes: Sequence[str],

@@ -29,8 +29,8 @@ import math
 
 import numpy as np
 
-from station.engines.allan.fit import B_FACTOR, gauss_markov_avar
-from station.engines.allan.model import NoiseModel
+from station.engines.allan.estimates import NoiseModel
+from station.engines.allan.shapes import B_FACTOR, gauss_markov_avar
 
 GRID = 400  # averaging times between the step and the horizon
 

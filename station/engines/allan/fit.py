@@ -18,14 +18,8 @@ K is null when its line crosses the white-noise line beyond T/20.
 A sensor's low-pass filter makes the curve start flat or rising before it falls into the white-noise
 line; those points are left out of the fit (see :func:`_filter_settled`, ``AxisNoise.fitted_from_tau``).
 
-A correlated (first-order Gauss-Markov) bias draws a hump: the curve rises, peaks near 1.9 correlation
-times and falls again, which no term of (C.1) can draw. Where the curve visibly falls again after rising
-at well-measured points, N, K and a Gauss-Markov term (sigma, T_c) are fitted instead; when that beats
-the IEEE fit by the same chi-square margin, B is the peak of the Gauss-Markov curve divided by 0.66428
-(the convention that makes a flicker floor and a Gauss-Markov peak the same B), K is kept only if still
-significant, and the report says which method gave each term. Where the curve leaves the white-noise
-line and never visibly falls, the same is tried with correlation times from there on, and taken only
-where the bias explains the whole rise (see :func:`_fit_with_gauss_markov`).
+Where no flat floor shows but the curve draws a correlated (first-order Gauss-Markov) bias, N, K and that
+bias are fitted instead of (C.1) (:mod:`station.engines.allan.correlated_bias`), and B is the bias's peak.
 
 Beside the fit, the classic slope-line reading (IEEE 952 Annex C; e.g. El-Sheimy, Hou and Niu, "Analysis
 and modeling of inertial sensors using Allan variance", IEEE TIM 57(1), 2008): where the curve's
@@ -37,213 +31,43 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize
 
+# the module, not its choose_model: the function is looked up when called, so that
+# benchmarks/allan_day.py can time the model choice by wrapping it
+from station.engines.allan import model
+from station.engines.allan.correlated_bias import CHI2_GAIN, MIN_EDF_SHOWN, SIGNIFICANCE, fit_correlated_bias
 from station.engines.allan.deviation import AllanCurve
+from station.engines.allan.estimates import AxisNoise, TermEstimate
 from station.engines.allan.likelihood import block_length, white_walk_ml
+from station.engines.allan.shapes import B_FACTOR, basis, gauss_markov_avar, weighted_nnls
+from station.engines.allan.shapes import model_avar as model_avar
 from station.engines.allan.terms import TERMS
 from station.errors import EngineInputError
 
-if TYPE_CHECKING:
-    from station.engines.allan.model import NoiseModel
-
-B_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.66428
 ALPHA_OF_TERM = {"Q": 2, "N": 0, "B": -1, "K": -2, "R": -2}
 SLOPE_OF_TERM = {"Q": -1.0, "N": -0.5, "B": 0.0, "K": 0.5, "R": 1.0}
 # tau where the slope line equals the term:
 # sigma = sqrt(3) Q / tau, N / sqrt(tau), K sqrt(tau / 3), R tau / sqrt(2)
 READ_TAU = {"Q": math.sqrt(3.0), "N": 1.0, "K": 3.0, "R": math.sqrt(2.0)}
 SLOPE_TOLERANCE = 0.1
-SIGNIFICANCE = 3.0
-CHI2_GAIN = 9.0
 MIN_DOMINANT_POINTS = 3
 OPTIONAL = ("Q", "B", "R")
 MODELLED_UNSHOWN = ("Q",)  # kept in the fit where significant and material, reported only where shown
 MODELLED_SHARE = 0.2  # material: this share of the Allan variance at the shortest tau or more
 K_CROSSING_FRACTION = 20.0  # K needs the N and K lines to cross before T / 20
-MIN_EDF_SHOWN = 10.0  # points that count as showing a term or a floor
-HUMP_RISE = 0.1
-HUMP_FALL = -0.1
-DEPARTURE_SLOPE = -0.3  # the curve has left the white-noise line (slope -1/2) upward
-UNRESOLVED_PEAK_MARGIN = 4.0  # an unresolved Gauss-Markov bias must peak this factor before the last tau
 FILTER_SLOPE = -0.45  # a curve starting above this slope starts with a sensor's filter, not a noise term
 FILTER_MARGIN = 3.0  # the fit starts this factor in tau after the filtered start reaches FILTER_SLOPE
 ML_AGREEMENT = 1.15  # the likelihood's K replaces the curve fit's only within this factor of it
 ML_METHOD = "exact Gaussian maximum likelihood"
 
 
-def basis(tau: np.ndarray) -> np.ndarray:
-    """Columns of eq. (C.1) for c = (Q^2, N^2, B^2, K^2, R^2): shape (len(tau), 5).
-
-    Parameters
-    ----------
-    tau : ndarray, (M,)
-        Averaging times, s.
-
-    Returns
-    -------
-    ndarray, (M, 5)
-    """
-    tau = np.asarray(tau, dtype=np.float64)
-    return np.column_stack([3.0 / tau**2, 1.0 / tau, np.full_like(tau, B_FACTOR**2), tau / 3.0, tau**2 / 2.0])
-
-
-def model_avar(tau: np.ndarray, coeffs: dict[str, float | None]) -> np.ndarray:
-    """Allan variance of eq. (C.1) for the terms given (None or missing terms count as zero).
-
-    Parameters
-    ----------
-    tau : ndarray, (M,)
-        Averaging times, s.
-    coeffs : dict of str to float or None
-        Q, N, B, K, R in their units.
-
-    Returns
-    -------
-    ndarray, (M,)
-    """
-    c = np.array([(coeffs.get(t) or 0.0) ** 2 for t in TERMS])
-    return basis(tau) @ c
-
-
-@dataclass
-class TermEstimate:
-    """One noise term of one axis: the fitted value and its 1-sigma, or None with the reason.
-
-    ``slope_line_at_1s`` is the slope line's value at tau = 1 s, ``slope_value`` the term it gives;
-    ``slope_reason`` says why there is none. Where the maximum-likelihood estimate gave ``value``
-    (``method`` starts with ML_METHOD), ``adev_value`` and ``adev_stddev`` keep the IEEE 952 fit's.
-    """
-
-    value: float | None = None
-    stddev: float | None = None
-    reason: str | None = None
-    method: str | None = None
-    adev_value: float | None = None  # the IEEE 952 fit's value where another method gave ``value``
-    adev_stddev: float | None = None
-    slope_line_at_1s: float | None = None
-    slope_value: float | None = None
-    slope_tau: float | None = None
-    slope_reason: str | None = None
-
-
-@dataclass
-class AxisNoise:
-    """The noise terms of one axis and the fit that gave them."""
-
-    axis: str
-    terms: dict[str, TermEstimate] = field(default_factory=dict)
-    fitted: tuple[str, ...] = ()
-    coeffs: dict[str, float] = field(default_factory=dict)  # all fitted terms, shown or not
-    reduced_chi2: float = float("nan")
-    crossing_tau_nk: float | None = None
-    gauss_markov: tuple[float, float] | None = None  # (sigma, correlation time s) where a hump was fitted
-    gauss_markov_stddev: tuple[float | None, float | None] = (None, None)  # their 1-sigma
-    fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
-    k_needed_s: float | None = None  # record length that could show K, where K is not shown (a lower bound)
-    noise_model: NoiseModel | None = None  # the model reported and drawn (model.choose_model)
-
-    def value(self, term: str) -> float | None:
-        """The estimate of noise term ``term`` (N, B, K, ...) in its own unit, or None if not resolved.
-
-        Parameters
-        ----------
-        term : str
-            A key of ``TERMS``.
-
-        Returns
-        -------
-        float or None
-        """
-        return self.terms[term].value
-
-    def model(self, tau: np.ndarray) -> np.ndarray:
-        """Allan deviation of the fitted model (every fitted term, and the Gauss-Markov bias if any).
-
-        Parameters
-        ----------
-        tau : ndarray, (M,)
-            Averaging times, s.
-
-        Returns
-        -------
-        ndarray, (M,)
-        """
-        if self.noise_model is not None:
-            return np.sqrt(self.noise_model.avar(np.asarray(tau, dtype=np.float64)))
-        avar = model_avar(tau, self.coeffs)
-        if self.gauss_markov is not None:
-            sigma, tau_c = self.gauss_markov
-            avar = avar + sigma**2 * gauss_markov_avar(tau, tau_c)
-        return np.sqrt(avar)
-
-
-def gauss_markov_avar(tau: np.ndarray, tau_c: float) -> np.ndarray:
-    """Allan variance of a first-order Gauss-Markov process of unit variance and correlation time T_c.
-
-    sigma^2(tau) = 2 (T_c / tau) [1 - (T_c / 2 tau) (3 - 4 e^(-x) + e^(-2x))], x = tau / T_c (e.g. El-Sheimy
-    et al. 2008, eq. 21 with q_c = 2 / T_c); the bracket is 2u + u^2 over 2x with u = 1 - e^(-x), and its
-    series x^2/3 - x^3/4 below x = 1e-3 where the difference would cancel.
-
-    Parameters
-    ----------
-    tau : ndarray, (M,)
-        Averaging times, s.
-    tau_c : float
-        Correlation time T_c, s.
-
-    Returns
-    -------
-    ndarray, (M,)
-    """
-    x = np.asarray(tau, dtype=np.float64) / tau_c
-    u = -np.expm1(-x)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bracket = np.where(x < 1e-3, x**2 / 3.0 - x**3 / 4.0, 1.0 - (2.0 * u + u * u) / (2.0 * x))
-    return 2.0 * bracket / x
-
-
-_X = np.geomspace(1e-2, 1e2, 4001)
-GM_ADEV_PEAK = float(np.sqrt(gauss_markov_avar(_X, 1.0).max()))  # peak Allan deviation / sigma, ~0.62
-GM_PEAK_X = float(_X[np.argmax(gauss_markov_avar(_X, 1.0))])  # the peak's tau / T_c, ~1.89
-
-
-def _irls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: int = 6
-          ) -> tuple[np.ndarray, np.ndarray, float]:
-    """EDF-weighted non-negative least squares of ``a c = avar``; returns (c, covariance, chi2)."""
-    scale = np.max(np.abs(a), axis=0)  # columns span many decades: normalise before NNLS
-    an = a / scale
-    model = avar.copy()
-    c = np.zeros(a.shape[1])
-    for _ in range(iterations):
-        w = np.sqrt(edf / 2.0) / np.maximum(model, np.finfo(float).tiny)
-        cn, _ = optimize.nnls(an * w[:, None], avar * w, maxiter=50 * a.shape[1])
-        c = cn / scale
-        new_model = a @ c
-        if np.allclose(new_model, model, rtol=1e-9, atol=0.0):  # variances are tiny: no absolute floor
-            break
-        model = np.where(new_model > 0, new_model, avar)
-    w2 = (edf / 2.0) / np.maximum(model, np.finfo(float).tiny) ** 2
-    chi2 = float(np.sum(w2 * (avar - model) ** 2))
-    active = c > 0
-    cov = np.full((a.shape[1], a.shape[1]), np.nan)
-    if active.any():
-        aa = an[:, active]  # normalised columns keep the Fisher matrix well conditioned
-        fisher = aa.T @ (aa * w2[:, None])
-        with np.errstate(all="ignore"):
-            cov_active = np.linalg.pinv(fisher) / np.outer(scale[active], scale[active])
-        cov[np.ix_(active, active)] = cov_active
-    return c, cov, chi2
-
-
 def _fit(tau: np.ndarray, avar: np.ndarray, edf: np.ndarray, terms: tuple[str, ...]
          ) -> tuple[dict[str, float], dict[str, float], float]:
     cols = [TERMS.index(t) for t in terms]
-    c, cov, chi2 = _irls(basis(tau)[:, cols], avar, edf)
+    c, cov, chi2 = weighted_nnls(basis(tau)[:, cols], avar, edf)
     dof = max(len(tau) - int(np.count_nonzero(c)), 1)
     inflate = max(chi2 / dof, 1.0)  # correlated, overlapping points: trust the scatter if it is larger
     values = {t: float(c[i]) for i, t in enumerate(terms)}
@@ -315,29 +139,6 @@ def _filter_settled(tau: np.ndarray, adev: np.ndarray) -> int:
     if len(below) == 0:
         return 0
     return int(np.searchsorted(tau, FILTER_MARGIN * tau[below[0]]))
-
-
-def _hump_top(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray) -> int | None:
-    """Index of the top of a hump: after the white-noise decline the curve rises (slope >= +0.1) then
-    falls again (slope <= -0.1) at well-measured points. That is a correlated (Gauss-Markov) bias, which
-    the IEEE 952 terms cannot draw; its top is the bias-instability level (0.66428 B)."""
-    well = np.flatnonzero(edf >= MIN_EDF_SHOWN)
-    if len(well) < 5:
-        return None
-    slope = np.gradient(np.log10(adev), np.log10(tau))
-    # from the end of the white-noise decline on
-    flat = well[slope[well] >= -0.05]
-    if len(flat) == 0:
-        return None
-    after = well[well >= flat[0]]
-    rising = after[slope[after] >= HUMP_RISE]
-    if len(rising) == 0:
-        return None
-    falling = after[(after > rising[0]) & (slope[after] <= HUMP_FALL)]
-    if len(falling) == 0:
-        return None
-    top = rising[0] + int(np.argmax(adev[rising[0]:falling[0] + 1]))
-    return top
 
 
 def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: float,
@@ -420,17 +221,8 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
                 est.method = "IEEE 952 fit"
         _slope_reading(tau, adev, edf, term, est)
         result.terms[term] = est
-    if result.terms["B"].value is None:
-        if _hump_top(tau, adev, edf) is not None:
-            values = _fit_with_gauss_markov(tau, adev, edf, result, values, chi2, float(tau[0]), False)
-        else:
-            departure = _departure_tau(tau, adev, edf)
-            if departure is not None:
-                values = _fit_with_gauss_markov(tau, adev, edf, result, values, chi2, departure / GM_PEAK_X,
-                                                True)
-        if result.gauss_markov is not None:
-            result.gauss_markov_stddev = _at_least_record_bound(result.gauss_markov,
-                                                                result.gauss_markov_stddev, duration_s)
+    if result.terms["B"].value is None:  # no floor: a correlated bias may draw what (C.1) cannot
+        values = fit_correlated_bias(tau, adev, edf, result, values, chi2, duration_s)
     n_val = values.get("N", 0.0)
     k_val = values.get("K", 0.0)
     if n_val > 0 and k_val > 0:
@@ -493,109 +285,6 @@ def missing_terms(noise: Sequence[AxisNoise], terms: Sequence[str], duration_s: 
                 needed = None  # the bound says nothing this record did not
             out.append(MissingTerm(axis.axis, term, est.reason or "not resolved", needed))
     return out
-
-
-def _departure_tau(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray) -> float | None:
-    """tau of the first well-measured point (EDF >= 10) where the curve has left the white-noise line
-    (slope -1/2) upward, slope >= DEPARTURE_SLOPE; None where it never does."""
-    slope = np.gradient(np.log10(adev), np.log10(tau))
-    where = np.flatnonzero((edf >= MIN_EDF_SHOWN) & (slope >= DEPARTURE_SLOPE))
-    return float(tau[where[0]]) if len(where) else None
-
-
-def _fit_with_gauss_markov(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, result: AxisNoise,
-                           values: dict[str, float], chi2_ieee: float, shortest_tc: float,
-                           unresolved: bool) -> dict[str, float]:
-    """N, K and a first-order Gauss-Markov bias (sigma, T_c on a log grid from ``shortest_tc``),
-    EDF-weighted. Where it beats the IEEE fit by CHI2_GAIN or more, writes N, K and B (the Gauss-Markov
-    peak / 0.66428) into ``result`` and returns its variance coefficients; else returns ``values``.
-
-    ``unresolved``: the curve shows no hump. A bias of T_c near T/70 (the mocks' unit: 100 s in 2 h)
-    rises into a flat stretch and never visibly falls; fitted as N and K, the rise gives K 2.4x too high
-    (benchmarks/allan_sweep.py). There T_c starts where the curve leaves the white-noise line (the bias
-    cannot peak, at 1.89 T_c, before that: shorter T_c fit the correlated wiggles of the many-EDF first
-    points, a chi-square gain of 15 to 50 on white noise alone), and the bias is taken only where it
-    explains the whole rise, K no longer significant, and peaks UNRESOLVED_PEAK_MARGIN times before the
-    curve's end, so that its fall is drawn by more than the last few-EDF points: a Gauss-Markov term also
-    bends an N + K curve near the crossing (a gain of 35 on one of the mocks' N + K records, K still
-    significant) or near its end (T_c of 43 s in 20 min, the walk's last points flat by chance)."""
-    avar = adev**2
-    grid = np.geomspace(min(shortest_tc, tau[-1]), tau[-1], 64)
-    fits = []
-    for tau_c in grid:
-        a = np.column_stack([basis(tau)[:, [1, 3]], gauss_markov_avar(tau, tau_c)])
-        c, cov, chi2 = _irls(a, avar, edf)
-        fits.append((chi2, c, cov))
-    at = int(np.argmin([f[0] for f in fits]))
-    chi2, c, cov = fits[at]
-    tau_c = float(grid[at])
-    if c[2] <= 0 or chi2_ieee - chi2 < CHI2_GAIN:  # a hump in the noise, not a correlated bias
-        return values
-    inflate = max(chi2 / max(len(tau) - 4, 1), 1.0)
-    sd = np.sqrt(np.maximum(np.diag(cov), 0.0) * inflate)
-    if unresolved and ((c[1] > 0 and c[1] >= SIGNIFICANCE * sd[1])
-                       or GM_PEAK_X * tau_c * UNRESOLVED_PEAK_MARGIN > tau[-1]):
-        return values
-    sigma = math.sqrt(c[2])
-    result.gauss_markov = (sigma, tau_c)
-    sd_tau_c = _profile_stddev(grid, [f[0] for f in fits], at, inflate)
-    sd_log_sigma = sd[2] / (2.0 * c[2])  # with T_c held
-    if sd_tau_c is not None:  # and as T_c moves: the profiled sigma's slope in ln T_c, between the neighbours
-        s_lo, s_hi = fits[at - 1][1][2], fits[at + 1][1][2]  # sigma^2 at the neighbours
-        step = math.log(grid[at + 1] / grid[at - 1])
-        slope = math.log(s_hi / s_lo) / (2.0 * step) if s_lo > 0 < s_hi else 0.0  # d ln sigma / d ln T_c
-        sd_log_sigma = math.hypot(sd_log_sigma, slope * sd_tau_c / tau_c)
-    result.gauss_markov_stddev = (sigma * sd_log_sigma, sd_tau_c)
-    result.reduced_chi2 = chi2 / max(len(tau) - 4, 1)
-    how = (f"fit with a Gauss-Markov bias (sigma {sigma:.3g}, T_c {tau_c:.3g} s): the curve rises then "
-           "falls again")
-    b_est = result.terms["B"]
-    b_est.value = GM_ADEV_PEAK * sigma / B_FACTOR  # its Allan deviation peaks at 0.66428 B
-    b_est.stddev = b_est.value * sd[2] / (2.0 * c[2])
-    b_est.reason = None
-    b_est.method = "peak of the " + how
-    for i, term in ((0, "N"), (1, "K")):
-        est = result.terms[term]
-        est.method = how
-        if c[i] > 0 and c[i] >= SIGNIFICANCE * sd[i]:
-            est.value, est.stddev, est.reason = math.sqrt(c[i]), sd[i] / (2.0 * math.sqrt(c[i])), None
-        else:
-            est.value = est.stddev = None
-            est.reason = ("hidden by the correlated (Gauss-Markov) bias: record longer, until the curve "
-                          "rises again after its hump")
-    result.coeffs = {t: math.sqrt(v) for t, v in (("N", c[0]), ("K", c[1])) if v > 0}
-    result.fitted = ("N", "K")
-    return {"N": float(c[0]), "K": float(c[1])}
-
-
-def _at_least_record_bound(gm: tuple[float, float], sd: tuple[float | None, float | None], duration_s: float
-                           ) -> tuple[float | None, float | None]:
-    """The curve's 1-sigma of a Gauss-Markov (sigma, T_c), raised to what a record of ``duration_s`` can
-    tell at best where they fall below it (they count the curve's overlapping points as independent: on
-    the benchmark's 60 axes 2.5 to 2.7 times below the scatter).
-
-    The bound is that of the process observed alone: its sample variance has variance 2 sigma^4 T_c / T
-    (Bendat and Piersol, "Random Data", 4th ed., eq. 8.72, T >> T_c), so sd(ln sigma) = sqrt(T_c / 2T);
-    its AR(1) coefficient phi = exp(-dt / T_c) has asymptotic variance (1 - phi^2) / n (Brockwell and
-    Davis, "Time Series: Theory and Methods", 8.10), so sd(ln T_c) = sqrt(2 T_c / T) for dt << T_c. White
-    noise and the other terms on top only widen it."""
-    sigma, tau_c = gm
-    floor = (sigma * math.sqrt(tau_c / (2.0 * duration_s)), tau_c * math.sqrt(2.0 * tau_c / duration_s))
-    return (max(sd[0], floor[0]) if sd[0] is not None else None,
-            max(sd[1], floor[1]) if sd[1] is not None else None)
-
-
-def _profile_stddev(grid: np.ndarray, chi2: Sequence[float], at: int, inflate: float) -> float | None:
-    """1-sigma of a positive parameter from its profiled chi-square on a log-spaced ``grid``, minimum at
-    ``at``: the parabola in ln(parameter) through the minimum and its neighbours gives sd(ln) =
-    sqrt(2 inflate / chi2''), chi2 rising by the reduced chi-square ``inflate`` at 1-sigma (Press et al.,
-    Numerical Recipes, 15.6); times the value (delta method). None where the minimum is at an end of the
-    grid or the profile is not curved upward there."""
-    if at == 0 or at == len(grid) - 1:
-        return None
-    (x0, x1, x2), (y0, y1, y2) = np.log(grid[at - 1:at + 2]), chi2[at - 1:at + 2]
-    curvature = 2.0 * ((y2 - y1) / (x2 - x1) - (y1 - y0) / (x1 - x0)) / (x2 - x0)
-    return float(grid[at]) * math.sqrt(2.0 * inflate / curvature) if curvature > 0 else None
 
 
 def dominant_alpha(tau: np.ndarray, noise: AxisNoise) -> np.ndarray:
@@ -710,9 +399,7 @@ def identify_noise(curve: AllanCurve, phase: np.ndarray | Sequence[np.ndarray] |
     if phase is not None:
         for j, axis in enumerate(noise):
             use_white_walk_ml(axis, phase[j], curve.rate_hz)
-    from station.engines.allan.model import choose_model  # it builds on this module's fit: no import cycle
-
     for j, axis in enumerate(noise):
-        choose_model(axis, refined.tau, refined.adev[:, j], refined.edf[:, j], refined.ci_low[:, j],
+        model.choose_model(axis, refined.tau, refined.adev[:, j], refined.edf[:, j], refined.ci_low[:, j],
                      refined.ci_high[:, j], refined.rate_hz)
     return refined, noise

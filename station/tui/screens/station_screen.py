@@ -1,24 +1,73 @@
-"""The base of the station's screens: the app they run in, with its type."""
+"""The base of the station's screens, and what they need of the app they run in.
+
+The screens see the app as a :class:`StationHost`: the state and navigation of
+:class:`~station.tui.app.StationApp` they use, not the app's class. The app imports every screen, so a
+screen that imported the app, even for its type alone, would close an import circle; the app is checked
+against this protocol where it is defined.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, cast
+from collections.abc import Callable
+from pathlib import Path
+from typing import Protocol, cast
 
 from textual.screen import Screen
 
+from station.acquisition.runner import RunResult
+from station.tui.config import TuiConfig
 from station.tui.session import Session
 
-if TYPE_CHECKING:
-    from station.tui.app import StationApp
+
+class UnsavedResults(Protocol):
+    """Results computed and not yet saved (the results screen), as the app keeps and saves them."""
+
+    def save_to(self, path: Path, replace: bool = False) -> list[str]:
+        """Write the results to ``path`` (and the exports beside it); the files written."""
+        ...
+
+
+class StationHost(Protocol):
+    """What the screens use of :class:`~station.tui.app.StationApp`: its config, the open session, the
+    outcome of the last run, and its navigation."""
+
+    config: TuiConfig
+    session: Session | None
+    last_run: RunResult | None
+    saved: list[str]
+    results_failed: bool
+    calibration_failed: bool
+    pending: UnsavedResults | None
+
+    def show(self, name: str) -> None:
+        """Switch to the screen ``name``."""
+        ...
+
+    def show_results(self, result: RunResult) -> None:
+        """Replace the current screen by the results of ``result``."""
+        ...
+
+    def close_session(self) -> None:
+        """Close the unit's session, if one is open."""
+        ...
+
+    def action_quit_app(self) -> None:
+        """Quit, once unsaved results are saved or discarded."""
+        ...
+
+    def ask_to_save(self, results: UnsavedResults, then: Callable[[], object], question: str,
+                    path: str, other_unit: bool = False) -> None:
+        """Ask to save ``results``, discard them, or go back."""
+        ...
 
 
 class StationScreen(Screen[None]):
     """A screen of :class:`~station.tui.app.StationApp`."""
 
     @property
-    def station(self) -> StationApp:
+    def station(self) -> StationHost:
         """The app with its config and session (textual types ``self.app`` as any App)."""
-        return cast("StationApp", self.app)
+        return cast(StationHost, self.app)
 
     @property
     def session(self) -> Session:
