@@ -68,7 +68,8 @@ class SupplyOutputs:
             raise IndexError(n)
         return self.channels[n - 1]
 
-    def set(self, n: int, volts: float | None = None, amps: float | None = None, on: bool | None = None) -> None:
+    def set(self, n: int, volts: float | None = None, amps: float | None = None,
+            on: bool | None = None) -> None:
         """Change output ``n``'s setpoints or state, then power the unit as the output now says."""
         with self.lock:
             ch = self.channel(n)
