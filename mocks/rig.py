@@ -17,6 +17,8 @@ Segments (labels as in ``shared/specs/capture-csv.md``):
   trapezoidal rate profile (ramps of ``ramp_s``), ``settle_s`` still before and after.
 - :class:`ConstantRate`: with the axis vertical, spin up to a constant rate, hold it, spin down;
   labelled (``rate+z:90``) only while the rate is steady, after ``settle_s`` at the rate.
+- :class:`RateProfile`: with the signed axis up (a rate table's mount), follow linear rate ramps
+  from whatever rate the table had: the profile a table emulator plans (``mocks.instruments``).
 - :class:`Move`: a hand-held move to the attitude of the next segment: rotation about the
   fixed axis of the relative attitude with a quintic smooth-step angle
   ``phi = theta (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration`` (rate and angular
@@ -119,13 +121,24 @@ class ConstantRate:
 
 
 @dataclass
+class RateProfile:
+    """Turn about the signed body ``axis`` held up through ``ramps``: ``(rate0_dps, rate1_dps,
+    duration_s)`` each, the rate going linearly within each (a table's trapezoidal profile, which
+    may start at a rate, unlike :class:`Rotation`)."""
+
+    axis: str
+    ramps: tuple[tuple[float, float, float], ...]
+    label: str = ""
+
+
+@dataclass
 class Move:
     """A smooth hand-held move to the next segment's attitude (unlabelled)."""
 
     duration_s: float = DEFAULT_MOVE_S
 
 
-Segment = Static | Rotation | ConstantRate | Move
+Segment = Static | Rotation | ConstantRate | RateProfile | Move
 
 
 # --- angle profiles phi(tau) over one piece, tau = time since the piece started -------------
@@ -235,6 +248,8 @@ def _target(segment: Segment, current: np.ndarray) -> np.ndarray:
     if isinstance(segment, Rotation | ConstantRate):
         index, _ = segment.signed()
         return pose_attitude("+" + "xyz"[index], current)
+    if isinstance(segment, RateProfile):
+        return pose_attitude(segment.axis, current)  # the mount's signed axis along the table's
     return current
 
 
@@ -297,6 +312,16 @@ def build_pieces(segments: Sequence[Segment], r_start: np.ndarray, t_start: floa
                 if ramp.duration <= 0:
                     continue
                 piece = Piece(t, t + ramp.duration, r, np.eye(3)[index], ramp, piece_label)
+                pieces.append(piece)
+                r, t = piece.r1, piece.t1
+        elif isinstance(seg, RateProfile):
+            index, turn = Rotation(seg.axis).signed()
+            sign = 1.0 if turn > 0 else -1.0  # about -z at w is about +z at -w
+            for w0, w1, duration in seg.ramps:
+                if duration <= 0:
+                    continue
+                ramp = _Ramp(sign * math.radians(w0), sign * math.radians(w1), duration)
+                piece = Piece(t, t + duration, r, np.eye(3)[index], ramp, seg.label)
                 pieces.append(piece)
                 r, t = piece.r1, piece.t1
         else:
