@@ -360,3 +360,21 @@ class SimDevice:
             Device time (s) at which the turn and settling end.
         """
         return self.command([Rotation(axis, angle_deg, rate_dps, settle_s)])
+
+    # --- live temperature ----------------------------------------------------------------------
+
+    def follow_temperature(self, plant: Callable[[np.ndarray], np.ndarray]) -> None:
+        """Read the unit's temperature from ``plant`` from now on: a live profile of server time
+        (a climatic chamber's plant, ``mocks.instruments.chamber_plant.ChamberPlant``, whose clock is
+        this device's), which commands to the chamber change while the unit streams.
+
+        Parameters
+        ----------
+        plant : callable
+            Temperature (degC) of server times (s), vectorised; times only grow.
+        """
+        with self._lock:
+            epoch = self._epoch_s
+            # The sampler's clock restarts with the unit; the plant's is the server's.
+            self.sampler.temperature = plant if epoch == 0 else (
+                lambda t: np.asarray(plant(np.asarray(t) + epoch), float))
