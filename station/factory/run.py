@@ -66,6 +66,7 @@ from station.factory.records import (
     utc_now,
 )
 from station.factory.simrig import SimulatedUnit, simulated_rig
+from station.instruments.mounted_table import PoseTable
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT, RAW_CAPTURE
 from station.report.certificate import CaptureFile, from_record, write_certificate
 
@@ -89,7 +90,8 @@ class TableOperator(BaseOperator):
     :meth:`poll` aborts the run, so the samples captured so far are kept.
     """
 
-    def __init__(self, table: Turntable, timeout_s: float = 30.0):
+    def __init__(self, table: PoseTable, timeout_s: float = 30.0):
+        # The station's own turntable, or any rate table through station.instruments.mounted_table.
         self.table = table
         self.timeout_s = timeout_s
         self.error: DriverError | None = None
@@ -113,8 +115,14 @@ class TableOperator(BaseOperator):
                                            self.timeout_s))
 
     def poll(self) -> Action | None:
-        """Abort the run once the table has failed."""
+        """Abort the run once the table has failed (a mounted table's turn fails in its own thread)."""
+        if self.error is None:
+            self.error = getattr(self.table, "error", None)
         return Action.ABORT if self.error is not None else None
+
+    def stop(self) -> None:
+        """Bring the table to rest at once (abort, Ctrl-C)."""
+        self.table.stop()
 
 
 class FactoryOperator(BaseOperator):
