@@ -4,7 +4,8 @@ repeatability (``imu-station characterise --port``).
 Between records the unit is restarted with the native RESTART command (``shared/specs/native-protocol.md``);
 a unit that answers ACK status 1 cannot restart itself, and the operator is asked to power-cycle it
 (``power_cycle``): the port is closed meanwhile (a USB unit's port vanishes with its power) and opened
-again afterwards.
+again afterwards. With a bench supply (``supply_cycle``, ``station.instruments.power_cycle``) the unit is
+power-cycled through it instead of RESTART, then the station waits for its samples to come back.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from station.errors import StationError
 
 RESTART_SETTLE_S = 0.2  # wall seconds after the ACK: the samples of the old power-up are flushed
 REOPEN_TRIES = 20
+SAMPLES_BACK_S = 10.0  # wall seconds a unit may take to boot and stream after its supply comes on
 
 PowerCycle = Callable[[int], None]
 """``power_cycle(turn_on)``: ask the operator to switch the unit off and on; returns when it is back."""
@@ -61,8 +63,20 @@ def _reopen(port: str, protocol: str, baudrate: int) -> Device:
     raise AssertionError("unreachable")
 
 
+def _await_samples(device: Device, port: str, timeout_s: float) -> None:
+    """Wait for the first samples of the new power-up (discarded: the record starts after them)."""
+    deadline = time.monotonic() + timeout_s
+    while (left := deadline - time.monotonic()) > 0:
+        if len(device.read(min(0.2, left))):
+            return
+    raise TurnOnError(f"{port}: no samples {timeout_s:g} s after the supply switched the unit on; check its "
+                      "wiring to the supply, the voltage (--supply-volts) and the current limit "
+                      "(--supply-amps)")
+
+
 def record_turn_ons(port: str, folder: Path, turn_ons: int, still_s: float, *, protocol: str = "native",
                     baudrate: int = DEFAULT_BAUDRATE, power_cycle: PowerCycle | None = None,
+                    supply_cycle: PowerCycle | None = None, samples_back_s: float = SAMPLES_BACK_S,
                     err: IO[str], status: StatusDisplay | None = None) -> list[Path]:
     """Record ``turn_ons`` still captures of ``still_s`` seconds, restarting the unit before each but
     the first.
@@ -80,6 +94,10 @@ def record_turn_ons(port: str, folder: Path, turn_ons: int, still_s: float, *, p
         As for every command that opens a unit.
     power_cycle : callable, optional
         Asks the operator to power-cycle a unit that cannot restart itself; None: such a unit is an error.
+    supply_cycle : callable, optional
+        Power-cycles the unit through its bench supply; when given, it replaces RESTART and the operator.
+    samples_back_s : float
+        Wall seconds the unit may take to stream again after ``supply_cycle``.
     err : text stream
         Where progress lines go.
     status : callable, optional
@@ -101,7 +119,13 @@ def record_turn_ons(port: str, folder: Path, turn_ons: int, still_s: float, *, p
     try:
         prepare_device(device, None, err)
         for k in range(turn_ons):
-            if k:
+            if k and supply_cycle is not None:
+                print(f"turn-on {k + 1}/{turn_ons}: power-cycling the unit through its supply", file=err)
+                device.close()
+                supply_cycle(k + 1)
+                device = _reopen(port, protocol, baudrate)
+                _await_samples(device, port, samples_back_s)
+            elif k:
                 print(f"turn-on {k + 1}/{turn_ons}: restarting the unit", file=err)
                 if not restart_unit(device):
                     if power_cycle is None:

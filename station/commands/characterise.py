@@ -28,7 +28,10 @@ Measure what a datasheet says of the unit and merge it into the 'characterisatio
 Turn-on bias repeatability: give three or more still captures, each one power-up of the unit in the
 same pose (STILL1.csv ... STILLn.csv), or record them with --port PORT --turn-ons N --still S: the unit
 is restarted with the native RESTART command before each record (a unit that cannot restart itself is
-power-cycled by the operator when asked). The figure is the spread of the turn-on means with each
+power-cycled by the operator when asked). With --supply URL the unit is power-cycled through its bench
+supply instead (output off, held --supply-off S, on, then the station waits for its samples); give
+--supply-volts V and --supply-amps A to set the supply, each checked against --supply-max-v and
+--supply-max-a before anything is sent. The figure is the spread of the turn-on means with each
 record's in-run noise of its mean removed (from its own Allan deviation), with a chi-square interval.
 
 Scale-factor nonlinearity and asymmetry: give captures with constant-rate steps (labels rate+z:90,
@@ -46,11 +49,15 @@ EPILOG = """\
 examples:
   imu-station characterise still1.csv still2.csv still3.csv still4.csv -o unit.yaml
   imu-station characterise --port /dev/ttyUSB0 --turn-ons 10 --still 60 -o unit.yaml --keep turn-ons/
+  imu-station characterise --port /dev/ttyUSB0 --turn-ons 10 --still 60 --supply scpi://10.0.0.9 \
+      --supply-volts 5 --supply-amps 0.5 -o unit.yaml
   imu-station characterise rates.csv -o unit.yaml --datasheet
   imu-station characterise --port /dev/ttyUSB0 --table /dev/ttyUSB1 --rates 10,100,300,600 -o unit.yaml
   imu-station characterise --datasheet --params unit.yaml --json"""
 
 MAX_TURN_ONS = 1000
+SUPPLY_MAX_V = 12.0  # an IMU's input range rarely goes further; a higher voltage must be asked for
+SUPPLY_MAX_A = 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -63,6 +70,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"power-ups to record with --port, 3 to {MAX_TURN_ONS}")
     parser.add_argument("--still", type=DURATION_S, default=None, metavar="S",
                         help="seconds recorded still at each power-up with --port")
+    parser.add_argument("--supply", metavar="URL",
+                        help="power-cycle the unit through this bench supply between turn-ons "
+                             "(scpi://HOST, korad://PORT, sim://supply) instead of RESTART")
+    parser.add_argument("--supply-volts", type=number(float, 0.0, 1000.0), default=None, metavar="V",
+                        help="the supply's voltage with --supply (default: as the supply is set)")
+    parser.add_argument("--supply-amps", type=number(float, 0.0, 100.0), default=None, metavar="A",
+                        help="the supply's current limit with --supply (default: as the supply is set)")
+    parser.add_argument("--supply-max-v", type=number(float, 0.0, 1000.0), default=SUPPLY_MAX_V, metavar="V",
+                        help=f"refuse a --supply-volts above this (default {SUPPLY_MAX_V:g})")
+    parser.add_argument("--supply-max-a", type=number(float, 0.0, 100.0), default=SUPPLY_MAX_A, metavar="A",
+                        help=f"refuse a --supply-amps above this (default {SUPPLY_MAX_A:g})")
+    parser.add_argument("--supply-off", type=number(float, 0.05, 600.0), default=2.0, metavar="S",
+                        help="seconds the supply's output stays off at each power cycle (default 2)")
     parser.add_argument("--table", metavar="TABLE",
                         help="the rate table's port: record constant-rate steps of the unit at --port")
     parser.add_argument("--rates", type=_rates, default=None, metavar="R,R,R",
@@ -104,6 +124,12 @@ def _check_options(args: argparse.Namespace) -> None:
                                "(give --table TABLE and --rates R,R,R)")
     if turn_ons and (args.turn_ons is None or args.still is None):
         raise EngineInputError("the turn-ons need both --turn-ons N (3 or more) and --still S")
+    supply_options = (args.supply_volts, args.supply_amps)
+    if args.supply is not None and args.turn_ons is None:
+        raise EngineInputError("--supply power-cycles the unit between turn-ons: give --turn-ons N and "
+                               "--still S")
+    if args.supply is None and any(v is not None for v in supply_options):
+        raise EngineInputError("--supply-volts and --supply-amps go with --supply URL")
     if (args.table is None) != (args.rates is None):
         raise EngineInputError("rate steps need both --table TABLE and --rates R,R,R")
     if args.port is None and (turn_ons or args.table is not None or args.keep is not None):
@@ -135,9 +161,24 @@ def _record(args: argparse.Namespace, folder: Path) -> list[Path]:
         interactive = sys.stdin.isatty()
         status = ((lambda duration_s: CaptureStatusLine(sys.stderr, duration_s)) if sys.stderr.isatty()
                   else None)
-        paths += record_turn_ons(args.port, folder, args.turn_ons, args.still, protocol=args.protocol,
-                                 baudrate=args.baud, power_cycle=_power_cycle if interactive else None,
-                                 err=sys.stderr, status=status)
+        cycle = None
+        if args.supply is not None:
+            from station.instruments.limits import Limits
+            from station.instruments.power_cycle import open_power_cycle
+
+            limits = Limits(max_v=args.supply_max_v, max_a=args.supply_max_a,
+                            source="--supply-max-v / --supply-max-a")
+            cycle = open_power_cycle(args.supply, limits, args.supply_volts, args.supply_amps,
+                                     args.supply_off, sys.stderr)
+        try:
+            if cycle is not None:
+                cycle.power_on()  # the unit may be off (a supply starts with its output off)
+            paths += record_turn_ons(args.port, folder, args.turn_ons, args.still, protocol=args.protocol,
+                                     baudrate=args.baud, power_cycle=_power_cycle if interactive else None,
+                                     supply_cycle=cycle, err=sys.stderr, status=status)
+        finally:
+            if cycle is not None:
+                cycle.close()
     if args.table is not None:
         folder.mkdir(parents=True, exist_ok=True)
         with open_device(args.port, protocol=args.protocol, baudrate=args.baud) as device, \
