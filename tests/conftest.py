@@ -12,12 +12,12 @@ REFERENCE_DATA = Path(__file__).resolve().parent / "data"
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--imu-port", default=None,
                      help="also run the device contract tests against this real serial port")
-    parser.addoption("--supply", default=None, metavar="URL",
-                     help="also run the supply contract test against this real bench supply (scpi://HOST, "
-                          "korad:///dev/ttyUSB0); it sets at most 1 V and 50 mA and leaves the output off")
     parser.addoption("--chamber", default=None, metavar="URL",
                      help="also run the chamber contract tests against this real chamber "
                           "(votsch://HOST, espec:///dev/ttyUSB0, watlow-f4://PORT, binder://HOST)")
+    parser.addoption("--supply", default=None, metavar="URL",
+                     help="also run the supply contract test against this real bench supply (scpi://HOST, "
+                          "korad:///dev/ttyUSB0); it sets at most 1 V and 50 mA and leaves the output off")
 
 
 @pytest.fixture(scope="session")
