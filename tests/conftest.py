@@ -18,6 +18,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--supply", default=None, metavar="URL",
                      help="also run the supply contract test against this real bench supply (scpi://HOST, "
                           "korad:///dev/ttyUSB0); it sets at most 1 V and 50 mA and leaves the output off")
+    parser.addoption("--table", default=None, metavar="URL",
+                     help="also run the rate table contract test against this real table "
+                          "(acutrol://HOST:PORT, aerosmith:///dev/ttyUSB0); it moves a few degrees")
 
 
 @pytest.fixture(scope="session")

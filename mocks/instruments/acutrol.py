@@ -193,6 +193,13 @@ class TableEmulator:
         The table's own limits.
     clock : callable, optional
         Seconds now (default: the device's time, else ``time.monotonic``).
+
+    Attributes
+    ----------
+    garble : bool
+        Fault: every reply's text is noise but keeps its line end (a noisy line, a wrong baud
+        rate), so the host reads a whole reply that is not a number. ``ByteServer.garbage``
+        scrambles the line end too, which a host sees as no reply.
     """
 
     END = b"\n"
@@ -204,6 +211,7 @@ class TableEmulator:
         self.mount = mount
         self.clock = clock or (device.next_due_s if device is not None else time.monotonic)
         self.lines: list[str] = []
+        self.garble = False
         self._buffer = b""
         self._lock = threading.RLock()
         if device is not None:
@@ -255,7 +263,8 @@ class TableEmulator:
                 self.lines.append(line)
                 reply = self.handle(line)
                 if reply is not None:
-                    out.append(reply.encode("latin-1") + self.END)
+                    text = reply.encode("latin-1")
+                    out.append((bytes(0x21 + (b * 7) % 90 for b in text) if self.garble else text) + self.END)
             return b"".join(out)
 
     def handle(self, line: str) -> str | None:
