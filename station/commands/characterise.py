@@ -49,8 +49,7 @@ EPILOG = """\
 examples:
   imu-station characterise still1.csv still2.csv still3.csv still4.csv -o unit.yaml
   imu-station characterise --port /dev/ttyUSB0 --turn-ons 10 --still 60 -o unit.yaml --keep turn-ons/
-  imu-station characterise --port /dev/ttyUSB0 --turn-ons 10 --still 60 --supply scpi://10.0.0.9 \
-      --supply-volts 5 --supply-amps 0.5 -o unit.yaml
+  imu-station characterise --port /dev/ttyUSB0 --turn-ons 10 --still 60 --supply korad:///dev/ttyUSB1
   imu-station characterise rates.csv -o unit.yaml --datasheet
   imu-station characterise --port /dev/ttyUSB0 --table /dev/ttyUSB1 --rates 10,100,300,600 -o unit.yaml
   imu-station characterise --datasheet --params unit.yaml --json"""
