@@ -17,6 +17,7 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
      ├── RateTableError                   a rate step never held its rate (acquisition)
      ├── MavlinkUnavailable               the MAVLink protocol needs pymavlink (protocols)
      ├── FrameDescriptionError            a frame description breaks its schema's rules (protocols)
+     ├── DescriptionError                 an instrument description breaks its schema (drivers.instruments)
      └── DriverError                      exit 3: device or link (drivers, see drivers.errors)
           ├── PortError                   opening the port failed
           │    ├── PortNotFound
@@ -25,6 +26,13 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
           ├── PortLost                    the port went away while open
           ├── NoSamples                   the port is open but no sample arrives
           ├── TableFault                  the turntable reports a fault
+          ├── InstrumentError             a lab instrument failed (drivers.instruments.errors)
+          │    ├── InstrumentTimeout      no reply in time, after the retries
+          │    ├── InstrumentGarbled      a reply its description does not expect
+          │    ├── InstrumentRefused      the instrument answered with an error
+          │    ├── InstrumentLost         the link went away
+          │    ├── MountRefused           a step the table cannot do with the unit as mounted
+          │    └── LimitRefused           exit 4: beyond the plan's limits, nothing sent
           └── CommandError                a command to the device failed
                ├── CommandTimeout
                ├── CommandRejected

@@ -55,6 +55,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from protocols.errors import StationError
+
 SCHEMA = "imu-station/instrument/1"
 KINDS = ("chamber", "table", "supply")
 PROTOCOLS = ("ascii", "modbus")
@@ -77,7 +79,7 @@ MAX_SEND_CHARS = 256
 MAX_COMMANDS = 64
 
 
-class DescriptionError(ValueError):
+class DescriptionError(StationError, ValueError):
     """A description the station cannot use; ``path`` is the key path of the offending value.
 
     Parameters

@@ -115,6 +115,7 @@ class MovedFinder(importlib.abc.MetaPathFinder):
 
     def find_spec(self, fullname: str, path: object = None, target: object = None
                   ) -> importlib.machinery.ModuleSpec | None:
+        """A spec for an old module name, whose loader gives the new module; None for any other."""
         new = MOVED.get(fullname)
         return None if new is None else importlib.machinery.ModuleSpec(fullname, _MovedLoader(new))
 

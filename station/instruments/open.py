@@ -2,7 +2,8 @@
 
 The scheme names the shipped description (``station/instruments/descriptions/SCHEME.yaml``);
 ``?description=FILE.yaml`` replaces it with the user's own. Other options set the link:
-``baud`` (serial), ``unit`` (Modbus unit id), ``timeout`` (s), ``channel`` (a supply's channel).
+``baud`` (serial), ``unit`` (Modbus unit id), ``timeout`` (s), ``channel`` (a supply's channel),
+``axes`` (a table's axes, 1 to 3, where the controller drives more than its description says).
 ``sim://chamber``, ``sim://table`` and ``sim://supply`` name the simulated instruments served in
 this process beside the simulated unit (``imu-station simulate --instruments``, ``run --simulate``),
 which register themselves here with the URL of the emulator that speaks for them.
@@ -30,7 +31,7 @@ SCHEMES = {
 }
 """URL scheme -> (kind, what it speaks and how it is written); each has a shipped description."""
 
-OPTIONS = ("description", "baud", "unit", "timeout", "channel")
+OPTIONS = ("description", "baud", "unit", "timeout", "channel", "axes")
 
 _simulated: dict[str, str] = {}
 _simulated_lock = threading.Lock()
@@ -107,7 +108,9 @@ def open_instrument(url: str, transcript: Transcript | None = None, kind: str | 
     link = dataclasses.replace(link, baud=int(baud) if baud is not None else link.baud,
                                unit=int(unit) if unit is not None else link.unit,
                                timeout_s=timeout if timeout is not None else link.timeout_s)
-    description = dataclasses.replace(description, link=link)
+    axes = _number(url, options, "axes", 1, 3)
+    description = dataclasses.replace(description, link=link,
+                                      axes=int(axes) if axes is not None else description.axes)
     if kind is not None and description.kind != kind:
         raise StationError(f"{url}: is a {description.kind} ({description.name}), not a {kind}")
     channel = _number(url, options, "channel", 1, 99)

@@ -18,17 +18,28 @@ class Measured(Protocol):
     """One measurement of a run record, as the plot reads it (``station.factory.records.Measurement``)."""
 
     @property
-    def name(self) -> str: ...
+    def name(self) -> str:
+        """The measurement's name (``gyro.bias.x``)."""
+
     @property
-    def value(self) -> object: ...
+    def value(self) -> object:
+        """Its value: a number where it can be plotted."""
+
     @property
-    def unit(self) -> str: ...
+    def unit(self) -> str:
+        """The unit of value and limits."""
+
     @property
-    def low(self) -> float | None: ...
+    def low(self) -> float | None:
+        """The lower limit, if any."""
+
     @property
-    def high(self) -> float | None: ...
+    def high(self) -> float | None:
+        """The upper limit, if any."""
+
     @property
-    def outcome(self) -> str: ...
+    def outcome(self) -> str:
+        """PASS, FAIL, ..."""
 
 
 class RunRecord(Protocol):
@@ -36,8 +47,11 @@ class RunRecord(Protocol):
     below the factory, which stores the records."""
 
     @property
-    def serial(self) -> str: ...
-    def measurements(self) -> Mapping[str, Measured]: ...
+    def serial(self) -> str:
+        """The unit's serial."""
+
+    def measurements(self) -> Mapping[str, Measured]:
+        """Its measurements by name."""
 
 MAX_PANELS = 12
 

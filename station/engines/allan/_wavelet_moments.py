@@ -43,6 +43,7 @@ class Combination:
 
     @property
     def parameters(self) -> int:
+        """How many parameters the combination fits."""
         return len(self.terms) + GM_PARAMS * self.n_gm + self.filtered + SIN_PARAMS * self.n_sin
 
 
