@@ -22,9 +22,10 @@ units, the run's time limits and the export formats::
       link.lost_fraction: {max: 0.001}
     export: [c, json]
     instruments:                    # the lab's instruments (shared/specs/instruments.md), with limits
-      chamber: {url: "votsch://10.0.0.5", min_c: -40, max_c: 85, max_gradient: 3}
-      table: {url: "acutrol://10.0.0.7:5000", max_rate_dps: 400, max_accel_dps2: 200}
-      supply: {url: "scpi://10.0.0.9", max_v: 12, max_a: 1}
+      chamber: {url: "votsch://10.0.0.5", min_c: -40, max_c: 85, max_gradient: 3,
+                soak_c: 25, settle_rate_c_per_min: 0.05, settle_s: 300, settle_timeout_s: 3600}
+      table: {url: "acutrol://10.0.0.7:5000?axes=3", max_rate_dps: 400, max_accel_dps2: 200, mount: +z}
+      supply: {url: "scpi://10.0.0.9", max_v: 12, max_a: 1, volts: 5, amps: 0.5}
       on_abort: {chamber: hold, table: stop, supply: keep}   # or chamber: stop | setpoint:23, supply: off
 
 Every limit applies to each component of its quantity (the three axes of a bias, the six
@@ -93,9 +94,14 @@ _RUN = {"timeout_s", "step_timeout_s", "max_attempts"}
 _LIMIT = {"min", "max", "max_abs", "unit"}
 _INSTRUMENTS = {"chamber", "table", "supply", "on_abort"}
 # Each instrument's URL and the limits of its kind (station.instruments.limits.Limits).
-_INSTRUMENT_KEYS = {"chamber": {"url", "min_c", "max_c", "max_gradient"},
-                    "table": {"url", "max_rate_dps", "max_accel_dps2"},
-                    "supply": {"url", "max_v", "max_a"}}
+_INSTRUMENT_KEYS = {"chamber": {"url", "min_c", "max_c", "max_gradient", "soak_c", "settle_rate_c_per_min",
+                                "settle_s", "settle_timeout_s"},
+                    "table": {"url", "max_rate_dps", "max_accel_dps2", "mount"},
+                    "supply": {"url", "max_v", "max_a", "volts", "amps"}}
+# Keys of the run (not limits), by where InstrumentPlan keeps them.
+_RUN_KEYS = {"soak_c": "soak_c", "settle_rate_c_per_min": "settle_rate_c_per_min", "settle_s": "settle_s",
+             "settle_timeout_s": "settle_timeout_s", "volts": "supply_v", "amps": "supply_a"}
+_MOUNTS = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 
 @dataclass(frozen=True)
@@ -441,6 +447,7 @@ def _instruments(r: _Reader, node: yaml.Node) -> InstrumentPlan:
     section = r.mapping(node, _INSTRUMENTS, "'instruments'")
     urls: dict[str, str] = {}
     limits: dict[str, float] = {}
+    run: dict[str, Any] = {}
     for kind, keys in _INSTRUMENT_KEYS.items():
         if kind not in section:
             continue
@@ -453,9 +460,19 @@ def _instruments(r: _Reader, node: yaml.Node) -> InstrumentPlan:
             raise r.fail(entry["url"], f"'url' {url!r} is not an instrument URL; write e.g. "
                          f"{_EXAMPLE_URL[kind]}", column="url")
         urls[kind] = url
-        for key in keys - {"url"}:
+        for key in sorted(keys - {"url", "mount"}):
             if key in entry:
-                limits[key] = r.number(entry[key], key, positive=key not in ("min_c", "max_c"))
+                value = r.number(entry[key], key, positive=key not in ("min_c", "max_c", "soak_c"))
+                if key in _RUN_KEYS:
+                    run[_RUN_KEYS[key]] = value
+                else:
+                    limits[key] = value
+        if "mount" in entry:
+            mount = r.scalar(entry["mount"], "'mount'")
+            if mount not in _MOUNTS:
+                raise r.fail(entry["mount"], f"'mount' must be the unit axis along the table's inner axis, "
+                             f"one of {', '.join(_MOUNTS)}, not {mount!r}", column="mount")
+            run["mount"] = mount
     if "min_c" in limits and "max_c" in limits and limits["min_c"] >= limits["max_c"]:
         raise r.fail(section["chamber"], f"'min_c' {limits['min_c']:g} must be below 'max_c' "
                      f"{limits['max_c']:g}", column="min_c")
@@ -470,8 +487,20 @@ def _instruments(r: _Reader, node: yaml.Node) -> InstrumentPlan:
                 raise r.fail(action_node, problem, column=kind)
             chosen[kind] = action
         on_abort = OnAbort(**chosen)
-    return InstrumentPlan(**urls, limits=Limits(**limits, source=f"the plan {r.path.name}"),
-                          on_abort=on_abort)
+    checks = (("soak_c", "min_c", "max_c", "chamber"), ("supply_v", None, "max_v", "supply"),
+              ("supply_a", None, "max_a", "supply"))
+    for key, low, high, kind in checks:
+        if key not in run:
+            continue
+        given = float(run[key])
+        for bound, beyond in ((low, given < limits.get(low or "", -math.inf)),
+                              (high, given > limits.get(high or "", math.inf))):
+            if bound is not None and beyond:
+                name = {"supply_v": "volts", "supply_a": "amps"}.get(key, key)
+                raise r.fail(section[kind], f"'{name}' {given:g} is beyond '{bound}' {limits[bound]:g}",
+                             column=name)
+    return InstrumentPlan(chamber=urls.get("chamber"), table=urls.get("table"), supply=urls.get("supply"),
+                          limits=Limits(**limits, source=f"the plan {r.path.name}"), on_abort=on_abort, **run)
 
 
 _EXAMPLE_URL = {"chamber": "votsch://10.0.0.5", "table": "acutrol://10.0.0.7:5000", "supply": "scpi://10.0.0.9"}

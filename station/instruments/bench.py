@@ -19,6 +19,7 @@ what failed is in the notes, so the other instruments are still made safe.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import signal
 import threading
 from collections.abc import Iterator
@@ -59,13 +60,28 @@ def check_on_abort(kind: str, action: str) -> str | None:
 
 @dataclass(frozen=True)
 class InstrumentPlan:
-    """The plan's ``instruments:`` section."""
+    """The plan's ``instruments:`` section: URLs, limits, ``on_abort``, and what the run does with
+    them: the unit mounted on the table (``mount``), the supply's voltage and current limit (the
+    output switched on before the unit is opened), the soak temperature and when it has settled."""
 
     chamber: str | None = None
     table: str | None = None
     supply: str | None = None
     limits: Limits = Limits()
     on_abort: OnAbort = OnAbort()
+    mount: str = "+z"
+    supply_v: float | None = None
+    supply_a: float | None = None
+    soak_c: float | None = None
+    settle_rate_c_per_min: float = 0.05
+    settle_s: float = 300.0
+    settle_timeout_s: float = 3600.0
+
+    def with_urls(self, urls: dict[str, str]) -> InstrumentPlan:
+        """The same plan with some instruments' URLs replaced (the simulated ones)."""
+        return dataclasses.replace(self, chamber=urls.get("chamber", self.chamber),
+                                   table=urls.get("table", self.table),
+                                   supply=urls.get("supply", self.supply))
 
     def urls(self) -> dict[str, str]:
         """Kind -> URL of the instruments named."""
