@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
@@ -22,8 +23,11 @@ from station.console.options import (
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
+    from mocks.chamber import ChamberSweep
+    from mocks.instruments.bench import SimulatedBench
     from mocks.magnetometer import MagTruth
     from mocks.pty_server import PtyServer
+    from mocks.truth import UnitTruth
 
 NAME = "simulate"
 HELP = "serve a simulated unit on a pseudo-terminal (a serial port path any tool can open)"
@@ -49,7 +53,16 @@ against the accelerometer, sending IMU_MAG_SAMPLE frames; --mag field=UT,dip=DEG
 sets the local Earth field (default 50 uT, dip 60 deg, declination 0).
 
 faults (probabilities per frame, comma separated): garbage=P, bitflip=P, truncate=P, drop=P,
-stall=P with stall_s=S, garbage_max=N, disconnect_bytes=N, disconnect_s=S, seed=N."""
+stall=P with stall_s=S, garbage_max=N, disconnect_bytes=N, disconnect_s=S, seed=N.
+
+--instruments also serves a simulated bench on loopback TCP, coupled to the unit, and prints each
+instrument's URL (votsch://, acutrol://, scpi:// on 127.0.0.1) for `imu-station instrument URL`,
+--chamber/--table/--supply and plans: a Voetsch simserv chamber whose air the unit sits in (a
+setpoint warms or cools the unit, at --speed), an ACUTROL rate table the unit is mounted on (+z up;
+its turns are the unit's), a SCPI bench supply powering the unit (output on at 5 V at start;
+off silences the unit, on boots it anew). --instruments chamber,supply serves only those. The
+sim://chamber|table|supply names reach them only inside one process (run --simulate): from
+another process give the printed URLs."""
 EPILOG = """\
 examples:
   imu-station simulate --seed 3 --rate 400 --link /tmp/imu
@@ -57,6 +70,8 @@ examples:
   imu-station simulate --scenario twelve-position --speed 10
   imu-station simulate --scenario chamber --chamber t_min=0,t_max=40,rate_c_per_min=2 --speed 100
   imu-station simulate --mag field=48,dip=64 --scenario mag-desk
+  imu-station simulate --instruments --speed 20
+  imu-station instrument votsch://127.0.0.1:PORT --setpoint 40 --start   (a URL it printed)
   imu-station capture --port /tmp/imu --duration 10 -o still.csv   (in another terminal)"""
 
 
@@ -90,14 +105,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: 1)")
     parser.add_argument("--duration", type=DURATION_S, metavar="S",
                         help="stop after S seconds of wall clock (default: until Ctrl-C)")
+    parser.add_argument("--instruments", nargs="?", const="all", default="", metavar="KINDS",
+                        help="also serve a simulated chamber, rate table and bench supply coupled to the "
+                             "unit, on loopback TCP, and print their URLs; KINDS picks some: "
+                             "chamber,table,supply (default: all three)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Serve the simulated unit until Ctrl-C, SIGTERM, --duration or a disconnect fault."""
     import mocks.encoders_extra  # noqa: F401  (registers the xsens, mavlink and text encoders)
-    from mocks.chamber import describe_scenario, parse_chamber_spec
+    from mocks.chamber import parse_chamber_spec
     from mocks.device import MAX_RATE_HZ, MIN_RATE_HZ, SimDevice
     from mocks.faults import FaultSpec
+    from mocks.instruments.bench import parse_kinds, simulated_bench
     from mocks.pty_server import PtyServer
     from mocks.truth import UnitTruth
 
@@ -114,6 +134,16 @@ def run(args: argparse.Namespace) -> int:
     elif args.chamber:
         raise StationError(f"--chamber applies to --scenario chamber only, not {args.scenario}")
     check_range("--rate", args.rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")
+    kinds: tuple[str, ...] = ()
+    if args.instruments:
+        try:
+            kinds = parse_kinds(args.instruments)
+        except ValueError as exc:
+            raise StationError(f"--instruments {args.instruments!r}: {exc}") from None
+        if "chamber" in kinds and args.scenario == "chamber":
+            raise StationError("--instruments serves a chamber whose air sets the unit's temperature; "
+                               "--scenario chamber has its own programme: choose one (e.g. --instruments "
+                               "table,supply)")
     if args.link is not None and os.path.lexists(args.link) and not args.link.is_symlink():
         raise StationError(f"--link {args.link}: a file that is not a symlink is there; choose another path")
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
@@ -125,30 +155,50 @@ def run(args: argparse.Namespace) -> int:
 
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    bench: SimulatedBench | None = None
     try:
         server.start()
-        speed = f", speed x{args.speed:g}" if args.speed != 1 else ""
-        print(f"simulated unit {truth.serial} ({truth.model}), {args.rate} Hz, scenario {args.scenario}, "
-              f"faults {faults.describe()}{speed}")
-        if chamber is not None:
-            print(f"chamber: {describe_scenario(chamber)}")
-        if truth.mag is not None:
-            earth = truth.mag.field
-            print(f"magnetometer: local field {earth.magnitude_ut:g} uT, dip {earth.dip_deg:g} deg, "
-                  f"declination {earth.declination_deg:g} deg")
-        print(f"port: {server.port_path}")
-        if args.link is not None:
-            print(f"link: {args.link} -> {server.port_path}")
-        print("press Ctrl-C to stop", flush=True)
-        try:
-            _wait(server, stop, args.duration)
-        except KeyboardInterrupt:
-            pass
+        # The bench runs on the served unit's device clock: at --speed X its chamber warms the unit X times
+        # faster.
+        serving = simulated_bench(device, server.device_time_s, kinds) if kinds else contextlib.nullcontext()
+        with serving as bench:
+            _announce(args, server, truth, faults.describe(), chamber, bench)
+            try:
+                _wait(server, stop, args.duration)
+            except KeyboardInterrupt:
+                pass
     finally:
         signal.signal(signal.SIGTERM, previous)
         server.stop()
     _summary(server)
+    if bench is not None:
+        print(f"instruments: {bench.describe()}")
     return ExitCode.OK
+
+
+def _announce(args: argparse.Namespace, server: PtyServer, truth: UnitTruth, faults: str,
+              chamber: ChamberSweep | None, bench: SimulatedBench | None) -> None:
+    """Print what is served: the unit, its port, the bench's URLs."""
+    from mocks.chamber import describe_scenario
+
+    speed = f", speed x{args.speed:g}" if args.speed != 1 else ""
+    print(f"simulated unit {truth.serial} ({truth.model}), {args.rate} Hz, scenario {args.scenario}, "
+          f"faults {faults}{speed}")
+    if chamber is not None:
+        print(f"chamber: {describe_scenario(chamber)}")
+    if truth.mag is not None:
+        earth = truth.mag.field
+        print(f"magnetometer: local field {earth.magnitude_ut:g} uT, dip {earth.dip_deg:g} deg, "
+              f"declination {earth.declination_deg:g} deg")
+    print(f"port: {server.port_path}")
+    if args.link is not None:
+        print(f"link: {args.link} -> {server.port_path}")
+    if bench is not None:
+        for kind, url in bench.urls.items():
+            print(f"{kind}: {url}")
+        print("instruments: coupled to the unit; open them by these URLs (sim://KIND names them only "
+              "inside one process)")
+    print("press Ctrl-C to stop", flush=True)
 
 
 def _magnetometer(spec: str, seed: int) -> tuple[MagTruth | None, float]:
