@@ -2,9 +2,13 @@
 
 Phases, in order (each a phase of the record, OpenHTF style)::
 
+    instruments  where the plan names them: open the chamber, table and supply within the plan's
+               limits, identify each, set the supply and switch it on (``station.instruments``)
     connect    open the unit's port, ask who it is, set the plan's rate (a board streaming its own
                frames, protocol frame:FILE.yaml, is asked nothing: its serial is given); open the
-               table, home it
+               table (the plan's rate table, through the mount, or the station's own), home it
+    soak       where the plan gives the chamber a soak_c: the setpoint, until the unit's own
+               temperature has settled (``station.acquisition.settle``; TIMEOUT if it does not)
     sequence   the plan's sequence through the sequence runner, the table placing and turning
                the unit; the labelled raw capture is streamed to capture.csv beside the record
     calibrate  the engine on the capture; parameters measured against the plan's limits
@@ -18,7 +22,10 @@ no calibration to certify.
 Outcome and exit code: PASS 0, FAIL 1 (a measurement outside its limits, or the unit reports
 another serial), ABORTED 2 (a step kept failing its checks, the calibration could not be
 determined, Ctrl-C), ERROR 3 (device, table or link error), TIMEOUT 5 (the plan's run or step
-time was exceeded). Whatever happens, the record is saved with every file written so far.
+time was exceeded). Whatever happens, the record is saved with every file written so far, with
+``instruments.json`` (the instruments' identities and every command and reply with its time)
+where the plan names instruments. A run cut short (ABORTED, ERROR, TIMEOUT, Ctrl-C, SIGTERM)
+leaves the instruments as the plan's ``on_abort`` says.
 
 Why this module is long: ``UnitRun`` is the run's state machine (phases, stop reasons,
 the record it fills); its phases read and write the same record and log, so they are methods of
@@ -33,12 +40,12 @@ import json
 import logging
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from drivers.errors import DriverError
+from drivers.errors import CommandUnsupported, DriverError
 from drivers.interface import Device
 from drivers.paced_port import open_paced
 from drivers.turntable import Turntable
@@ -47,6 +54,7 @@ from station.acquisition.operator import Action, BaseOperator, Operator, Prompt,
 from station.acquisition.recorder import Recorder
 from station.acquisition.runner import RecorderSink, RunOptions, RunResult, SequenceRunner
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
+from station.acquisition.settle import Settle, SettleTimeout, wait_settled
 from station.common.files import atomic_write_text
 from station.common.text import printable
 from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
@@ -66,7 +74,8 @@ from station.factory.records import (
     utc_now,
 )
 from station.factory.simrig import SimulatedUnit, simulated_rig
-from station.instruments.mounted_table import PoseTable
+from station.instruments.bench import Bench, open_bench
+from station.instruments.mounted_table import MountedTable, PoseTable
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT, RAW_CAPTURE
 from station.report.certificate import CaptureFile, from_record, write_certificate
 
@@ -230,7 +239,10 @@ class UnitRun:
         self.deadline = time.monotonic() + plan.timeout_s
         self.capture: Any = None  # the sequence's labelled capture, for the certificate's residuals
         self.device: Device | None = None
-        self.table: Turntable | None = None
+        self.table: PoseTable | None = None
+        self.bench: Bench | None = None
+        self._instruments_phase: Phase | None = None
+        self._identities: dict[str, dict[str, str]] = {}
         self.files: Path | None = None
 
     def _event(self, **kw: Any) -> None:
@@ -272,11 +284,12 @@ class UnitRun:
             number when ``serial`` is ``auto``.
         """
         outcome, reason = "ERROR", ""
-        if self.req.simulate is None and (self.req.port is None
-                                          or (self.req.operator is None and self.req.table_port is None)):
-            raise StationError("give the unit's --port and the turntable's --table-port, or --simulate "
-                               "(a manual fixture is driven from a factory script: the Python API with a "
-                               "ScriptedOperator)")
+        instruments = self.req.plan.instruments
+        no_table = self.req.table_port is None and (instruments is None or instruments.table is None)
+        if self.req.simulate is None and (self.req.port is None or (self.req.operator is None and no_table)):
+            raise StationError("give the unit's --port and the turntable's --table-port (or a table in the "
+                               "plan's instruments), or --simulate (a manual fixture is driven from a "
+                               "factory script: the Python API with a ScriptedOperator)")
         check_serial(self.req)
         try:
             if self.req.simulate is not None:
@@ -284,15 +297,20 @@ class UnitRun:
                 if not self.req.plan.asks_serial:  # a board that cannot be asked: the simulation names it
                     self.record.serial = serial
                     _log_serial(printable(serial))
+                kinds = list(instruments.urls()) if instruments is not None else []
                 with simulated_rig(self.req.simulate, serial, self.req.plan.rate_hz,
-                                   self.req.plan.protocol) as ports:
+                                   self.req.plan.protocol, instruments=kinds) as ports:
                     if self.req.operator is not None:
                         # A manual fixture in simulation: a simulated hand does what the script asks.
                         self.req.operator = SimulatedOperator(ports.rig, self.req.operator)
-                    outcome, reason = self._run(ports.port, ports.table_port)
+                    with self._instruments(ports.instruments):
+                        outcome, reason = self._run(ports.port, ports.table_port)
+                        self._leave_safe_unless_done(outcome)
             else:
                 assert self.req.port is not None  # a request without one was refused above
-                outcome, reason = self._run(self.req.port, self.req.table_port)
+                with self._instruments({}):
+                    outcome, reason = self._run(self.req.port, self.req.table_port)
+                    self._leave_safe_unless_done(outcome)
         except _Stop as stop:
             outcome, reason = stop.outcome, stop.reason
         except DriverError as exc:
@@ -307,6 +325,7 @@ class UnitRun:
             self.record.finish(outcome, reason)
             self._close()
             if self.files is not None:
+                self._attach_transcript()
                 self._certify()
                 atomic_write_text(self.files / "record.json",
                                   json.dumps(self.record.to_dict(), indent=1, allow_nan=False) + "\n")
@@ -339,8 +358,73 @@ class UnitRun:
         if self.record.phases and self.record.phases[-1].outcome == "PASS":
             self.record.phases[-1].outcome = "ERROR"
 
+    @contextlib.contextmanager
+    def _instruments(self, simulated: dict[str, str]) -> Iterator[None]:
+        """The plan's instruments for the block (the simulated ones where ``simulated`` names them):
+        identified, the supply switched on; left as ``on_abort`` says if the block fails."""
+        plan = self.req.plan.instruments
+        if plan is None:
+            yield
+            return
+        phase = self._phase("instruments")
+        self._instruments_phase = phase
+        with open_bench(plan.with_urls(simulated)) as bench:
+            self.bench = bench
+            self._identities = bench.identities()
+            for kind, seen in self._identities.items():
+                phase.measurements.append(Measurement(f"instrument.{kind}", seen["identity"],
+                                                      doc=seen["url"]))
+            if bench.supply is not None:
+                if plan.supply_v is not None:
+                    bench.supply.set_voltage(plan.supply_v)
+                if plan.supply_a is not None:
+                    bench.supply.set_current(plan.supply_a)
+                bench.supply.set_output(True)
+            phase.end = utc_now()
+            yield
+
+    def _leave_safe_unless_done(self, outcome: str) -> None:
+        """A run that stopped short (aborted, timed out, an error) leaves its instruments as the plan
+        says; one that ran to its end (PASS or FAIL) leaves them as they are."""
+        if self.bench is not None and outcome not in ("PASS", "FAIL"):
+            self.bench.leave_safe()
+
+    def _attach_transcript(self) -> None:
+        """Every instrument command and reply, with its time, beside the record."""
+        if self.bench is None or self.files is None or self._instruments_phase is None:
+            return
+        path = self.files / "instruments.json"
+        atomic_write_text(path, json.dumps({"instruments": self._identities,
+                                            "on_abort": self.bench.notes,
+                                            "transcript": self.bench.transcript.to_list()},
+                                           indent=1, allow_nan=False) + "\n")
+        self._attach(self._instruments_phase, path, "instruments")
+
+    def _soak(self, phase: Phase) -> None:
+        """The chamber to the plan's soak temperature, until the unit's own temperature settles."""
+        plan = self.req.plan.instruments
+        assert plan is not None and plan.soak_c is not None and self.bench is not None
+        assert self.bench.chamber is not None and self.device is not None
+        chamber = self.bench.chamber
+        chamber.set_setpoint(plan.soak_c)
+        with contextlib.suppress(CommandUnsupported):
+            chamber.start()
+        settle = Settle(plan.settle_rate_c_per_min, plan.settle_s,
+                        min(plan.settle_timeout_s, max(1.0, self.deadline - time.monotonic())))
+        try:
+            watch = wait_settled(self.device, settle)
+        except SettleTimeout as exc:
+            phase.outcome = "ERROR"
+            raise _Stop("TIMEOUT", str(exc)) from None
+        phase.measurements.append(Measurement("chamber.soak_c", plan.soak_c, "degC"))
+        phase.measurements.append(Measurement("unit.temperature_c", watch.temperature_c, "degC",
+                                              doc="the unit's own temperature once settled"))
+        phase.measurements.append(Measurement("unit.temperature_slope", watch.slope(), "degC/min",
+                                              high=plan.settle_rate_c_per_min))
+
     def _close(self) -> None:
-        for thing in (self.device, self.table):
+        # A mounted table's link is the bench's, which closes it.
+        for thing in (self.device, self.table if isinstance(self.table, Turntable) else None):
             if thing is not None:
                 with contextlib.suppress(Exception):
                     thing.close()
@@ -356,6 +440,11 @@ class UnitRun:
         phase.end = utc_now()
         serial_ok = all(m.outcome != "FAIL" for m in phase.measurements)
         self._check_time(phase)
+        if self.req.plan.instruments is not None and self.req.plan.instruments.soak_c is not None:
+            phase = self._phase("soak")
+            self._soak(phase)
+            phase.end = utc_now()
+            self._check_time(phase)
 
         phase = self._phase("sequence")
         result = self._sequence(phase)
@@ -405,11 +494,16 @@ class UnitRun:
                       f"{day}-{self.record.run_id[:8]}").resolve()
         self.files.mkdir(parents=True, exist_ok=True)
         self.record.files_dir = str(self.files)
-        if self.req.operator is None:
+        if self.req.operator is None and self.bench is not None and self.bench.table is not None:
+            assert self.req.plan.instruments is not None
+            accel = self.req.plan.instruments.limits.max_accel_dps2 or 100.0
+            self.table = MountedTable(self.bench.table, self.req.plan.instruments.mount, accel)
+            phase.measurements.append(Measurement("table.identity", self.bench.table.identify()))
+        elif self.req.operator is None:
             assert table_port is not None  # execute() refused a request with neither
-            self.table = Turntable(table_port)
-            table_info = self.table.identify()
-            self.table.home()
+            self.table = turntable = Turntable(table_port)
+            table_info = turntable.identify()
+            turntable.home()
             phase.measurements.append(Measurement("table.serial", table_info.get("serial", "")))
             log.info("turntable %s %s on %s", printable(table_info.get("model")),
                      printable(table_info.get("serial")), table_port)
