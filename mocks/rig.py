@@ -18,7 +18,8 @@ Segments (labels as in ``shared/specs/capture-csv.md``):
 - :class:`ConstantRate`: with the axis vertical, spin up to a constant rate, hold it, spin down;
   labelled (``rate+z:90``) only while the rate is steady, after ``settle_s`` at the rate.
 - :class:`RateProfile`: with the signed axis up (a rate table's mount), follow linear rate ramps
-  from whatever rate the table had: the profile a table emulator plans (``mocks.instruments``).
+  from whatever rate the table had: the profile a table emulator plans (``mocks.instruments``);
+  with a ``vector``, about that body direction from wherever the unit is (a gimbal's axis).
 - :class:`Move`: a hand-held move to the attitude of the next segment: rotation about the
   fixed axis of the relative attitude with a quintic smooth-step angle
   ``phi = theta (10 u^3 - 15 u^4 + 6 u^5)``, ``u = t / duration`` (rate and angular
@@ -124,11 +125,14 @@ class ConstantRate:
 class RateProfile:
     """Turn about the signed body ``axis`` held up through ``ramps``: ``(rate0_dps, rate1_dps,
     duration_s)`` each, the rate going linearly within each (a table's trapezoidal profile, which
-    may start at a rate, unlike :class:`Rotation`)."""
+    may start at a rate, unlike :class:`Rotation`). With ``vector`` (body axes, any length), turn
+    about that body direction from the attitude the unit has, without putting anything up first
+    (a multi-axis table's gimbal, whose axis is fixed in the unit while the others hold)."""
 
     axis: str
     ramps: tuple[tuple[float, float, float], ...]
     label: str = ""
+    vector: tuple[float, float, float] | None = None
 
 
 @dataclass
@@ -249,6 +253,8 @@ def _target(segment: Segment, current: np.ndarray) -> np.ndarray:
         index, _ = segment.signed()
         return pose_attitude("+" + "xyz"[index], current)
     if isinstance(segment, RateProfile):
+        if segment.vector is not None:
+            return current
         return pose_attitude(segment.axis, current)  # the mount's signed axis along the table's
     return current
 
@@ -315,13 +321,16 @@ def build_pieces(segments: Sequence[Segment], r_start: np.ndarray, t_start: floa
                 pieces.append(piece)
                 r, t = piece.r1, piece.t1
         elif isinstance(seg, RateProfile):
-            index, turn = Rotation(seg.axis).signed()
-            sign = 1.0 if turn > 0 else -1.0  # about -z at w is about +z at -w
+            if seg.vector is not None:
+                about, sign = np.asarray(seg.vector, float) / np.linalg.norm(seg.vector), 1.0
+            else:
+                index, turn = Rotation(seg.axis).signed()
+                about, sign = np.eye(3)[index], (1.0 if turn > 0 else -1.0)  # about -z at w is about +z at -w
             for w0, w1, duration in seg.ramps:
                 if duration <= 0:
                     continue
                 ramp = _Ramp(sign * math.radians(w0), sign * math.radians(w1), duration)
-                piece = Piece(t, t + duration, r, np.eye(3)[index], ramp, seg.label)
+                piece = Piece(t, t + duration, r, about, ramp, seg.label)
                 pieces.append(piece)
                 r, t = piece.r1, piece.t1
         else:

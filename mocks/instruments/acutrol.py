@@ -14,25 +14,72 @@ the simulated clock: the coupled :class:`~mocks.device.SimDevice`'s device time 
 (which already runs at the served speed), else ``time.monotonic()``. With a device, every new
 profile is also commanded to the unit as a :class:`~mocks.rig.RateProfile` about the mount axis,
 so the unit's gyro sees the table's rate and its accelerometer the mount's pose.
+
+A three-axis table (``axes=3``) carries the unit on every axis, with the station's kinematics
+(``station.instruments.mounted_table``): axis 1 outer and vertical, axis 2 middle and horizontal
+(x of the outer frame), axis 3 inner (vertical at zero angles), the unit's ``mount`` axis along
+the inner axis and its ``middle`` axis along the middle one at zero angles; the unit's attitude is
+``Rz(a1) Rx(a2) Rz(a3) M``. Whenever an axis replans, the unit is commanded what the axes will do:
+one axis moving (the others holding) turns the unit about that gimbal's axis, fixed in the unit
+(:class:`~mocks.rig.RateProfile` with a vector: the outer axis about the body direction now up),
+exactly; several at once move it smoothly (:class:`~mocks.rig.Move`, the gyro seeing a smooth
+turn rather than the gimbals' own profiles) to the attitude they reach together. Once at rest,
+the unit holds that attitude (:class:`~mocks.rig.Static`), labelled with the pose it is in
+(``+x``, ``-y-z``; "" between named poses). The emulator holds the unit's lock while it replans,
+so the unit's motion starts on the same sample time as the axes'.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
+import numpy as np
+
+from mocks.attitude import axis_angle_matrix, parse_signed_axes
 from mocks.device import SimDevice
 from mocks.instruments.serving import ByteServer
-from mocks.rig import RateProfile, Static
+from mocks.rig import TWELVE_POSITION, Move, RateProfile, Segment, Static
 
 MAX_RATE_DPS = 1000.0  # an AC1120-class table
 MAX_ACCEL_DPS2 = 500.0
 DEFAULT_ACCEL_DPS2 = 100.0
 HOLD_S = 1e5  # how long the unit is told a constant rate lasts (the next demand replaces it)
+NEXT_AXIS = {"x": "y", "y": "z", "z": "x"}  # the default middle axis of a mount
+_EX, _EZ = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+
+
+def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
+    return axis_angle_matrix(axis, np.array([math.radians(degrees)]))[0]
+
+
+def mount_matrix(mount: str, middle: str) -> np.ndarray:
+    """M (3, 3): unit axes to the inner axis's frame, ``middle`` -> x, ``mount`` -> z."""
+    u, v = parse_signed_axes(mount), parse_signed_axes(middle)
+    return np.array([v, np.cross(u, v), u])
+
+
+def gimbal_attitude(m: np.ndarray, angles: list[float]) -> np.ndarray:
+    """The unit's attitude (body to world) at the three axes' ``angles`` (deg)."""
+    return _rotation(_EZ, angles[0]) @ _rotation(_EX, angles[1]) @ _rotation(_EZ, angles[2]) @ m
+
+
+def pose_name(up: np.ndarray) -> str:
+    """The station's label of the body direction ``up`` (``+x``, ``-y-z``), or "" when it has none."""
+    station = next((name for name in TWELVE_POSITION
+                    if np.allclose(parse_signed_axes(name), up, atol=1e-6)), None)
+    if station is not None:
+        return station  # "+z+x" as the station writes it, not "+x+z"
+    named = np.abs(up) > 1e-6
+    if np.ptp(np.abs(up[named])) > 1e-6:
+        return ""
+    return "".join(("+" if up[i] > 0 else "-") + "xyz"[i] for i in range(3) if named[i])
 
 
 @dataclass(frozen=True)
@@ -127,6 +174,26 @@ class TableAxis:
             del self._phases[0]  # a bounded list however long the table runs
         return self._phases[0].at(t)
 
+    def at(self, t: float) -> tuple[float, float, float]:
+        """(position, rate, acceleration) at ``t`` (now or later) on the planned profile."""
+        phase = next((p for p in reversed(self._phases) if p.t0 <= t), self._phases[0])
+        return phase.at(t)
+
+    def motion(self, t: float) -> tuple[list[tuple[float, float, float]], float]:
+        """The planned motion from ``t`` on: the finite rate ramps ``(rate0, rate1, duration)``, and the
+        rate the axis keeps after them (0: at rest)."""
+        ramps: list[tuple[float, float, float]] = []
+        for phase in self._phases:
+            end = phase.t0 + phase.duration
+            if end <= t:
+                continue
+            start = max(phase.t0, t)
+            rate0 = phase.at(start)[1]
+            if math.isinf(phase.duration):
+                return ramps, rate0
+            ramps.append((rate0, phase.at(end)[1], end - start))
+        return ramps, 0.0
+
     def _replan(self) -> None:
         t = self.clock()
         p, v, _ = self.state()
@@ -184,15 +251,20 @@ class TableEmulator:
     Parameters
     ----------
     axes : int
-        How many axes (only axis 1 is coupled to the unit).
+        How many axes (one or two: only axis 1 is coupled to the unit; three: every axis, see
+        the module's docstring).
     device : SimDevice, optional
-        The unit mounted on axis 1.
+        The unit mounted on the table.
     mount : str
-        The unit's signed axis along the table axis (held up), e.g. ``+z``.
+        The unit's signed axis along the table axis (held up), e.g. ``+z``; on a three-axis table,
+        along the inner axis.
     max_rate_dps, max_accel_dps2 : float
         The table's own limits.
     clock : callable, optional
         Seconds now (default: the device's time, else ``time.monotonic``).
+    middle : str, optional
+        Three axes: the unit's signed axis along the middle axis at zero angles (default: the
+        next axis, ``+z`` -> ``+x``).
 
     Attributes
     ----------
@@ -206,19 +278,29 @@ class TableEmulator:
 
     def __init__(self, axes: int = 1, device: SimDevice | None = None, mount: str = "+z",
                  max_rate_dps: float = MAX_RATE_DPS, max_accel_dps2: float = MAX_ACCEL_DPS2,
-                 clock: Callable[[], float] | None = None):
+                 clock: Callable[[], float] | None = None, middle: str | None = None):
         self.device = device
         self.mount = mount
+        self.middle = middle if middle is not None else "+" + NEXT_AXIS[mount[-1]]
         self.clock = clock or (device.next_due_s if device is not None else time.monotonic)
         self.lines: list[str] = []
         self.garble = False
         self._buffer = b""
         self._lock = threading.RLock()
-        if device is not None:
+        # The unit's own lock too while a line is handled: an axis's plan and the unit's motion start
+        # on the same sample (the unit's server could otherwise produce samples between the two).
+        self._device_lock: contextlib.AbstractContextManager[Any] = (
+            device._lock if device is not None else contextlib.nullcontext())
+        self.gimballed = axes >= 3
+        self.matrix = mount_matrix(mount, self.middle) if self.gimballed else np.eye(3)
+        self.axes = [TableAxis(self.clock, max_rate_dps, max_accel_dps2) for _ in range(axes)]
+        if device is not None and self.gimballed:
+            device.command([self._held([0.0, 0.0, 0.0])])  # every axis at zero: the mount axis up
+            for axis in self.axes[:3]:
+                axis.on_plan = self._couple_axes
+        elif device is not None:
             device.command([Static(mount, 1.0)])  # mounted: the mount axis along the (vertical) table axis
-        couple = self._couple if device is not None else None
-        self.axes = [TableAxis(self.clock, max_rate_dps, max_accel_dps2, couple if a == 0 else None)
-                     for a in range(axes)]
+            self.axes[0].on_plan = self._couple
 
     def _couple(self, phases: list[Phase]) -> None:
         assert self.device is not None
@@ -230,6 +312,53 @@ class TableEmulator:
                 break
             ramps.append((phase.v0, phase.v0 + phase.accel * phase.duration, phase.duration))
         self.device.command([RateProfile(self.mount, tuple(ramps))])
+
+    def _held(self, angles: list[float], duration_s: float = HOLD_S) -> Static:
+        """The unit held at the axes' ``angles``, labelled with its pose."""
+        attitude = gimbal_attitude(self.matrix, angles)
+        label = pose_name(attitude.T @ _EZ)
+        return Static(label, duration_s, label=label, attitude=attitude)
+
+    def _gimbal_axis(self, index: int, angles: list[float]) -> tuple[float, float, float]:
+        """Axis ``index`` (0 outer, 1 middle, 2 inner) in the unit's axes at ``angles``."""
+        carried = gimbal_attitude(self.matrix, [0.0, 0.0, angles[2]])  # Rz(a3) M
+        if index == 0:
+            axis = (_rotation(_EX, angles[1]) @ carried).T @ _EZ  # the body direction up
+        else:
+            axis = carried.T @ _EX if index == 1 else self.matrix.T @ _EZ
+        return float(axis[0]), float(axis[1]), float(axis[2])
+
+    def _couple_axes(self, _phases: list[Phase] | None = None) -> None:
+        """Command the unit what the three axes will do from now (see the module's docstring)."""
+        assert self.device is not None
+        now = self.clock()
+        axes = self.axes[:3]
+        motions = [axis.motion(now) for axis in axes]
+        moving = [i for i, (ramps, rate) in enumerate(motions)
+                  if rate or any(r0 or r1 for r0, r1, _ in ramps)]
+        angles = [axis.at(now)[0] for axis in axes]
+        segments: list[Segment] = []
+        if len(moving) == 1:
+            index = moving[0]
+            ramps, rate = motions[index]
+            held = [(rate, rate, HOLD_S)] if rate else []
+            segments.append(RateProfile(self.mount, tuple(ramps + held),
+                                        vector=self._gimbal_axis(index, angles)))
+            if not rate:
+                span = sum(d for _, _, d in ramps)
+                segments.append(self._held([axis.at(now + span)[0] for axis in axes]))
+        elif moving:
+            span = max(sum(d for _, _, d in motions[i][0]) for i in moving)
+            end = [axis.at(now + span)[0] for axis in axes]
+            turning = [i for i in moving if motions[i][1]]
+            segments += [Move(max(span, 1e-3)), self._held(end, 1e-3 if len(turning) == 1 else HOLD_S)]
+            if len(turning) == 1:  # one axis goes on turning: about its gimbal axis, as above
+                rate = motions[turning[0]][1]
+                segments.append(RateProfile(self.mount, ((rate, rate, HOLD_S),),
+                                            vector=self._gimbal_axis(turning[0], end)))
+        else:
+            segments.append(self._held(angles))
+        self.device.command(segments)
 
     def axis(self, number: int) -> TableAxis | None:
         """Axis ``number`` (1-based), or None."""
@@ -252,7 +381,7 @@ class TableEmulator:
 
     def feed(self, data: bytes) -> bytes:
         """Bytes from the host in; the replies to every complete line out."""
-        with self._lock:
+        with self._lock, self._device_lock:
             self._buffer += data
             out = []
             while self.END in self._buffer:
