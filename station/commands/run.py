@@ -56,6 +56,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=port, metavar="PORT",
                         help="the unit's serial port (device path or pyserial URL)")
     parser.add_argument("--table-port", type=port, metavar="PORT", help="the turntable's serial port")
+    parser.add_argument("--table", metavar="URL",
+                        help="a rate table by URL (acutrol://HOST:PORT?axes=3, ...) instead of --table-port: "
+                             "replaces the plan's instruments.table URL")
+    parser.add_argument("--chamber", metavar="URL", help="the climatic chamber (votsch://HOST, ...): "
+                        "replaces the plan's instruments.chamber URL")
+    parser.add_argument("--supply", metavar="URL", help="the bench supply (scpi://HOST, ...): replaces the "
+                        "plan's instruments.supply URL")
     parser.add_argument("--protocol", type=protocol_name, default=None, metavar="frame:FILE.yaml",
                         help="the unit streams a board's own frames described in YAML (or native); default: "
                              "the plan's device.protocol, else native. A frame-described unit is asked "
@@ -83,13 +90,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> None:
-    if args.simulate and (args.port or args.table_port):
-        raise StationError("give either --simulate or --port/--table-port, not both")
+    if args.simulate and (args.port or args.table_port or args.table or args.chamber or args.supply):
+        raise StationError("give either --simulate or --port/--table-port (and instrument URLs), not both: "
+                           "--simulate serves the plan's instruments simulated")
     if not args.simulate and not args.port:
         raise StationError("give the unit's --port and the turntable's --table-port, or --simulate")
-    if not args.simulate and not args.table_port:
-        raise StationError("give the turntable's --table-port (a manual fixture is driven from a factory "
-                           "script through the Python API, station.factory.api)")
+    if args.table_port and args.table:
+        raise StationError("give the table's --table-port (the station's own table) or --table URL, not both")
     if (args.unplug_after is not None or args.seed or args.speed != 1.0) and not args.simulate:
         raise StationError("--seed, --speed and --unplug-after apply to --simulate only")
     check_range("--speed", args.speed, MIN_SPEED, MAX_SPEED, unit="times real time")
@@ -112,15 +119,21 @@ def summary(record: RunRecord) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run the plan on the unit, store the record, print it; exit with the run's outcome."""
-    from station.factory.plan import load_plan, with_protocol
+    from station.factory.plan import load_plan, with_instruments, with_protocol
     from station.factory.records import RecordStore
     from station.factory.run import RunRequest, check_serial, configure_logging, run_unit
     from station.factory.simrig import SimulatedUnit
 
     _check(args)
     plan = load_plan(args.plan)
+    plan_table = plan.instruments is not None and plan.instruments.table is not None
+    if not args.simulate and not (args.table_port or args.table or plan_table):
+        raise StationError("give the turntable's --table-port, a --table URL or a table in the plan's "
+                           "instruments (a manual fixture is driven from a factory script through the "
+                           "Python API, station.factory.api)")
     if args.protocol is not None:
         plan = with_protocol(plan, args.protocol)
+    plan = with_instruments(plan, {"chamber": args.chamber, "table": args.table, "supply": args.supply})
     station = args.station or os.environ.get("IMU_STATION_ID") or socket.gethostname()
     url = db_url(args)
     handler = configure_logging(args.serial)

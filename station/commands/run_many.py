@@ -27,7 +27,8 @@ if TYPE_CHECKING:
 NAME = "run-many"
 HELP = "run a factory plan on several units at once, one process per port, with a live summary table"
 DESCRIPTION = """\
-Start one 'imu-station run' process per unit (--port P with its --table-port T, in the same order;
+Start one 'imu-station run' process per unit (--port P with its --table-port T or its --table URL,
+in the same order;
 or --simulate N simulated units on simulated tables), follow them in a live table on stderr
 (unit, serial, phase, step, time, outcome), and print the summary (or, with --json, every unit's
 outcome and record) on stdout. Every unit's record goes to the one database --db; each unit's log
@@ -53,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a unit's serial port (repeat for each unit)")
     parser.add_argument("--table-port", action="append", default=[], type=port, metavar="PORT",
                         help="the turntable port of the unit given by the --port in the same position")
+    parser.add_argument("--table", action="append", default=[], metavar="URL",
+                        help="a unit's rate table by URL (acutrol://HOST:PORT?axes=3, ...), instead of its "
+                             "--table-port; repeat, in the order of --port")
     parser.add_argument("--protocol", type=protocol_name, default=None, metavar="frame:FILE.yaml",
                         help="the units stream a board's own frames described in YAML (or native); default: "
                              "the plan's device.protocol, else native (then give each unit's --serial)")
@@ -112,16 +116,21 @@ def units_of(args: argparse.Namespace) -> list[UnitSpec]:
         raise StationError("--speed applies to --simulate only")
     if not args.port:
         raise StationError("give --port P --table-port T for each unit, or --simulate N")
-    if len(args.table_port) != len(args.port):
-        raise StationError(f"{len(args.port)} --port but {len(args.table_port)} --table-port: each unit "
+    tables = args.table_port or args.table
+    if args.table_port and args.table:
+        raise StationError("give each unit's --table-port or its --table URL, not both")
+    if tables and len(tables) != len(args.port):
+        raise StationError(f"{len(args.port)} --port but {len(tables)} --table-port/--table: each unit "
                            "needs its turntable, in the same order")
-    if len(set(args.port)) != len(args.port) or len(set(args.table_port)) != len(args.table_port):
+    if len(set(args.port)) != len(args.port) or len(set(tables)) != len(tables):
         raise StationError("a port is given twice: each unit and each table has its own port")
     if args.serial and len(args.serial) != len(args.port):
         raise StationError(f"{len(args.serial)} --serial for {len(args.port)} --port: give one per unit "
                            "or none")
     serials = args.serial or ["auto"] * len(args.port)
-    return [UnitSpec(port, serials[i], port=port, table_port=args.table_port[i])
+    return [UnitSpec(port, serials[i], port=port,
+                     table_port=args.table_port[i] if args.table_port else None,
+                     table=args.table[i] if args.table else None)
             for i, port in enumerate(args.port)]
 
 
@@ -134,6 +143,10 @@ def run(args: argparse.Namespace) -> int:
 
     units = units_of(args)
     plan = load_plan(args.plan)  # refused here, once, rather than by every child
+    if args.port and not (args.table_port or args.table) and (plan.instruments is None
+                                                              or plan.instruments.table is None):
+        raise StationError("give --port P --table-port T (or --table URL) for each unit, or a table in the "
+                           "plan's instruments, or --simulate N")
     if args.protocol is not None:
         plan = with_protocol(plan, args.protocol)
     if not plan.asks_serial and args.simulate is None and not args.serial:

@@ -44,6 +44,7 @@ class UnitSpec:
     serial: str = "auto"
     port: str | None = None
     table_port: str | None = None
+    table: str | None = None
     seed: int | None = None
     speed: float = 1.0
 
@@ -52,8 +53,10 @@ class UnitSpec:
         if self.seed is not None:
             return ["--simulate", "--seed", str(self.seed), "--speed", f"{self.speed:g}",
                     "--serial", self.serial]
-        assert self.port is not None and self.table_port is not None
-        return ["--port", self.port, "--table-port", self.table_port, "--serial", self.serial]
+        assert self.port is not None
+        table = ["--table", self.table] if self.table is not None else \
+            ["--table-port", self.table_port] if self.table_port is not None else []
+        return ["--port", self.port, *table, "--serial", self.serial]
 
 
 @dataclass

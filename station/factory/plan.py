@@ -309,6 +309,20 @@ def run_protocol(protocol: str, relative_to: Path | None = None) -> tuple[str, i
     return f"frame:{file.resolve()}", None if desc.rate_hz is None else max(1, round(desc.rate_hz))
 
 
+def with_instruments(plan: Plan, urls: dict[str, str | None]) -> Plan:
+    """``plan`` with the instruments ``urls`` names (``--chamber``, ``--table``, ``--supply``) in place of
+    its own; an instrument the plan does not name gets only its own limits."""
+    given = {kind: url for kind, url in urls.items() if url is not None}
+    if not given:
+        return plan
+    for kind, url in given.items():
+        if "://" not in url:
+            raise StationError(f"--{kind} {url!r} is not an instrument URL; write e.g. {_EXAMPLE_URL[kind]}")
+    base = plan.instruments if plan.instruments is not None else InstrumentPlan(
+        limits=Limits(source="no plan limits (the instruments' own)"))
+    return dataclasses.replace(plan, instruments=base.with_urls(given))
+
+
 def with_protocol(plan: Plan, protocol: str) -> Plan:
     """``plan`` read with another protocol (``run --protocol``): the description's rate, when it gives one.
 
