@@ -252,6 +252,28 @@ def test_the_bench_keeps_the_unit_running_and_its_chamber_on_the_device_clock() 
         assert server.address and server._listener is None  # noqa: SLF001 - stopped, nothing listens
 
 
+def test_the_unit_stays_in_the_chamber_air_through_power_cycles() -> None:
+    # A clock the test moves: the unit produces up to it, the plant runs on it.
+    now = [0.0]
+    device = SimDevice(seed=2, rate_hz=10, temp_noise_degc=0.0)
+    with simulated_bench(device, lambda: now[0], ["chamber", "supply"]) as bench:
+        assert bench.plant is not None and bench.outputs is not None
+        bench.plant.set_gradient(20.0)
+        bench.plant.set_setpoint(40.0)
+        bench.plant.set_running(True)
+        for cycle in range(1, 4):
+            now[0] = 300.0 * cycle
+            device.produce(now[0])
+            bench.outputs.set(1, on=False)
+            bench.outputs.set(1, on=True)  # a boot: the unit's clock from 0
+            assert device.restarts == cycle
+            now[0] += 60.0
+            samples = device.produce(now[0])
+            assert samples["t_us"][0] == 0
+            # The unit reads the plant at the right time after every boot, not ahead of it.
+            assert float(samples["temp"][-1]) == pytest.approx(float(bench.plant.unit_c(now[0])), abs=0.05)
+
+
 def test_kinds_are_named_once_in_bench_order() -> None:
     assert parse_kinds("supply,chamber,supply") == ("chamber", "supply")
     assert parse_kinds("all") == KINDS
