@@ -26,6 +26,7 @@ from station.acquisition.runner import RunOptions, SequenceRunner
 from station.acquisition.sequences import SIX_POSITION, TWELVE_EXTRA, builtin, pose_vector
 from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.factory.run import TableOperator
+from station.instruments.limits import Limits, limited
 from station.instruments.mounted_table import (
     MountedTable,
     axis_vector,
@@ -113,6 +114,22 @@ def test_turn_about_an_axis_not_up_tilts_first_then_turns_the_outer_axis(
     assert mounted.wait_stopped(5.0) < 5.0
 
 
+def test_a_tilt_stays_within_the_plans_rate(table3: tuple[AcutrolEmulator, Table]) -> None:
+    emulator, table = table3
+    capped = limited(table, Limits(max_rate_dps=60.0, max_accel_dps2=400.0))
+    assert isinstance(capped, Table)
+    mounted = MountedTable(capped, mount="+z", accel_dps2=400.0)
+    assert mounted.max_rate_dps == 60.0  # from the plan's limits
+    mounted.pose("-z")  # half a turn of the middle axis: sqrt(400 x 180) = 268 deg/s unless capped
+    peak = [0.0]
+
+    def arrived() -> bool:
+        peak[0] = max(peak[0], abs(emulator.rate_dps(2)))
+        return emulator.position_deg(2) == pytest.approx(180.0) and emulator.rate_dps(2) == 0.0
+    wait_for(arrived, "the middle axis at 180 deg")
+    assert 30.0 < peak[0] <= 60.0 + 1e-9
+
+
 def test_twelve_positions_and_turns_on_a_three_axis_table(capsys: pytest.CaptureFixture[str]) -> None:
     """The whole sequence, then the turntable calibration against the unit's truth with the tolerances of
     the simulated factory line (tests/test_factory_run.py): accelerometer M 2e-3, b 6e-3 m/s^2; gyroscope
@@ -126,7 +143,9 @@ def test_twelve_positions_and_turns_on_a_three_axis_table(capsys: pytest.Capture
         with ByteServer(emulator, "tcp") as server:
             table = open_instrument(f"acutrol://{server.address}?axes=3", kind="table")
             assert isinstance(table, Table)
-            mounted = MountedTable(table, mount="+z", accel_dps2=200.0)
+            capped = limited(table, Limits(max_rate_dps=120.0, max_accel_dps2=200.0))  # a plan's table limits
+            assert isinstance(capped, Table)
+            mounted = MountedTable(capped, mount="+z", accel_dps2=200.0)
             device = open_paced(served.port_path)
             try:
                 operator = TableOperator(mounted, timeout_s=60.0)

@@ -32,8 +32,9 @@ waits for the unit to be still in the pose it asked for); a turn runs in a worke
 mode at the step's rate, then, one stopping distance before the end, a position demand to the
 exact end angle, so the step's rate is kept and the angle is the table's encoder's. The next call
 waits for it; :meth:`MountedTable.stop` ends it at once. A three-axis tilt is a position demand on
-the middle and inner axes (the controller's own profile, under the acceleration set here); a turn
-asked while the tilt is not there waits for the tilt before it starts.
+the middle and inner axes (the controller's own profile, its acceleration lowered for the move so
+that its peak rate stays within the plan's ``max_rate_dps``); a turn asked while the tilt is not
+there waits for the tilt before it starts.
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ from typing import Protocol, TypeVar
 from drivers.errors import DriverError
 from drivers.instruments import Table
 from drivers.instruments.errors import InstrumentError, InstrumentTimeout
+from station.instruments.limits import LimitedTable
 
 _AXIS = re.compile(r"^[+-][xyz]$")
 _POSE = re.compile(r"^(?:[+-][xyz]){1,3}$")
@@ -179,10 +181,16 @@ class MountedTable:
     middle : str, optional
         Three-axis tables: the unit's signed axis along the middle axis at zero angles,
         perpendicular to ``mount`` (default: the next axis, ``+z`` -> ``+x``).
+    max_rate_dps : float, optional
+        The highest rate a tilt may reach (default: the plan's ``max_rate_dps`` of a
+        :class:`~station.instruments.limits.LimitedTable`). A tilt is a position demand, whose
+        peak rate from rest is sqrt(acceleration x distance): its axis's acceleration is lowered
+        for the move so that the peak stays within this rate.
     """
 
     def __init__(self, table: Table, mount: str = "+z", accel_dps2: float = 100.0,
-                 tolerance_deg: float = 0.05, poll_s: float = 0.005, middle: str | None = None):
+                 tolerance_deg: float = 0.05, poll_s: float = 0.005, middle: str | None = None,
+                 max_rate_dps: float | None = None):
         if not _AXIS.match(mount):
             raise ValueError(f"mount {mount!r} is not a signed axis such as +z or -x")
         middle = middle if middle is not None else "+" + NEXT_AXIS[mount[1]]
@@ -194,12 +202,15 @@ class MountedTable:
         self.accel_dps2 = accel_dps2
         self.tolerance_deg = tolerance_deg
         self.poll_s = poll_s
+        if max_rate_dps is None and isinstance(table, LimitedTable):
+            max_rate_dps = table.limits.max_rate_dps
+        self.max_rate_dps = max_rate_dps
         self.error: DriverError | None = None  # what the last turn's worker failed with
         self._matrix = mount_matrix(mount, middle)
         self._lock = threading.Lock()  # one exchange at a time: the worker, the runner, an abort
         self._abort = threading.Event()
         self._worker: threading.Thread | None = None
-        self._accel_set: set[int] = set()
+        self._accel: dict[int, float] = {}  # the acceleration last set on each axis
 
     @property
     def gimballed(self) -> bool:
@@ -215,13 +226,11 @@ class MountedTable:
                             f"{self.mount} along the single table axis (turns about {self.mount[1]} only); "
                             "remount the unit or leave the step out of the plan", self.table.url, step)
 
-    def _set_acceleration(self, axes: tuple[int, ...]) -> None:
-        if not self.table.speaker.has("set_acceleration"):
-            return
-        for axis in axes:
-            if axis not in self._accel_set:
-                self._do(partial(self.table.set_acceleration, self.accel_dps2, axis))
-                self._accel_set.add(axis)
+    def _set_acceleration(self, axis: int, dps2: float | None = None) -> None:
+        dps2 = self.accel_dps2 if dps2 is None else dps2
+        if self._accel.get(axis) != dps2 and self.table.speaker.has("set_acceleration"):
+            self._do(partial(self.table.set_acceleration, dps2, axis))
+            self._accel[axis] = dps2
 
     def wait(self, timeout_s: float = 30.0) -> None:
         """Wait for the running turn to end; raises what it failed with."""
@@ -263,9 +272,13 @@ class MountedTable:
         if vertical >= math.cos(math.radians(self.tolerance_deg)):
             return None
         targets = tilt_angles(self._matrix, direction, _wrap(middle), _wrap(inner))
-        self._set_acceleration((2, 3))
         for axis, now, target in ((2, middle, targets[0]), (3, inner, targets[1])):
+            distance = abs(now - target)
             if abs(_wrap(now - target)) > self.tolerance_deg:
+                accel = self.accel_dps2
+                if self.max_rate_dps is not None:  # the triangle's peak sqrt(a d) within the rate
+                    accel = min(accel, self.max_rate_dps ** 2 / distance)
+                self._set_acceleration(axis, accel)
                 self._do(partial(self.table.move_to, target, axis))
         return targets
 
@@ -305,7 +318,7 @@ class MountedTable:
 
     def _turn(self, table_angle: float, rate_dps: float, timeout_s: float) -> None:
         """Start the worker turning axis 1 by ``table_angle`` at ``rate_dps``."""
-        self._set_acceleration((1,))
+        self._set_acceleration(1)
         start = self._do(lambda: self.table.position_deg(1))
         target = start + table_angle
         rate = math.copysign(abs(rate_dps), table_angle)
