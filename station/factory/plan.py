@@ -37,6 +37,10 @@ board's own frames (``protocol: frame:FILE.yaml``, ``shared/specs/frame-descript
 then sends it nothing, the serial is given to the run, and the rate is the description's
 ``rate_hz`` when it states one, else ``device.rate_hz``. The description is read and checked with
 the plan, before any port is opened.
+
+Why this module is long: the plan is one schema read by one walker over the composed YAML nodes
+(``_Reader``), so that every refusal names its line; each section's reader is a short function of
+that walker, and splitting them into modules would pass the walker's private state across them.
 """
 
 from __future__ import annotations
