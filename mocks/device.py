@@ -145,6 +145,8 @@ class SimDevice:
         self.encode_samples = ENCODERS[encoder]
         self.timeline = scenario_timeline(scenario, seed, loop)
         self.sampler = UnitSampler(self.truth, self.timeline, rate_hz, seed, temperature, temp_noise_degc)
+        # The temperature as a function of server time: every power-up reads it at its own clock's offset.
+        self._server_temperature = self.sampler.temperature
         self.streaming = True
         self.seq = 0
         self.commands: dict[str, int] = {}
@@ -226,7 +228,7 @@ class SimDevice:
         local = self.sampler.time_of(self.sampler.count)
         attitude = self.timeline.attitude_at(local)
         label = str(self.timeline.evaluate(np.array([local]), [])[2][0])
-        temperature = self.sampler.temperature
+        temperature = self._server_temperature
         epoch = self._epoch_s + local
         self.restarts += 1
         self.truth = self.base_truth.turned_on(self.restarts, self._seed)
@@ -375,6 +377,7 @@ class SimDevice:
         """
         with self._lock:
             epoch = self._epoch_s
+            self._server_temperature = plant
             # The sampler's clock restarts with the unit; the plant's is the server's.
             self.sampler.temperature = plant if epoch == 0 else (
                 lambda t: np.asarray(plant(np.asarray(t) + epoch), float))

@@ -27,7 +27,6 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import cast
 
 import numpy as np
 
@@ -89,25 +88,6 @@ class _Follower:
         if times.size:
             self.plant.forget_before(float(np.min(times)) - KEEP_S)
         return values
-
-
-class _PoweredUnit:
-    """The unit as the supply sees it: powering it on also puts it back in the chamber's air.
-
-    A boot restarts the unit's clock; ``SimDevice`` re-bases the temperature it had on the new
-    clock, which composes the offsets of successive boots (the second power-on reads the plant
-    ahead of time). Following the plant again after every power-on gives the right offset whatever
-    the boot count.
-    """
-
-    def __init__(self, device: SimDevice, follower: _Follower | None):
-        self.device = device
-        self.follower = follower
-
-    def power(self, on: bool) -> None:
-        self.device.power(on)
-        if on and self.follower is not None:
-            self.device.follow_temperature(self.follower)
 
 
 @dataclass
@@ -194,7 +174,7 @@ def simulated_bench(device: SimDevice, clock: Callable[[], float], kinds: Iterab
             # is not booted again (its scenario, turn-on and seq go on as without a bench).
             bench.outputs = SupplyOutputs(None)
             bench.outputs.set(bench.outputs.unit_channel, volts=SUPPLY_V, amps=SUPPLY_A, on=True)
-            bench.outputs.device = cast(SimDevice, _PoweredUnit(device, follower))  # it only calls power()
+            bench.outputs.device = device
             bench.outputs.set(bench.outputs.unit_channel)  # powers a unit that was off
             bench.supply = ScpiSupply(bench.outputs)
             _serve(bench, "supply", bench.supply)
