@@ -96,3 +96,27 @@ def test_a_soak_that_does_not_settle_times_out(tmp_path: Path, capsys: pytest.Ca
     assert code == 5
     record, _ = _record(db)
     assert record["outcome"] == "TIMEOUT" and "did not settle within 3 s" in record["reason"]
+
+
+def test_twelve_positions_and_turns_run_on_the_plans_rate_table(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    # The plan names a three-axis ACUTROL table (no --table-port): the run places and turns the unit
+    # through the table's own protocol, as on a lab's table, and calibrates it within the plan's limits.
+    plan = PLAN.split("instruments:")[0].replace("six-position", "twelve-position") + """\
+limits:
+  accel.bias: {max_abs: 0.5, unit: m/s^2}
+  gyro.scale_error: {max_abs: 3, unit: "%"}
+instruments:
+  table: {url: "acutrol://table.lab:5000?axes=3", max_rate_dps: 200, max_accel_dps2: 400, mount: +z}
+  on_abort: {table: stop}
+"""
+    (tmp_path / "plan.yaml").write_text(plan)
+    code = _run(tmp_path, 44)
+    err = capsys.readouterr().err
+    assert code == 0, err[-3000:]
+    record, files = _record(tmp_path / "line.sqlite")
+    measured = {m["name"]: m for p in record["phases"] for m in p["measurements"]}
+    assert measured["sequence.steps_accepted"]["value"] == 18  # twelve poses and six turns
+    assert measured["instrument.table"]["doc"].startswith("acutrol://127.0.0.1:")
+    commands = [e["command"] for e in json.loads((files / "instruments.json").read_text())["transcript"]]
+    assert any(c.startswith(":D:P 2,") for c in commands) and any(c.startswith(":D:R 1,") for c in commands)

@@ -6,9 +6,11 @@ loopback TCP port and each coupled to the unit, as the real ones are to a unit o
   the unit reads its temperature from that plant (:meth:`~mocks.device.SimDevice.follow_temperature`):
   a setpoint sent by the station's driver warms the unit, and a unit served at ``--speed X`` warms
   X times faster, as everything else of it runs.
-- The rate table is the ACUTROL emulator (``acutrol://``) with the unit mounted on its axis 1
-  (``mount`` up): a turn of the table is a turn the unit's gyroscope sees. Mounting holds the unit
-  still with the mount axis up, which replaces the motion of a moving scenario.
+- The rate table is the ACUTROL emulator (``acutrol://...?axes=3``), three axes: the outer vertical,
+  the middle and the inner carrying the unit (``mount`` along it, up at rest), so the station's
+  poses and turns about every axis are reachable; a turn of the table is a turn the unit's gyroscope
+  sees. Mounting holds the unit still with the mount axis up, which replaces the motion of a moving
+  scenario.
 - The supply is the SCPI emulator (``scpi://``) with the unit on its channel 1. It starts with that
   output on at 5 V (0.5 A limit) and the unit running as it was (no boot), so the unit streams as
   without a bench; switching the output off silences the unit, on boots it anew (seq from 0).
@@ -158,17 +160,17 @@ def simulated_bench(device: SimDevice, clock: Callable[[], float], kinds: Iterab
     """
     wanted = parse_kinds(kinds)
     bench = SimulatedBench()
-    follower = None
     try:
         if "chamber" in wanted:
             bench.plant = plant if plant is not None else ChamberPlant(clock)
-            follower = _Follower(bench.plant)
-            device.follow_temperature(follower)
+            device.follow_temperature(_Follower(bench.plant))
             bench.chamber = SimservChamber(bench.plant)
             _serve(bench, "chamber", bench.chamber)
         if "table" in wanted:
-            bench.table = AcutrolEmulator(device=device, mount=mount)
+            # Three axes: the station's poses and turns about every axis (a single axis turns the mount's).
+            bench.table = AcutrolEmulator(axes=3, device=device, mount=mount)
             _serve(bench, "table", bench.table)
+            bench.urls["table"] += "?axes=3"
         if "supply" in wanted:
             # The output is switched on before the unit is wired to it: the unit, already running,
             # is not booted again (its scenario, turn-on and seq go on as without a bench).
