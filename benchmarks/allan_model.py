@@ -202,8 +202,10 @@ def simulated_models(per_axis: list[float]) -> dict[str, Any]:
 def _params(m: dict[str, Any]) -> list[tuple[str, list[float | None] | None]]:
     ps: list[tuple[str, list[float | None] | None]] = [(k, v) for k, v in m["terms"].items()]
     ps.append(("T_f", m["filter_s"]))
-    ps += [(f"GM{i + 1} {w}", e) for i, g in enumerate(m["gauss_markov"]) for w, e in zip(("sigma", "tau_c"), g)]
-    ps += [(f"S{i + 1} {w}", e) for i, s in enumerate(m["sinusoids"]) for w, e in zip(("A", "f"), s)]
+    for i, g in enumerate(m["gauss_markov"]):
+        ps += [(f"GM{i + 1} sigma", g[0]), (f"GM{i + 1} tau_c", g[1])]
+    for i, s in enumerate(m["sinusoids"]):
+        ps += [(f"S{i + 1} A", s[0]), (f"S{i + 1} f", s[1])]
     return ps
 
 
@@ -248,7 +250,8 @@ def compare(ref: dict[str, Any], new: dict[str, Any]) -> tuple[int, list[str]]:
 
 def main() -> None:
     """Time, choose, compare."""
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="runs of the whole command (median)")
     parser.add_argument("--write-reference", type=Path, metavar="FILE")
     args = parser.parse_args()
@@ -267,15 +270,15 @@ def main() -> None:
     print(f"  against the target of {TARGET_WALL_S:g} s wall: {statistics.median(walls) / TARGET_WALL_S:.2f}")
     adis_axis: list[float] = []
     models = adis_models(adis_axis, records)
-    print(f"model choice (choose_model), CPU per axis over both records' 12 axes: median "
-          f"{statistics.median(adis_axis):.3f} s, largest {max(adis_axis):.3f} s, total {sum(adis_axis):.2f} s "
-          f"(load {os.getloadavg()[0]:.2f})")
+    med = statistics.median(adis_axis)
+    print(f"model choice (choose_model), CPU per axis over both records' 12 axes: median {med:.3f} s, "
+          f"largest {max(adis_axis):.3f} s, total {sum(adis_axis):.2f} s (load {os.getloadavg()[0]:.2f})")
     print(f"  against the target of {TARGET_CPU_AXIS_S:g} s an axis: largest "
-          f"{max(adis_axis) / TARGET_CPU_AXIS_S:.2f}, median {statistics.median(adis_axis) / TARGET_CPU_AXIS_S:.2f}")
+          f"{max(adis_axis) / TARGET_CPU_AXIS_S:.2f}, median {med / TARGET_CPU_AXIS_S:.2f}")
     sim_axis: list[float] = []
     models.update(simulated_models(sim_axis))
-    print(f"select_model on the simulated units' {len(sim_axis)} axes: CPU median {statistics.median(sim_axis):.3f} s, "
-          f"largest {max(sim_axis):.3f} s")
+    print(f"select_model on the simulated units' {len(sim_axis)} axes: CPU median "
+          f"{statistics.median(sim_axis):.3f} s, largest {max(sim_axis):.3f} s")
     if args.write_reference:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
         doc = {"commit": commit.strip(),
@@ -286,8 +289,8 @@ def main() -> None:
         return
     ref = json.loads(REFERENCE.read_text())
     matched, notes = compare(ref["models"], models)
-    print(f"models against the reference (commit {ref['commit'][:12]}): {matched} of {len(ref['models'])} the "
-          f"same terms with every parameter within its 1-sigma")
+    print(f"models against the reference (commit {ref['commit'][:12]}): {matched} of {len(ref['models'])} "
+          f"the same terms with every parameter within its 1-sigma")
     for note in notes:
         print(f"  {note}")
 
