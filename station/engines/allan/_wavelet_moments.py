@@ -19,7 +19,13 @@ import numpy as np
 from scipy import optimize
 
 from station.engines.allan.estimates import Estimate
-from station.engines.allan.shapes import gauss_markov_avar, sinusoid_avar, term_avar, weighted_nnls
+from station.engines.allan.shapes import (
+    filtered_white_avar,
+    gauss_markov_avar,
+    sinusoid_avar,
+    term_avar,
+    weighted_nnls,
+)
 from station.engines.allan.uncertainty import log_chi2_moments
 
 TOLERANCE = 0.10  # a point is described within its 68 % interval or within 10 % of its value
@@ -127,6 +133,83 @@ class WeightedCurve:
         return out_band & (np.abs(adev / meas - 1.0) > TOLERANCE)
 
 
+def _gm_columns(tau: np.ndarray, t_gm: np.ndarray) -> np.ndarray:
+    """:func:`gauss_markov_avar` of every correlation time at once, one column each (the same arithmetic,
+    element by element, as one call per column)."""
+    x = tau[:, None] / t_gm[None, :]
+    u = -np.expm1(-x)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bracket = np.where(x < 1e-3, x**2 / 3.0 - x**3 / 4.0, 1.0 - (2.0 * u + u * u) / (2.0 * x))
+    return 2.0 * bracket / x
+
+
+def _sin_columns(tau: np.ndarray, freqs: np.ndarray) -> np.ndarray:
+    """:func:`sinusoid_avar` of every frequency at once, one column each."""
+    x = (math.pi * freqs)[None, :] * tau[:, None]
+    return np.sin(x) ** 4 / x**2
+
+
+class _Columns:
+    """The columns of one combination at a curve's cluster times, for the trust-region solve: the IEEE
+    terms' fixed shapes are built once, and only the columns of the time constants are rebuilt per
+    evaluation (those of one time constant alone for each difference of the Jacobian). Every column holds
+    what :func:`_columns` would, bit for bit, so the model (``a @ c``) is the same too."""
+
+    def __init__(self, combo: Combination, tau: np.ndarray):
+        self.combo, self.tau = combo, tau
+        self.n_terms = len(combo.terms)
+        self.n_lin = self.n_terms + combo.n_gm + combo.n_sin
+        self.fixed = np.empty((len(tau), self.n_lin))
+        self.n_at = combo.terms.index("N") if combo.filtered and "N" in combo.terms else -1
+        for j, t in enumerate(combo.terms):
+            if j != self.n_at:
+                self.fixed[:, j] = term_avar(t, tau, None, combo.dt)
+        self.key: bytes | None = None
+        self.a = self.fixed
+        self.c = np.empty(0)
+
+    def at(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(columns, coefficients) at the log parameters ``x`` (the last kept: scipy asks for the
+        Jacobian where it has just evaluated the residuals)."""
+        key = x.tobytes()
+        if key != self.key:
+            combo, n_lin = self.combo, self.n_lin
+            self.c = np.exp(np.minimum(x[:n_lin], 300.0))
+            a = self.fixed.copy()
+            at = n_lin
+            if combo.filtered:
+                if self.n_at >= 0:
+                    a[:, self.n_at] = filtered_white_avar(self.tau, float(np.exp(x[at])), combo.dt)
+                at += 1
+            g0 = self.n_terms
+            if combo.n_gm:
+                a[:, g0:g0 + combo.n_gm] = _gm_columns(self.tau, np.exp(x[at:at + combo.n_gm]))
+            if combo.n_sin:
+                s0 = at + combo.n_gm
+                a[:, g0 + combo.n_gm:n_lin] = _sin_columns(self.tau, np.exp(x[s0:s0 + combo.n_sin]))
+            self.key, self.a = key, a
+        return self.a, self.c
+
+    def moved(self, x: np.ndarray, k: int, value: float) -> np.ndarray:
+        """The model at ``x`` with its nonlinear parameter ``k`` set to ``value`` (log)."""
+        a, c = self.at(x)
+        combo, n_lin = self.combo, self.n_lin
+        a = a.copy()
+        k_f = n_lin if combo.filtered else -1
+        if k == k_f:
+            if self.n_at >= 0:
+                a[:, self.n_at] = filtered_white_avar(self.tau, float(np.exp(value)), combo.dt)
+        else:
+            first_gm = n_lin + combo.filtered
+            if k < first_gm + combo.n_gm:
+                j = self.n_terms + k - first_gm
+                a[:, j] = _gm_columns(self.tau, np.exp(np.array([value])))[:, 0]
+            else:
+                j = self.n_terms + combo.n_gm + k - first_gm - combo.n_gm
+                a[:, j] = _sin_columns(self.tau, np.exp(np.array([value])))[:, 0]
+        return a @ c
+
+
 def _solve(curve: WeightedCurve, combo: Combination, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]
            ) -> CandidateFit:
     """Minimise (1) from ``x0``; the covariance of the log parameters from the Jacobian."""
@@ -136,21 +219,23 @@ def _solve(curve: WeightedCurve, combo: Combination, x0: np.ndarray, bounds: tup
     tiny = np.finfo(float).tiny
 
     n_lin = len(combo.terms) + combo.n_gm + combo.n_sin
+    cols = _Columns(combo, curve.tau)
 
     def residuals(x: np.ndarray) -> np.ndarray:
-        return w * (log_avar - np.log(np.maximum(combination_avar(combo, curve.tau, x), tiny)))
+        a, c = cols.at(x)
+        return w * (log_avar - np.log(np.maximum(a @ c, tiny)))
 
     def jacobian(x: np.ndarray) -> np.ndarray:
         # d r / d log c_j = -w c_j col_j / model, exactly; the time constants by central differences
-        c, t_f, t_gm, freqs = unpack(combo, x)
-        parts = _columns(combo, curve.tau, t_f, t_gm, freqs) * c
+        a, c = cols.at(x)
+        parts = a * c
         model = np.maximum(parts.sum(axis=1), tiny)
         jac = np.empty((len(curve.tau), len(x)))
         jac[:, :n_lin] = -w[:, None] * parts / model[:, None]
         for k in range(n_lin, len(x)):
-            step = np.zeros_like(x)
-            step[k] = JAC_STEP
-            jac[:, k] = (residuals(x + step) - residuals(x - step)) / (2.0 * JAC_STEP)
+            r_up = w * (log_avar - np.log(np.maximum(cols.moved(x, k, x[k] + JAC_STEP), tiny)))
+            r_down = w * (log_avar - np.log(np.maximum(cols.moved(x, k, x[k] - JAC_STEP), tiny)))
+            jac[:, k] = (r_up - r_down) / (2.0 * JAC_STEP)
         return jac
 
     x0 = np.clip(x0, bounds[0] + 1e-9, bounds[1] - 1e-9)

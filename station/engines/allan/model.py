@@ -148,7 +148,7 @@ def preferred(candidates: Sequence[tuple[int, int, float]]) -> int:
     return min(eligible, key=lambda i: (candidates[i][1], candidates[i][2]))
 
 
-def _fit_all(curve: WeightedCurve, filtered: bool) -> list[CandidateFit]:
+def _fit_all(curve: WeightedCurve, filtered: bool) -> tuple[list[CandidateFit], int]:
     """Fit every admissible combination: sinusoids first, added to the fullest model while it does not
     describe the curve and each one removes points outside and lowers (1) by SIN_GAIN; then every subset
     of the optional terms with zero to MAX_GM processes, beside those sinusoids.
@@ -178,22 +178,30 @@ def _fit_all(curve: WeightedCurve, filtered: bool) -> list[CandidateFit]:
     _, t_f, _, freqs_arr = unpack(full.combo, full.x)
     freqs = [float(f) for f in freqs_arr]
     from_full = by_weight(full)
-    for k in range(len(OPTIONAL) + 1):
-        for extra in itertools.combinations(OPTIONAL, k):
-            terms = ("N", *extra)
-            starts = [gm_starts(curve, terms, t_f, freqs), from_full]
-            for n_gm in range(MAX_GM + 1):
-                combo = Combination(terms, n_gm, filtered, len(freqs), dt)
-                if combo != full.combo:
-                    fits.append(fit_best_start(curve, combo, t_f, starts, freqs))
-    return fits
+    combos = [Combination(("N", *extra), n_gm, filtered, len(freqs), dt)
+              for k in range(len(OPTIONAL) + 1) for extra in itertools.combinations(OPTIONAL, k)
+              for n_gm in range(MAX_GM + 1)]
+    combos = [c for c in combos if c != full.combo]
+    starts: dict[tuple[str, ...], list[list[float]]] = {}
+    done: dict[int, CandidateFit] = {}
+    # Fewest parameters first: once a combination describes the curve, none with more parameters can be
+    # preferred (preferred), so those are left unfitted; where none describes, every one is fitted.
+    for p in sorted({c.parameters for c in combos}):
+        if any(f.combo.parameters < p and outside_count(f, curve) == 0 for f in [*fits, *done.values()]):
+            break
+        for i, combo in enumerate(combos):
+            if combo.parameters == p:
+                if combo.terms not in starts:
+                    starts[combo.terms] = [gm_starts(curve, combo.terms, t_f, freqs), from_full]
+                done[i] = fit_best_start(curve, combo, t_f, starts[combo.terms], freqs)
+    return fits + [done[i] for i in sorted(done)], len(fits) + len(combos)
 
 
 def _select(curve: WeightedCurve, filtered: bool) -> tuple[CandidateFit, int]:
     """The preferred fit (:func:`preferred`) of every admissible combination, and how many were fitted."""
-    fits = _fit_all(curve, filtered)
+    fits, admissible = _fit_all(curve, filtered)
     best = preferred([(outside_count(f, curve), f.combo.parameters, f.chi2) for f in fits])
-    return fits[best], len(fits)
+    return fits[best], admissible
 
 
 def select_model(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, ci_low: np.ndarray,
