@@ -24,7 +24,7 @@ from station.engines.allan.shapes import (
     gauss_markov_avar,
     sinusoid_avar,
     term_avar,
-    weighted_nnls,
+    weighted_nnls_fit,
 )
 from station.engines.allan.uncertainty import log_chi2_moments
 
@@ -281,7 +281,7 @@ def _linear_start(curve: WeightedCurve, combo: Combination, t_f: float | None, t
     """Log coefficients of the EDF-weighted non-negative least squares for fixed time constants; terms
     it zeroes start at a millionth of the curve's scale (a log parameter cannot start at zero)."""
     a = _columns(combo, curve.tau, t_f, t_gm, freqs)
-    c, _, _ = weighted_nnls(a, curve.avar, curve.edf)
+    c, _ = weighted_nnls_fit(a, curve.avar, curve.edf)
     floor = 1e-6 * float(np.median(curve.avar)) / np.maximum(np.max(a, axis=0), np.finfo(float).tiny)
     return np.log(np.maximum(c, floor))
 
@@ -293,7 +293,7 @@ def gm_starts(curve: WeightedCurve, terms: tuple[str, ...], t_f: float | None, f
     grid = _gm_grid(curve)
     combo = Combination(terms, len(grid), t_f is not None, len(freqs), 1.0 / curve.rate_hz)
     a = _columns(combo, curve.tau, t_f, grid, freqs)
-    c, _, _ = weighted_nnls(a, curve.avar, curve.edf)
+    c, _ = weighted_nnls_fit(a, curve.avar, curve.edf)
     g = c[len(terms):len(terms) + len(grid)]
     clusters: list[list[int]] = []
     for i in np.flatnonzero(g > 0):
@@ -369,7 +369,7 @@ def sinusoid_start(curve: WeightedCurve, base: CandidateFit) -> float:
     lo, hi = 0.25 / curve.tau[-1], curve.rate_hz / 2.0
     for f in np.geomspace(lo, hi, int(SIN_PER_DECADE * math.log10(hi / lo)) + 1):
         a = _columns(combo, curve.tau, t_f, t_gm, [*freqs, f])
-        _, _, chi2 = weighted_nnls(a, curve.avar, curve.edf, iterations=3)
+        _, chi2 = weighted_nnls_fit(a, curve.avar, curve.edf, iterations=3)
         if chi2 < best[0]:
             best = (chi2, float(f))
     return best[1]

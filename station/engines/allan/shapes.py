@@ -193,20 +193,7 @@ def weighted_nnls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: 
         (c, covariance of c, weighted chi-square); the covariance is NaN in the rows and columns of the
         coefficients at zero.
     """
-    scale = np.max(np.abs(a), axis=0)  # columns span many decades: normalise before NNLS
-    an = a / scale
-    model = avar.copy()
-    c = np.zeros(a.shape[1])
-    for _ in range(iterations):
-        w = np.sqrt(edf / 2.0) / np.maximum(model, np.finfo(float).tiny)
-        cn, _ = optimize.nnls(an * w[:, None], avar * w, maxiter=50 * a.shape[1])
-        c = cn / scale
-        new_model = a @ c
-        if np.allclose(new_model, model, rtol=1e-9, atol=0.0):  # variances are tiny: no absolute floor
-            break
-        model = np.where(new_model > 0, new_model, avar)
-    w2 = (edf / 2.0) / np.maximum(model, np.finfo(float).tiny) ** 2
-    chi2 = float(np.sum(w2 * (avar - model) ** 2))
+    c, chi2, an, scale, w2 = _reweighted_nnls(a, avar, edf, iterations)
     active = c > 0
     cov = np.full((a.shape[1], a.shape[1]), np.nan)
     if active.any():
@@ -216,3 +203,49 @@ def weighted_nnls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: 
             cov_active = np.linalg.pinv(fisher) / np.outer(scale[active], scale[active])
         cov[np.ix_(active, active)] = cov_active
     return c, cov, chi2
+
+
+def weighted_nnls_fit(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: int = 6
+                      ) -> tuple[np.ndarray, float]:
+    """:func:`weighted_nnls` without the covariance (the starts of the model selection need none):
+    (c, weighted chi-square), the same numbers.
+
+    Parameters
+    ----------
+    a : ndarray, (M, P)
+        Columns of the shapes, one per coefficient.
+    avar, edf : ndarray, (M,)
+        The measured Allan variances and their equivalent degrees of freedom.
+    iterations : int
+        Most re-weightings.
+
+    Returns
+    -------
+    tuple
+        (c, weighted chi-square).
+    """
+    c, chi2, _, _, _ = _reweighted_nnls(a, avar, edf, iterations)
+    return c, chi2
+
+
+def _reweighted_nnls(a: np.ndarray, avar: np.ndarray, edf: np.ndarray, iterations: int
+                     ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """The iterations of :func:`weighted_nnls`: (c, chi2, normalised columns, their scale, final weights)."""
+    scale = np.max(np.abs(a), axis=0)  # columns span many decades: normalise before NNLS
+    an = a / scale
+    model = avar.copy()
+    c = np.zeros(a.shape[1])
+    root_edf = np.sqrt(edf / 2.0)
+    tiny = np.finfo(float).tiny
+    for _ in range(iterations):
+        w = root_edf / np.maximum(model, tiny)
+        cn, _ = optimize.nnls(an * w[:, None], avar * w, maxiter=50 * a.shape[1])
+        c = cn / scale
+        new_model = a @ c
+        # variances are tiny: no absolute floor (np.allclose(new_model, model, rtol=1e-9, atol=0.0))
+        if np.all(np.abs(new_model - model) <= 1e-9 * np.abs(model)):
+            break
+        model = np.where(new_model > 0, new_model, avar)
+    w2 = (edf / 2.0) / np.maximum(model, tiny) ** 2
+    chi2 = float(np.sum(w2 * (avar - model) ** 2))
+    return c, chi2, an, scale, w2
