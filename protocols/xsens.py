@@ -361,6 +361,74 @@ def parse_mtdata2(payload: bytes, seen: dict[str, int] | None = None) -> MTData2
     return packet
 
 
+# Frames the vectorised path checks per call (after a damaged frame the next call re-checks at most these).
+_RUN_WINDOW = 256
+# Fewer frames than this go the per-packet path, quicker for them than the arrays' set-up.
+_RUN_MIN = 8
+_FIXED_KINDS = {PACKET_COUNTER, SAMPLE_TIME_FINE, TEMPERATURE, ACCELERATION, ACCELERATION_HR, RATE_OF_TURN,
+                RATE_OF_TURN_HR, MAGNETIC_FIELD}
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """A sample packet's layout: the bytes every frame of it shares, and where its values lie."""
+
+    source: str
+    fixed_at: np.ndarray  # frame offsets of the header and item-header bytes
+    fixed: np.ndarray  # their values
+    counter_at: int
+    time_at: int
+    values: dict[int, tuple[int, int]]  # item kind -> (frame offset of its data, precision)
+    names: tuple[str, ...]  # item names, for items_seen
+
+
+def _make_layout(payload: bytes, items: list[tuple[int, int]]) -> _Layout | None:
+    """The layout of an MTData2 payload whose items the vectorised path reads (every item a fixed-size
+    one it knows, once each, with PacketCounter and SampleTimeFine, making samples), else None."""
+    kinds = [data_id & TYPE_MASK for data_id, _ in items]
+    if len(set(kinds)) != len(kinds) or not set(kinds) <= _FIXED_KINDS:
+        return None
+    if PACKET_COUNTER not in kinds or SAMPLE_TIME_FINE not in kinds:
+        return None
+    try:
+        packet = parse_mtdata2(payload)
+    except BadPacket:
+        return None
+    source = packet.source
+    if source is None:
+        return None
+    fixed_at, values, at = [0, 1, 2, 3], {}, 4
+    counter_at = time_at = 0
+    for (data_id, size), kind in zip(items, kinds, strict=True):
+        fixed_at += [at, at + 1, at + 2]
+        if kind == PACKET_COUNTER:
+            counter_at = at + 3
+        elif kind == SAMPLE_TIME_FINE:
+            time_at = at + 3
+        else:
+            values[kind] = (at + 3, data_id & PRECISION_MASK)
+        at += 3 + size
+    header = bytes([PREAMBLE, BUS_ID, MID_MTDATA2, len(payload)]) + payload
+    index = np.array(fixed_at)
+    return _Layout(source, index, np.frombuffer(header, np.uint8)[index].copy(), counter_at, time_at, values,
+                   tuple(item_name(data_id) for data_id, _ in items))
+
+
+def _column_values(frames: np.ndarray, at: int, precision: int, count: int) -> np.ndarray:
+    """``(frames, count)`` float64 values of one item of every frame, as ``_decode_values`` reads them."""
+    data = np.ascontiguousarray(frames[:, at : at + count * PRECISION_SIZE[precision]])
+    if precision == FLOAT32:
+        return data.view(">f4").astype(np.float64)
+    if precision == FLOAT64:
+        return data.view(">f8").astype(np.float64)
+    if precision == FP1220:
+        return data.view(">i4") / 1048576.0
+    words = data.reshape(len(data), count, 6)
+    fraction = np.ascontiguousarray(words[:, :, :4]).view(">u4")[:, :, 0].astype(np.int64)
+    integer = np.ascontiguousarray(words[:, :, 4:]).view(">i2")[:, :, 0].astype(np.int64)
+    return (integer * 4294967296 + fraction) / 4294967296.0
+
+
 class XsensDecoder(StreamDecoderBase):
     """Incremental decoder of Xbus messages; MTData2 packets with inertial data become samples.
 
@@ -393,6 +461,9 @@ class XsensDecoder(StreamDecoderBase):
         self._last_inertial_ticks: int | None = None
         self._temp = math.nan
         self._pending: list[tuple[int, int, MTData2Packet]] = []  # delta packets waiting for an interval
+        self._layouts: dict[tuple, _Layout | None] = {}  # packet layouts of the vectorised path
+        # (position, frame size, good, framed) of the frames the vectorised path checked in this feed
+        self._run_checked: tuple[int, int, np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def from_option(cls, option: str) -> XsensDecoder:
@@ -425,14 +496,24 @@ class XsensDecoder(StreamDecoderBase):
     def _decode(self, data: bytes, final: bool) -> Decoded:
         buf = self._buf
         buf += data
+        self._run_checked = None
         rows: list[tuple] = []
         messages: list[Message] = []
         stats = self.stats
         pos = 0
+        pieces: list[np.ndarray] = []  # batches of the vectorised path, in order with the rows between
         while True:
             pos, found = self._seek_sync(SYNC, pos)
             if not found:
                 break
+            run = self._sample_run(pos) if not self._pending else None
+            if run is not None:
+                if rows:
+                    pieces.append(rows_to_batch(rows, self._mag))
+                    rows = []
+                pieces.append(run[0])
+                pos = run[1]
+                continue
             end = self._frame_end(pos)
             if end == _INCOMPLETE:
                 break
@@ -481,8 +562,126 @@ class XsensDecoder(StreamDecoderBase):
         if pos:
             del buf[:pos]
         samples = rows_to_batch(rows, self._mag)
+        if pieces:
+            samples = join_batches([*pieces, samples])
+            if self._mag:
+                samples = with_mag(samples)
         stats.samples += len(samples)
         return Decoded(samples, messages)
+
+    # -------------------------------------------------------------- vectorised path
+
+    def _sample_run(self, pos: int) -> tuple[np.ndarray, int] | None:
+        """The samples of a run of like MTData2 packets at ``pos`` and where the run ends, or None.
+
+        Packets of one layout (the same items, in the same order and sizes: what a unit sends) that
+        make samples are read at once: every frame's header and item headers, checksum and the
+        absence of a frame start inside it are checked on all frames of the run, the values are
+        columns of the frame bytes. The result equals the per-packet path's (``_on_packet``); any
+        other packet (another layout or source, deltas waiting for an interval, an extended length,
+        an undated one, a frame whose header is damaged) ends the run and goes that path; a frame of the
+        layout whose checksum fails is skipped as that path would (one CRC error).
+        """
+        buf = self._buf
+        avail = len(buf) - pos
+        if avail < 5 or buf[pos + 2] != MID_MTDATA2 or buf[pos + 3] == EXTENDED_LENGTH:
+            return None
+        size = 5 + buf[pos + 3]
+        count = min(avail // size, _RUN_WINDOW)
+        if count < _RUN_MIN:
+            return None
+        layout = self._layout(bytes(buf[pos + 4 : pos + size - 1]))
+        if layout is None or layout.source != (self.source or layout.source):
+            return None
+        frames = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
+        checked = self._run_checked
+        if checked is not None and checked[0] <= pos and (pos - checked[0]) % size == 0 \
+                and checked[1] == size and (pos - checked[0]) // size < len(checked[2]):
+            at = (pos - checked[0]) // size  # checked earlier in this feed
+            good, framed = checked[2][at:], checked[3][at:]
+            count = len(good)
+            frames = frames[:count]
+        else:
+            framed = (frames[:, layout.fixed_at] == layout.fixed).all(axis=1)
+            # A frame start inside a frame: the per-frame path decides which of the two to believe. One
+            # frame start a frame in the window (each frame's own) is the usual case: none inside.
+            if buf.count(SYNC, pos, pos + count * size) != count:
+                framed &= ~((frames[:, 1 : size - 1] == PREAMBLE) & (frames[:, 2:size] == BUS_ID)).any(axis=1)
+            good = framed & (frames[:, 1:].sum(axis=1, dtype=np.uint8) == 0)
+            self._run_checked = (pos, size, good, framed)
+        # The run goes on over frames of the layout whose checksum fails (nothing inside them is a
+        # frame start, so the per-frame path skips each as one CRC error), and ends at a good frame.
+        n = count if framed.all() else int(framed.argmin())
+        if not good[:n].all():
+            n = n - int(good[:n][::-1].argmax()) if good[:n].any() else 0
+        if n < _RUN_MIN:
+            return None
+        end = pos + n * size
+        frames = frames[:n] if good[:n].all() else frames[:n][good[:n]]
+        damaged, n = n - len(frames), len(frames)
+        values = {kind: _column_values(frames, at, precision, _VALUE_COUNTS.get(kind, 1))
+                  for kind, (at, precision) in layout.values.items()}
+        at = layout.counter_at
+        raw = (frames[:, at].astype(np.int64) << 8) | frames[:, at + 1]
+        steps = np.empty(n, dtype=np.int64)
+        steps[0] = 0 if self._counter is None else (int(raw[0]) - self._counter) & 0xFFFF
+        np.subtract(raw[1:], raw[:-1], out=steps[1:])
+        steps[1:] &= 0xFFFF
+        counter = (int(raw[0]) if self._counter is None else self._counter) + np.cumsum(steps)
+        at = layout.time_at
+        raw = frames[:, at : at + 4].copy().view(">u4").ravel().astype(np.int64)
+        steps[0] = 0 if self._fine is None else ((int(raw[0]) - self._fine + 2**31) & 0xFFFFFFFF) - 2**31
+        np.subtract(raw[1:], raw[:-1], out=steps[1:])
+        steps[1:] += 2**31
+        steps[1:] &= 0xFFFFFFFF
+        steps[1:] -= 2**31
+        ticks = (int(raw[0]) if self._fine is None else self._fine) + np.cumsum(steps)
+        if ticks.min() < 0:  # an undated packet: counted by the per-packet path
+            return None
+        if self.source is None:
+            self.source = layout.source
+        if damaged:
+            self.stats.crc_errors += damaged
+            self.stats.resyncs += damaged
+            self.stats.garbage_bytes += damaged * size
+        temp = values.get(TEMPERATURE)
+        field = values.get(MAGNETIC_FIELD)
+        if field is not None and self.field_ut is None:
+            self.mag_unscaled += n
+        if field is not None and self.field_ut is not None:
+            self._mag = True
+        out = np.empty(n, dtype=MAG_SAMPLE_DTYPE if self._mag else SAMPLE_DTYPE)
+        out["seq"] = counter & 0xFFFFFFFF
+        out["t_us"] = ticks * _US_PER_TICK
+        acc_kind, gyro_kind = (ACCELERATION_HR, RATE_OF_TURN_HR) if self.source == "hr" else (
+            ACCELERATION, RATE_OF_TURN)
+        for name, kind in (("acc", acc_kind), ("gyro", gyro_kind)):
+            out[name] = values[kind] if kind in values else np.nan
+        out["temp"] = temp[:, 0] if temp is not None else self._temp
+        if self._mag:
+            out["mag"] = field * self.field_ut if field is not None and self.field_ut is not None else np.nan
+        self._counter = int(counter[-1])
+        self._own_seq = (int(counter[-1]) & 0xFFFFFFFF) + 1
+        self._fine = self._last_inertial_ticks = int(ticks[-1])
+        if temp is not None:
+            self._temp = float(temp[-1, 0])
+        self.message_ids_seen[MID_MTDATA2] = self.message_ids_seen.get(MID_MTDATA2, 0) + n
+        for name in layout.names:
+            self.items_seen[name] = self.items_seen.get(name, 0) + n
+        self.stats.frames += n
+        return out, end
+
+    def _layout(self, payload: bytes) -> _Layout | None:
+        """The vectorised path's view of a packet layout (cached), or None when it does not take it."""
+        items = []
+        at = 0
+        while at + 3 <= len(payload):
+            items.append(((payload[at] << 8) | payload[at + 1], payload[at + 2]))
+            at += 3 + payload[at + 2]
+        key = (len(payload), tuple(items))
+        if key not in self._layouts:
+            self._layouts[key] = _make_layout(payload, items) if at == len(payload) else None
+        return self._layouts[key]
 
     # -------------------------------------------------------------- framing
 
