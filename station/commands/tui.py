@@ -12,6 +12,9 @@ from station.console.options import (
     SPEED,
     add_output_option,
     add_port_options,
+    add_supply_options,
+    add_table_options,
+    check_supply_options,
     positive,
 )
 from station.errors import ExitCode, StationError
@@ -43,8 +46,19 @@ Files: --out PARAMS.yaml gets the accel and gyro sections (other sections are ke
 labelled capture of the sequence goes to --capture (default PARAMS-capture.csv beside --out);
 Allan and temperature recordings go to PARAMS-allan.h5 and PARAMS-thermal.h5.
 
-A port that cannot be opened, or a link lost during the run, is shown on the screen (what was
-captured is kept) and another port can be chosen.
+Lab instruments by URL: with --supply URL (scpi://HOST, korad://PORT, ...) the bench supply powering
+the unit switches it on when connecting (--supply-volts, --supply-amps, each checked against
+--supply-max-v and --supply-max-a first) and the turn-on screen power-cycles it through the supply
+(off, held --supply-off seconds, on) instead of RESTART or asking the operator, saying each switch;
+a supply that fails stops the turn-ons with the reason on the screen. With --table URL
+(acutrol://HOST:PORT?axes=3, aerosmith://PORT, ...) the rate table carrying the unit (--table-mount:
+the unit axis along its axis) places and turns it for every step of the wizard, within
+--table-max-rate and --table-accel; the screen says what the table is doing, and x or Escape stops
+it at once. A single-axis table reaches only the mount's pose and turns about it: give a sequence
+of those steps (or a three-axis table, ?axes=3).
+
+A port that cannot be opened, a supply or table that cannot be reached, or a link lost during the
+run, is shown on the screen (what was captured is kept) and another port can be chosen.
 
 Quitting (q, Ctrl-C) with a calibration that is not saved asks to save it, discard it or go back;
 if the terminal closes first, it is saved to PARAMS-unsaved-TIME.yaml beside --out (or
@@ -59,7 +73,9 @@ examples:
   imu-station tui --simulate --speed 4 --out sim.yaml          (a quick demonstration)
   imu-station tui --simulate --mag --speed 4 --out sim.yaml    (then m: the magnetometer step)
   imu-station tui --port /dev/ttyACM0 --sequence my-fixture.yaml --no-rotations
-  imu-station tui --port /dev/ttyUSB0 --plan line-a.yaml --out unit42.yaml  (the line's limits)"""
+  imu-station tui --port /dev/ttyUSB0 --plan line-a.yaml --out unit42.yaml  (the line's limits)
+  imu-station tui --port /dev/ttyUSB0 --supply scpi://10.0.0.9 --supply-volts 5 --out unit42.yaml
+  imu-station tui --port /dev/ttyUSB0 --table acutrol://10.0.0.7:5000?axes=3 --out unit42.yaml"""
 
 
 # The simulated unit's rates (mocks.device); a turn faster than 720 deg/s no turntable or hand makes.
@@ -107,6 +123,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--simulate: run the simulated unit's clock X times faster than the wall clock "
                         "(demos and tests; every hold and turn is timed on the device clock), at most "
                         f"{MAX_SPEED:g}")
+    add_supply_options(parser, help="the bench supply powering the unit (scpi://HOST, korad://PORT, ...): "
+                       "switched on when connecting; the turn-on screen power-cycles the unit through it")
+    add_table_options(parser, help="a rate table carrying the unit (acutrol://HOST:PORT?axes=3, "
+                      "aerosmith://PORT, ...): it places and turns the unit for every step of the wizard")
 
 
 def config_from_args(args: argparse.Namespace) -> TuiConfig:
@@ -133,13 +153,26 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
 
     if args.export and args.out is None:
         raise StationError("--export writes from the saved parameter file: give --out PARAMS.yaml too")
+    check_supply_options(args)
+    if args.simulate and (args.supply is not None or args.table is not None):
+        raise StationError("--supply and --table power and move the unit at --port; the --simulate unit is "
+                           "not wired to them (serve one that is with `imu-station simulate --instruments` "
+                           "and give its pty as --port)")
+    max_rate = args.table_max_rate
+    if args.table is not None and max_rate is not None and args.rotation_rate > max_rate:
+        raise StationError(f"--rotation-rate {args.rotation_rate:g} is above --table-max-rate "
+                           f"{args.table_max_rate:g}: the table may not turn that fast")
     resolve(args.sequence, rotations=not args.no_rotations, hold_s=args.hold,
             rotation_rate_dps=args.rotation_rate)
     return TuiConfig(port=args.port, simulate=args.simulate, protocol=args.protocol, sequence=args.sequence,
                      rotations=not args.no_rotations, out=args.out, capture=args.capture, export=args.export,
                      export_dir=args.export_dir, hold_s=args.hold, rotation_rate_dps=args.rotation_rate,
                      seed=args.seed, rate_hz=args.rate, speed=args.speed, allan_minutes=args.allan_minutes,
-                     plan=load_plan(args.plan) if args.plan is not None else None, mag=args.mag)
+                     plan=load_plan(args.plan) if args.plan is not None else None, mag=args.mag,
+                     supply=args.supply, supply_volts=args.supply_volts, supply_amps=args.supply_amps,
+                     supply_max_v=args.supply_max_v, supply_max_a=args.supply_max_a,
+                     supply_off_s=args.supply_off, table=args.table, table_mount=args.table_mount,
+                     table_max_rate_dps=args.table_max_rate, table_accel_dps2=args.table_accel)
 
 
 def run(args: argparse.Namespace) -> int:

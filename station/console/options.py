@@ -391,3 +391,94 @@ def files_root(args: argparse.Namespace, url: str) -> Path:
         return Path("imu-station-files")
     db = Path(url.removeprefix("sqlite:///"))
     return db.with_name(db.stem + "-files")
+
+
+# ---- lab instruments the station drives by URL (station.instruments) ----------------------------
+
+SUPPLY_MAX_V = 12.0
+"""``--supply-max-v`` by default: an IMU's input range rarely goes further; more must be asked for."""
+SUPPLY_MAX_A = 1.0
+"""``--supply-max-a`` by default."""
+SUPPLY_OFF_S = 2.0
+"""``--supply-off`` by default (``station.instruments.power_cycle.OFF_S``)."""
+TABLE_MOUNTS = ("+z", "-z", "+x", "-x", "+y", "-y")
+"""The unit axes that can lie along a table's (inner) axis."""
+MAX_TABLE_RATE_DPS = 1000.0
+"""The fastest rate tables (an AC1120-class ACUTROL)."""
+MAX_TABLE_ACCEL_DPS2 = 10_000.0
+"""Far beyond what a table carrying an IMU is asked for."""
+TABLE_ACCEL_DPS2 = 100.0
+"""``--table-accel`` by default (``MountedTable``'s)."""
+
+
+def add_supply_options(parser: argparse.ArgumentParser, *, help: str) -> None:
+    """Add ``--supply URL`` and its settings, limits and off time, the same for every command that
+    power-cycles the unit through a bench supply (``station.instruments.power_cycle``).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    help : str
+        What ``--supply`` does in this command.
+    """
+    parser.add_argument("--supply", metavar="URL", help=help)
+    parser.add_argument("--supply-volts", type=number(float, 0.0, 1000.0), default=None, metavar="V",
+                        help="the supply's voltage with --supply (default: as the supply is set)")
+    parser.add_argument("--supply-amps", type=number(float, 0.0, 100.0), default=None, metavar="A",
+                        help="the supply's current limit with --supply (default: as the supply is set)")
+    parser.add_argument("--supply-max-v", type=number(float, 0.0, 1000.0), default=SUPPLY_MAX_V, metavar="V",
+                        help=f"refuse a --supply-volts above this (default {SUPPLY_MAX_V:g})")
+    parser.add_argument("--supply-max-a", type=number(float, 0.0, 100.0), default=SUPPLY_MAX_A, metavar="A",
+                        help=f"refuse a --supply-amps above this (default {SUPPLY_MAX_A:g})")
+    parser.add_argument("--supply-off", type=number(float, 0.05, 600.0), default=SUPPLY_OFF_S, metavar="S",
+                        help="seconds the supply's output stays off at each power cycle "
+                             f"(default {SUPPLY_OFF_S:g})")
+
+
+def check_supply_options(args: argparse.Namespace) -> None:
+    """Refuse supply settings without ``--supply``, or beyond their own limits, before anything opens.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options of :func:`add_supply_options`.
+
+    Raises
+    ------
+    StationError
+        ``--supply-volts`` or ``--supply-amps`` without ``--supply``, or above ``--supply-max-v`` or
+        ``--supply-max-a`` (exit 4).
+    """
+    if args.supply is None and (args.supply_volts is not None or args.supply_amps is not None):
+        raise StationError("--supply-volts and --supply-amps go with --supply URL")
+    if args.supply_volts is not None:
+        check_range("--supply-volts", args.supply_volts, 0.0, args.supply_max_v, unit="V",
+                    what="a voltage within --supply-max-v,")
+    if args.supply_amps is not None:
+        check_range("--supply-amps", args.supply_amps, 0.0, args.supply_max_a, unit="A",
+                    what="a current within --supply-max-a,")
+
+
+def add_table_options(parser: argparse.ArgumentParser, *, help: str) -> None:
+    """Add ``--table URL`` (a lab rate table, ``station.instruments.mounted_table``), the unit's mount
+    on it and its rate and acceleration limits.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    help : str
+        What ``--table`` does in this command.
+    """
+    parser.add_argument("--table", metavar="URL", help=help)
+    parser.add_argument("--table-mount", default="+z", choices=TABLE_MOUNTS, metavar="AXIS",
+                        help="the unit's axis along the table's (inner) axis: "
+                             f"{', '.join(TABLE_MOUNTS)} (default +z)")
+    parser.add_argument("--table-max-rate", type=positive("deg/s", MAX_TABLE_RATE_DPS), default=None,
+                        metavar="DPS", help="refuse to turn the table faster than this (default: the table's "
+                                            "own limit); a three-axis tilt keeps its peak within it too")
+    parser.add_argument("--table-accel", type=positive("deg/s^2", MAX_TABLE_ACCEL_DPS2),
+                        default=TABLE_ACCEL_DPS2, metavar="DPS2",
+                        help=f"the table's acceleration, and the most it may be set to "
+                             f"(default {TABLE_ACCEL_DPS2:g} deg/s^2)")

@@ -72,6 +72,11 @@ class TuiOperator(BaseOperator):
     def _post(self, kind: str, payload: object = None, index: int = 0, total: int = 0) -> None:
         self.target.post_message(RunnerEvent(kind, payload, index, total))
 
+    def tell(self, kind: str, payload: object = None) -> None:
+        """Tell the screen something beside the runner's calls (what the table does: ``table``,
+        ``table_failed``)."""
+        self._post(kind, payload)
+
     def begin(self, sequence: Sequence) -> None:
         """Tell the screen the run of ``sequence`` starts."""
         self._post("begin", sequence)

@@ -31,6 +31,16 @@ class TuiConfig:
     allan_minutes: float = 60.0
     plan: Plan | None = None  # whose limits judge the results (None: the built-in ones)
     mag: bool = False  # the simulated unit has a magnetometer
+    supply: str | None = None  # the bench supply powering the unit (URL): turn-ons power-cycle through it
+    supply_volts: float | None = None
+    supply_amps: float | None = None
+    supply_max_v: float = 12.0
+    supply_max_a: float = 1.0
+    supply_off_s: float = 2.0
+    table: str | None = None  # a rate table carrying the unit (URL): it places and turns it in the wizard
+    table_mount: str = "+z"
+    table_max_rate_dps: float | None = None
+    table_accel_dps2: float = 100.0
 
     def capture_path(self) -> Path | None:
         """Where the labelled capture goes: ``--capture``, else beside ``--out``."""

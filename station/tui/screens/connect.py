@@ -11,10 +11,10 @@ from textual.containers import Vertical
 from textual.widgets import Footer, Header, OptionList, Static
 from textual.widgets.option_list import Option
 
-from drivers.errors import DriverError
 from drivers.ports import SerialPort, list_serial_ports
 from protocols.registry import DECODERS
 from station.common.text import printable
+from station.errors import StationError
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.screens.station_screen import StationScreen
 from station.tui.session import SIMULATED, Session, open_session
@@ -80,7 +80,7 @@ class ConnectScreen(StationScreen):
     def _open(self, port: str | None) -> None:
         try:
             session = open_session(self.station.config, port)
-        except (DriverError, OSError) as exc:
+        except (StationError, OSError) as exc:  # the port, or --supply / --table (DriverError is one)
             self.post_message(LinkFailed(exc))
             return
         self.post_message(Snapshot({"session": session}))
@@ -116,6 +116,13 @@ class ConnectScreen(StationScreen):
         health = "[green]good[/green]" if stats.errors == 0 and stats.lost == 0 else "[yellow]errors[/yellow]"
         table.add_row("link", f"{health}  {stats.rate_hz:.0f} Hz, {stats.samples} samples, "
                       f"{stats.errors} errors, {stats.lost} lost, {stats.overflow_drops} dropped")
+        if session.power is not None:
+            supply = session.power.supply.url
+            table.add_row("supply", Text(f"{supply}: powers the unit (turn-ons power-cycle it)"))
+        if session.table is not None:
+            mounted = session.table
+            table.add_row("table", Text(f"{mounted.table.url}: unit {mounted.mount} along its axis "
+                                        "(the wizard's steps are the table's)"))
         self.query_one("#info", Static).update(table)
 
     def action_continue(self) -> None:

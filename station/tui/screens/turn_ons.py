@@ -3,6 +3,12 @@
 Before each record but the first the unit is restarted with RESTART; a unit that answers ACK status 1
 cannot restart itself, and a prompt asks the operator to power-cycle it (its serial link stays open:
 a unit powered apart from its link, such as a board behind a USB-serial adapter) and press Enter.
+
+With ``--supply`` the unit is power-cycled through its bench supply instead, RESTART and the operator
+left out (:class:`~station.instruments.power_cycle.SupplyPowerCycle`: output off, held ``--supply-off``,
+on), and the screen says each switch as it happens; the record starts once the unit streams again. A
+supply that fails (or a unit that does not come back) stops the turn-ons with the reason on the screen;
+Enter computes from the records made.
 """
 
 from __future__ import annotations
@@ -33,6 +39,11 @@ COLORS = ("red", "green", "blue")
 TURN_ONS = 5
 STILL_S = 30.0
 UI_PERIOD_S = 0.25
+SAMPLES_BACK_S = 10.0  # wall seconds a unit may take to boot and stream after its supply comes on
+
+
+class SupplyFailed(Exception):
+    """The supply could not power-cycle the unit, or the unit did not stream again: why, in one line."""
 
 
 class TurnOnsScreen(LongRecordingScreen):
@@ -47,11 +58,20 @@ class TurnOnsScreen(LongRecordingScreen):
 
     def __init__(self, turn_ons: int = TURN_ONS, still_s: float = STILL_S) -> None:
         super().__init__()
+        self.supply_failed: str | None = None
         self.turn_ons = turn_ons
         self.still_s = still_s
         self.records: list[np.ndarray] = []
         self._powered = threading.Event()
         self._abandoned = False
+
+    def on_mount(self) -> None:
+        """Say how the unit is restarted (through the supply with --supply); the base class's handler,
+        which textual calls after this one, starts the recording."""
+        power = self.session.power
+        if power is not None:
+            self.query_one("#side", Static).update(f"Keep the unit still in one pose: it is power-cycled "
+                                                   f"through {power.supply.url} between records.")
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
@@ -59,8 +79,12 @@ class TurnOnsScreen(LongRecordingScreen):
         device = self.session.device
         try:
             for k in range(self.turn_ons):
-                if k and not self._restart(device, k):
-                    break
+                try:
+                    if k and not self._restart(device, k):
+                        break
+                except SupplyFailed as failed:
+                    self.post_message(Snapshot({"supply_failed": str(failed)}))
+                    return  # the reason stays on the screen; Enter computes from the records made
                 batches: list[np.ndarray] = []
                 count, last = 0, 0.0
                 device.read(0)  # the old power-up's samples
@@ -85,7 +109,12 @@ class TurnOnsScreen(LongRecordingScreen):
             self.post_message(LinkFailed(exc))
 
     def _restart(self, device: Any, k: int) -> bool:
-        """Restart the unit for turn-on ``k``, or have the operator power-cycle it; False if abandoned."""
+        """Restart the unit for turn-on ``k`` (through its supply with --supply), or have the operator
+        power-cycle it; False if abandoned."""
+        power = self.session.power
+        if power is not None:
+            self._supply_cycle(power, device, k)
+            return not self._abandoned
         if restart_unit(device):
             return True
         self._powered.clear()
@@ -93,18 +122,59 @@ class TurnOnsScreen(LongRecordingScreen):
         self._powered.wait()
         return not self._abandoned
 
+    def _supply_cycle(self, power: Any, device: Any, k: int) -> None:
+        """Power-cycle the unit through ``power`` (a SupplyPowerCycle) for turn-on ``k``, saying each
+        switch on the screen, and wait for its samples; :class:`SupplyFailed` when either fails."""
+        url = power.supply.url
+        self.post_message(Snapshot({"supply": k, "doing": f"{url}: output off, held off {power.off_s:g} s, "
+                                                          "then on again"}))
+        try:
+            power(k + 1)
+            volts, amps = power.supply.voltage_v(), power.supply.current_a()
+        except (StationError, OSError) as exc:  # an instrument's errors are StationErrors
+            raise SupplyFailed(f"the supply failed at turn-on {k + 1}: {exc}") from None
+        self.post_message(Snapshot({"supply": k, "doing": f"{url}: output on ({volts:.2f} V, {amps:.3f} A); "
+                                                          "waiting for the unit's samples"}))
+        device.read(0)  # the old power-up's samples, all in before the output went off
+        deadline = time.monotonic() + SAMPLES_BACK_S
+        worker = get_current_worker()
+        while not worker.is_cancelled and not self._abandoned:
+            if len(device.read(0.1)):
+                return
+            if time.monotonic() > deadline:
+                raise SupplyFailed(f"no samples from the unit {SAMPLES_BACK_S:g} s after {url} switched "
+                                   f"it on (turn-on {k + 1}); check its wiring to the supply, the voltage "
+                                   "(--supply-volts) and the current limit (--supply-amps)")
+
     def show_progress(self, d: dict[str, Any]) -> None:
-        """The turn-on being recorded, or the power-cycle prompt; the means so far."""
+        """The turn-on being recorded, the supply's switching, or the power-cycle prompt; the means so far."""
         if d.get("done"):
             self.action_stop()
             return
         if "power_cycle" in d:
             self._ask_power_cycle(d["power_cycle"])
             return
+        if "supply_failed" in d:
+            self.supply_failed = d["supply_failed"]
+            side = Text(f"{d['supply_failed']}\n", style="red")
+            side.append(f"{len(self.records)} turn-on(s) recorded. Enter: compute from them · Escape: back",
+                        style="bold")
+            self.query_one("#side", Static).update(side)
+            return
+        power = self.session.power
+        if "supply" in d:
+            side = Text()
+            side.append(f"turn-on {d['supply'] + 1} of {self.turn_ons}  ", style="bold")
+            side.append("power-cycling the unit through its supply\n")
+            side.append(f"{d['doing']}\n", style="cyan")
+            side.append("Enter: stop and compute from the turn-ons recorded · Escape: back", style="bold")
+            self.query_one("#side", Static).update(side)
+            return
         side = Text()
         side.append(f"turn-on {d['turn_on'] + 1} of {self.turn_ons}  ", style="bold")
         side.append(f"{d['elapsed']:.1f} s of {self.still_s:g} s still, {d['count']} samples\n")
-        side.append("Keep the unit still in one pose; it is restarted before each record.\n")
+        how = f"power-cycled through {power.supply.url}" if power is not None else "restarted"
+        side.append(f"Keep the unit still in one pose; it is {how} before each record.\n")
         side.append("Enter: stop and compute from the turn-ons recorded · Escape: back", style="bold")
         self.query_one("#side", Static).update(side)
         self._draw_means()

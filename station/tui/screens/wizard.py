@@ -1,4 +1,8 @@
-"""The sequence wizard: each step's instruction and drawing, live checks, automatic capture, prompts."""
+"""The sequence wizard: each step's instruction and drawing, live checks, automatic capture, prompts.
+
+With ``--table`` the rate table places and turns the unit for each step
+(:class:`~station.tui.table.TableTuiOperator`) and the step panel says what it is doing; ``x``
+(abort) or Escape stops the table at once, as does leaving the screen."""
 
 from __future__ import annotations
 
@@ -10,7 +14,7 @@ from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Footer, Header, ProgressBar, Static
 
-from station.acquisition.operator import Action, Prompt, SimulatedOperator
+from station.acquisition.operator import Action, Operator, Prompt, SimulatedOperator
 from station.acquisition.recorder import Recorder
 from station.acquisition.runner import (
     LiveStatus,
@@ -28,6 +32,7 @@ from station.tui.bridge import RunnerEvent, TuiOperator
 from station.tui.config import TuiConfig
 from station.tui.messages import LinkFailed
 from station.tui.screens.station_screen import StationScreen
+from station.tui.table import TableTuiOperator
 
 MARKS = {"accepted": "[green]✓[/green]", "skipped": "[yellow]↷[/yellow]", "failed": "[red]✗[/red]",
          "aborted": "[red]✗[/red]"}
@@ -53,6 +58,7 @@ class WizardScreen(StationScreen):
         Binding("s", "answer('skip')", "skip"),
         Binding("k", "answer('accept')", "keep", show=False),  # offered by the prompt that needs it
         Binding("x", "answer('abort')", "abort"),
+        Binding("escape", "stop_table", "stop the table", show=False),  # with --table
     ]
     # At 80x24 the borders go but the steps' and the prompt's top rule: the drawing keeps its rows.
     DEFAULT_CSS = """
@@ -76,6 +82,10 @@ class WizardScreen(StationScreen):
         self.current = -1
         self.result: RunResult | None = None
         self.prompt: Prompt | None = None
+        self.table_operator: TableTuiOperator | None = None
+        self.step_head = Text()
+        self.step_foot = ""
+        self.table_line: Text | None = None
 
     def compose(self) -> ComposeResult:
         """The step panel, the checks with the progress bar, the steps, the prompt, the keys."""
@@ -94,23 +104,41 @@ class WizardScreen(StationScreen):
         self.title = f"imu-station · {self.sequence.name}"
         self.step_notices = False
         self.operator = TuiOperator(self)
+        table = self.session.table
+        if table is not None:
+            self.table_operator = TableTuiOperator(table, self.operator)
         overview = Text(f"Sequence {self.sequence.name}\n\n", style="bold")
-        overview.append("For each step: put the unit as drawn and let go. Capture starts by itself once the "
-                        "unit is in the pose and still, and the next step follows. A turn is asked for "
-                        "after a short still capture; turn at about the rate shown, then hold still.\n\n"
-                        "r redo · s skip · x abort (what was captured is kept) · ? help")
+        if table is not None:
+            overview.append(f"The rate table {table.table.url} places and turns the unit (mounted "
+                            f"{table.mount} along its axis) for every step: keep clear of it. Capture "
+                            "starts by itself once the unit is in the pose and still, and the next step "
+                            "follows.\n\n"
+                            "x or Escape: abort and stop the table (what was captured is kept) · ? help")
+        else:
+            overview.append("For each step: put the unit as drawn and let go. Capture starts by itself once "
+                            "the unit is in the pose and still, and the next step follows. A turn is asked "
+                            "for after a short still capture; turn at about the rate shown, then hold "
+                            "still.\n\nr redo · s skip · x abort (what was captured is kept) · ? help")
         self.query_one("#step", Static).update(overview)
         self.show_steps()
         self._run()
 
     def on_unmount(self) -> None:
-        """Abort the run's prompts: the screen is going away."""
+        """Abort the run's prompts and stop the table: the screen is going away."""
         self.operator.close()
+        if self.table_operator is not None and self.result is None:
+            self.table_operator.stop_soon()
 
     @work(thread=True, exclusive=True, group="reader")
     def _run(self) -> None:
         session = self.session
-        operator = self.operator if session.rig is None else SimulatedOperator(session.rig, self.operator)
+        operator: Operator
+        if self.table_operator is not None:
+            operator = self.table_operator
+        elif session.rig is None:
+            operator = self.operator
+        else:
+            operator = SimulatedOperator(session.rig, self.operator)
         path = self.station.config.capture_path()
         try:
             recorder = None
@@ -152,9 +180,36 @@ class WizardScreen(StationScreen):
         if isinstance(step, PoseStep):  # a turn's caption says all its instruction does
             title.append(step_instruction(step) + "\n")
         title.append("\n".join(step_caption(step)) + "\n", style="bold cyan")
-        title.append("\n".join(step_drawing(step)))
-        self.query_one("#step", Static).update(title)
+        self.step_head, self.step_foot = title, "\n".join(step_drawing(step))
+        self.table_line = None
+        self.show_step()
         self.show_steps()
+
+    def show_step(self) -> None:
+        """The step's caption, what the table is doing (with --table), then its drawing."""
+        text = self.step_head.copy()
+        if self.table_line is not None:
+            text.append_text(self.table_line)
+            text.append("\n")
+        text.append(self.step_foot)
+        self.query_one("#step", Static).update(text)
+
+    def _on_table(self, event: RunnerEvent) -> None:
+        self.table_line = Text(f"{event.payload} (keep clear)", style="bold magenta")
+        self.show_step()
+
+    def _on_table_failed(self, event: RunnerEvent) -> None:
+        self.table_line = Text(f"The table failed and was stopped: {event.payload}", style="bold red")
+        self.show_step()
+
+    def action_stop_table(self) -> None:
+        """Escape with --table: stop the table at once and abort the run (what was captured is kept)."""
+        if self.table_operator is None or self.result is not None:
+            return
+        self.table_operator.stop_soon()
+        self.table_line = Text("Stopped: the table is brought to rest; the run is aborted.", style="bold red")
+        self.show_step()
+        self.action_answer("abort")
 
     def _on_rotate(self, event: RunnerEvent) -> None:
         self.notify(f"Turn now: {event.payload.label}", timeout=STEP_NOTICE_S)
@@ -218,6 +273,9 @@ class WizardScreen(StationScreen):
         text = Text(result.summary(), style="bold")
         if result.reason:
             text.append(f"\n{result.reason}")
+        table_error = self.table_operator.error if self.table_operator is not None else None
+        if table_error is not None:
+            text.append(f"\ntable: {table_error}", style="red")
         path = self.station.config.capture_path()
         if path is not None:
             text.append(f"\nCapture saved to {path}")
@@ -267,6 +325,8 @@ class WizardScreen(StationScreen):
             action = prompt.default
         else:
             action = Action(which)
+        if action is Action.ABORT and self.table_operator is not None:
+            self.table_operator.stop_soon()  # at once, not at the runner's next poll
         if not self.operator.answer(action) and prompt is None:
             self.notify(f"{NAMES[action]} requested", timeout=STEP_NOTICE_S)
             self.step_notices = True
