@@ -16,11 +16,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize
 
 from station.engines.allan.estimates import Estimate
 from station.engines.allan.shapes import (
-    filtered_white_avar,
     gauss_markov_avar,
     sinusoid_avar,
     term_avar,
@@ -34,7 +32,7 @@ FILTER_SLOPE = -0.45  # a curve that starts above this slope bends below the whi
 SIN_PER_DECADE = 40  # frequencies tried for a sinusoid's start
 SIN_PARAMS = 2
 GM_PARAMS = 2
-JAC_STEP = 1e-6  # in the log of a time constant or frequency
+MAX_NFEV = 400  # evaluations of (1) per solve
 
 
 @dataclass(frozen=True)
@@ -133,123 +131,47 @@ class WeightedCurve:
         return out_band & (np.abs(adev / meas - 1.0) > TOLERANCE)
 
 
-def _gm_columns(tau: np.ndarray, t_gm: np.ndarray) -> np.ndarray:
-    """:func:`gauss_markov_avar` of every correlation time at once, one column each (the same arithmetic,
-    element by element, as one call per column)."""
-    x = tau[:, None] / t_gm[None, :]
-    u = -np.expm1(-x)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bracket = np.where(x < 1e-3, x**2 / 3.0 - x**3 / 4.0, 1.0 - (2.0 * u + u * u) / (2.0 * x))
-    return 2.0 * bracket / x
-
-
-def _sin_columns(tau: np.ndarray, freqs: np.ndarray) -> np.ndarray:
-    """:func:`sinusoid_avar` of every frequency at once, one column each."""
-    x = (math.pi * freqs)[None, :] * tau[:, None]
-    return np.sin(x) ** 4 / x**2
-
-
-class _Columns:
-    """The columns of one combination at a curve's cluster times, for the trust-region solve: the IEEE
-    terms' fixed shapes are built once, and only the columns of the time constants are rebuilt per
-    evaluation (those of one time constant alone for each difference of the Jacobian). Every column holds
-    what :func:`_columns` would, bit for bit, so the model (``a @ c``) is the same too."""
-
-    def __init__(self, combo: Combination, tau: np.ndarray):
-        self.combo, self.tau = combo, tau
-        self.n_terms = len(combo.terms)
-        self.n_lin = self.n_terms + combo.n_gm + combo.n_sin
-        self.fixed = np.empty((len(tau), self.n_lin))
-        self.n_at = combo.terms.index("N") if combo.filtered and "N" in combo.terms else -1
-        for j, t in enumerate(combo.terms):
-            if j != self.n_at:
-                self.fixed[:, j] = term_avar(t, tau, None, combo.dt)
-        self.key: bytes | None = None
-        self.a = self.fixed
-        self.c = np.empty(0)
-
-    def at(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(columns, coefficients) at the log parameters ``x`` (the last kept: scipy asks for the
-        Jacobian where it has just evaluated the residuals)."""
-        key = x.tobytes()
-        if key != self.key:
-            combo, n_lin = self.combo, self.n_lin
-            self.c = np.exp(np.minimum(x[:n_lin], 300.0))
-            a = self.fixed.copy()
-            at = n_lin
-            if combo.filtered:
-                if self.n_at >= 0:
-                    a[:, self.n_at] = filtered_white_avar(self.tau, float(np.exp(x[at])), combo.dt)
-                at += 1
-            g0 = self.n_terms
-            if combo.n_gm:
-                a[:, g0:g0 + combo.n_gm] = _gm_columns(self.tau, np.exp(x[at:at + combo.n_gm]))
-            if combo.n_sin:
-                s0 = at + combo.n_gm
-                a[:, g0 + combo.n_gm:n_lin] = _sin_columns(self.tau, np.exp(x[s0:s0 + combo.n_sin]))
-            self.key, self.a = key, a
-        return self.a, self.c
-
-    def moved(self, x: np.ndarray, k: int, value: float) -> np.ndarray:
-        """The model at ``x`` with its nonlinear parameter ``k`` set to ``value`` (log)."""
-        a, c = self.at(x)
-        combo, n_lin = self.combo, self.n_lin
-        a = a.copy()
-        k_f = n_lin if combo.filtered else -1
-        if k == k_f:
-            if self.n_at >= 0:
-                a[:, self.n_at] = filtered_white_avar(self.tau, float(np.exp(value)), combo.dt)
-        else:
-            first_gm = n_lin + combo.filtered
-            if k < first_gm + combo.n_gm:
-                j = self.n_terms + k - first_gm
-                a[:, j] = _gm_columns(self.tau, np.exp(np.array([value])))[:, 0]
-            else:
-                j = self.n_terms + combo.n_gm + k - first_gm - combo.n_gm
-                a[:, j] = _sin_columns(self.tau, np.exp(np.array([value])))[:, 0]
-        return a @ c
+def _strictly_feasible(x: np.ndarray, lb: np.ndarray, ub: np.ndarray, rstep: float = 1e-10) -> np.ndarray:
+    """``x`` moved at least ``rstep`` (relative) inside its bounds, as scipy's least_squares moves its start
+    (``scipy.optimize._lsq.common.make_strictly_feasible``)."""
+    lower_dist, upper_dist = x - lb, ub - x
+    lower_thr, upper_thr = rstep * np.maximum(1, np.abs(lb)), rstep * np.maximum(1, np.abs(ub))
+    lower = np.isfinite(lb) & (lower_dist <= np.minimum(upper_dist, lower_thr))
+    upper = np.isfinite(ub) & (upper_dist <= np.minimum(lower_dist, upper_thr))
+    lower &= ~upper
+    x_new = x.copy()
+    x_new[lower] = lb[lower] + rstep * np.maximum(1, np.abs(lb[lower]))
+    x_new[upper] = ub[upper] - rstep * np.maximum(1, np.abs(ub[upper]))
+    tight = (x_new < lb) | (x_new > ub)
+    x_new[tight] = 0.5 * (lb[tight] + ub[tight])
+    return x_new
 
 
 def _solve(curve: WeightedCurve, combo: Combination, x0: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]
            ) -> CandidateFit:
-    """Minimise (1) from ``x0``; the covariance of the log parameters from the Jacobian."""
+    """Minimise (1) from ``x0`` (scipy's trust-region reflective method, compiled: :mod:`._trf`); the
+    covariance of the log parameters from the Jacobian."""
+    from station.engines.allan import _trf  # numba: only a command that selects a model compiles it
+
     mean, sd = log_chi2_moments(curve.edf)
-    w = 1.0 / sd
-    log_avar = np.log(curve.avar) - mean
-    tiny = np.finfo(float).tiny
-
-    n_lin = len(combo.terms) + combo.n_gm + combo.n_sin
-    cols = _Columns(combo, curve.tau)
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        a, c = cols.at(x)
-        return w * (log_avar - np.log(np.maximum(a @ c, tiny)))
-
-    def jacobian(x: np.ndarray) -> np.ndarray:
-        # d r / d log c_j = -w c_j col_j / model, exactly; the time constants by central differences
-        a, c = cols.at(x)
-        parts = a * c
-        model = np.maximum(parts.sum(axis=1), tiny)
-        jac = np.empty((len(curve.tau), len(x)))
-        jac[:, :n_lin] = -w[:, None] * parts / model[:, None]
-        for k in range(n_lin, len(x)):
-            r_up = w * (log_avar - np.log(np.maximum(cols.moved(x, k, x[k] + JAC_STEP), tiny)))
-            r_down = w * (log_avar - np.log(np.maximum(cols.moved(x, k, x[k] - JAC_STEP), tiny)))
-            jac[:, k] = (r_up - r_down) / (2.0 * JAC_STEP)
-        return jac
-
-    x0 = np.clip(x0, bounds[0] + 1e-9, bounds[1] - 1e-9)
-    # a term the data does not need shrinks until its Jacobian column is zero; the trust-region's
-    # secular equation then divides by zero on its way to the same step (RuntimeWarnings, no harm)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sol = optimize.least_squares(residuals, x0, jac=jacobian, bounds=bounds, method="trf", x_scale=1.0,
-                                     max_nfev=400)
-    chi2 = float(np.sum(sol.fun**2))
-    jac = sol.jac
-    dof = max(len(curve.tau) - len(sol.x), 1)
+    w = np.ascontiguousarray(1.0 / sd)
+    log_avar = np.ascontiguousarray(np.log(curve.avar) - mean)
+    tau = np.ascontiguousarray(curve.tau)
+    # the IEEE terms' columns, built once; the solve writes those of the filtered N, processes, sinusoids
+    fixed = np.zeros((len(tau), len(combo.terms) + combo.n_gm + combo.n_sin))
+    for j, t in enumerate(combo.terms):
+        if not (t == "N" and combo.filtered):
+            fixed[:, j] = term_avar(t, tau, None, combo.dt)
+    if combo.terms[0] != "N":
+        raise ValueError(f"a combination starts with N, not {combo.terms[0]}")
+    x0 = _strictly_feasible(np.clip(x0, bounds[0] + 1e-9, bounds[1] - 1e-9), *bounds)
+    x, fun, jac, _ = _trf.solve(x0, bounds[0], bounds[1], tau, fixed, len(combo.terms), combo.n_gm,
+                                combo.filtered, combo.dt, w, log_avar, MAX_NFEV)
+    chi2 = float(np.sum(fun**2))
+    dof = max(len(curve.tau) - len(x), 1)
     with np.errstate(all="ignore"):
         cov = np.linalg.pinv(jac.T @ jac) * max(chi2 / dof, 1.0)
-    return CandidateFit(combo, sol.x, chi2, cov)
+    return CandidateFit(combo, x, chi2, cov)
 
 
 def _bounds(combo: Combination, curve: WeightedCurve) -> tuple[np.ndarray, np.ndarray]:
