@@ -289,8 +289,10 @@ def sinusoid_start(curve: WeightedCurve, base: CandidateFit) -> float:
                          base.combo.dt)
     best = (math.inf, 1.0)
     lo, hi = 0.25 / curve.tau[-1], curve.rate_hz / 2.0
-    for f in np.geomspace(lo, hi, int(SIN_PER_DECADE * math.log10(hi / lo)) + 1):
-        a = _columns(combo, curve.tau, t_f, t_gm, [*freqs, f])
+    grid = np.geomspace(lo, hi, int(SIN_PER_DECADE * math.log10(hi / lo)) + 1)
+    a = _columns(combo, curve.tau, t_f, t_gm, [*freqs, grid[0]])  # the last column moves alone
+    for f in grid:
+        a[:, -1] = sinusoid_avar(curve.tau, f)
         _, chi2 = weighted_nnls_fit(a, curve.avar, curve.edf, iterations=3)
         if chi2 < best[0]:
             best = (chi2, float(f))
