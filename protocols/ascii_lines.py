@@ -35,6 +35,7 @@ the parser they must round-trip with; the fuzz table tests them as pairs.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass
@@ -44,7 +45,7 @@ import numpy as np
 
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase, has_mag
 from protocols.crc import crc16_ccitt_false
-from protocols.mag_batches import join_batches, rows_to_batch
+from protocols.mag_batches import join_batches, rows_to_batch, with_mag
 from protocols.units import STANDARD_GRAVITY
 
 MAX_LINE_RATE_HZ = 65535.0  # as SET_RATE's 16 bits; no text link carries more lines a second
@@ -240,12 +241,16 @@ class AsciiDecoder(StreamDecoderBase):
         messages: list[Message] = []
         pos = 0
         fast = self._csv_block()
+        pieces: list[np.ndarray] = []
         if fast is not None:
             pos, batch = fast
             if len(buf) == pos:
                 del buf[:pos]
                 self.stats.samples += len(batch)
                 return Decoded(batch, messages)
+            pieces.append(batch)
+        else:
+            pos, pieces = self._csv_blocks(rows, messages)
         while True:
             m = _LINE_END.search(buf, pos)
             if m is None:
@@ -270,8 +275,10 @@ class AsciiDecoder(StreamDecoderBase):
         if pos:
             del buf[:pos]
         samples = rows_to_batch(rows, self._field)
-        if fast is not None:
-            samples = join_batches([fast[1], samples])
+        if pieces:
+            samples = join_batches([*pieces, samples])
+            if self._field and fast is None:  # as if every line had gone one by one
+                samples = with_mag(samples)
         self.stats.samples += len(samples)
         return Decoded(samples, messages)
 
@@ -293,6 +300,59 @@ class AsciiDecoder(StreamDecoderBase):
         if not lines or any(len(line) > self.max_line or line.count(delim) != len(cols.names) - 1
                             for line in lines):
             return None
+        out = self._csv_lines(lines)
+        return None if out is None else (end, out)
+
+    def _csv_blocks(self, rows: list[tuple], messages: list[Message]) -> tuple[int, list[np.ndarray]]:
+        """The complete lines in the buffer when some are not plausible CSV samples: runs of lines that
+        look like CSV samples (the columns' count of delimiters, only the characters of numbers) go
+        :meth:`_csv_lines` in one batch each, every other line (and a run it refuses) goes line by line, in
+        order. Returns the bytes used and the batches, the rows of the lines read one by one appended to
+        ``rows`` (their batch is the last, empty when none: the caller makes it)."""
+        buf = self._buf
+        end = max(buf.rfind(b"\n"), buf.rfind(b"\r")) + 1
+        if end == 0 or self._first_line or self._discarding:
+            return 0, []
+        cols = self.columns
+        delim = cols.delimiter.encode("ascii")
+        want = len(cols.names) - 1
+        foreign = _not_number_chars(cols.delimiter)
+        lines = bytes(buf[:end]).replace(b"\r", b"\n").split(b"\n")
+        pieces: list[np.ndarray] = []
+        run: list[bytes] = []
+
+        def close_run() -> None:
+            if not run:
+                return
+            batch = self._csv_lines(run) if len(run) > 1 else None
+            if batch is None:
+                for line in run:
+                    self._line(line, rows, messages)
+            else:
+                if rows:
+                    pieces.append(rows_to_batch(rows, self._field))
+                    rows.clear()
+                pieces.append(batch)
+            run.clear()
+
+        for line in lines:
+            if not line:
+                continue
+            if len(line) <= self.max_line and line.count(delim) == want and foreign.search(line) is None:
+                run.append(line)
+                continue
+            close_run()
+            if len(line) > self.max_line:
+                self._too_long(len(line))
+            else:
+                self._line(line, rows, messages)
+        close_run()
+        return end, pieces
+
+    def _csv_lines(self, lines: list[bytes]) -> np.ndarray | None:
+        """The samples of CSV lines (each with the columns' count of delimiters), when every one is a
+        plausible sample; else None (nothing counted: the lines then go one by one)."""
+        cols = self.columns
         try:
             table = np.loadtxt(lines, delimiter=cols.delimiter, dtype=np.float64, ndmin=2, comments=None,
                                encoding="ascii")
@@ -331,7 +391,7 @@ class AsciiDecoder(StreamDecoderBase):
         self._count += n
         self.stats.frames += n
         self.kinds_seen["csv"] = self.kinds_seen.get("csv", 0) + n
-        return end, out
+        return out
 
     def flush(self) -> Decoded:
         """End of stream: a last line without its end of line is still read."""
@@ -519,6 +579,12 @@ class AsciiDecoder(StreamDecoderBase):
         if mag is not None:
             self._field = True
         return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp, _NAN3 if mag is None else mag)
+
+
+@functools.cache
+def _not_number_chars(delimiter: str) -> re.Pattern[bytes]:
+    """A byte that no CSV line of numbers holds (digits, sign, point, exponent, blanks, the delimiter)."""
+    return re.compile(b"[^-+.0-9eE \t" + re.escape(delimiter.encode("ascii")) + b"]")
 
 
 def _is_number(text: str) -> bool:

@@ -36,7 +36,9 @@ counted in ``mag_unscaled``. In all four precisions, like the inertial items.
 
 Why this module is long: the MTData2 data identifiers (the table of item names, formats
 and precisions), the decoder and the encoder the simulated unit uses are one protocol's reference;
-the table is a third of it, and the decoder and encoder must agree on it line for line.
+the table is a third of it, and the decoder and encoder must agree on it line for line. The
+decoder's vectorised path for runs of like packets sits beside the per-packet path whose results it
+must equal.
 """
 
 from __future__ import annotations
