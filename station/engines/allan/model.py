@@ -148,13 +148,17 @@ def preferred(candidates: Sequence[tuple[int, int, float]]) -> int:
     return min(eligible, key=lambda i: (candidates[i][1], candidates[i][2]))
 
 
-def _fit_all(curve: WeightedCurve, filtered: bool) -> tuple[list[CandidateFit], int]:
+def _fit_all(curve: WeightedCurve, filtered: bool, prune: bool = True) -> tuple[list[CandidateFit], int]:
     """Fit every admissible combination: sinusoids first, added to the fullest model while it does not
     describe the curve and each one removes points outside and lowers (1) by SIN_GAIN; then every subset
-    of the optional terms with zero to MAX_GM processes, beside those sinusoids.
+    of the optional terms with zero to MAX_GM processes, beside those sinusoids. Returns the fits and how
+    many combinations were admissible.
 
     Each combination starts from two sets of correlation times: the dictionary's clusters and the
-    fullest model's processes, the largest first (either alone misses a process now and then)."""
+    fullest model's processes, the largest first (either alone misses a process now and then). The
+    combinations are fitted fewest parameters first, and (``prune``) none is fitted once one with fewer
+    parameters describes the curve: :func:`preferred` would not choose it (each fit depends only on its
+    own starts, so the fits made are the same as without pruning)."""
     full_terms = ("N", *OPTIONAL)
     t_f = curve.filter_start() if filtered else None
     dt = 1.0 / curve.rate_hz
@@ -184,10 +188,9 @@ def _fit_all(curve: WeightedCurve, filtered: bool) -> tuple[list[CandidateFit], 
     combos = [c for c in combos if c != full.combo]
     starts: dict[tuple[str, ...], list[list[float]]] = {}
     done: dict[int, CandidateFit] = {}
-    # Fewest parameters first: once a combination describes the curve, none with more parameters can be
-    # preferred (preferred), so those are left unfitted; where none describes, every one is fitted.
     for p in sorted({c.parameters for c in combos}):
-        if any(f.combo.parameters < p and outside_count(f, curve) == 0 for f in [*fits, *done.values()]):
+        if prune and any(f.combo.parameters < p and outside_count(f, curve) == 0
+                         for f in [*fits, *done.values()]):
             break
         for i, combo in enumerate(combos):
             if combo.parameters == p:
