@@ -14,7 +14,7 @@ In one run:
    compared with the reference of ``benchmarks/allan_model_reference.json``: the same terms, and every
    parameter within its reference 1-sigma (within 1e-6 relative where it has none).
 
-    .venv/bin/python benchmarks/allan_model.py [--repeats 3] [--write-reference FILE]
+    .venv/bin/python benchmarks/allan_model.py [--repeats 3] [--cold] [--write-reference FILE]
 
 ``--write-reference`` writes the models of this run (and the commit they came from) instead of comparing.
 The machine's load (``os.getloadavg``) is printed with the times.
@@ -75,14 +75,16 @@ def as_capture_csv(rates: np.ndarray, path: Path) -> None:
     write_csv(path, Capture(t=t, acc=rates[:, 3:], gyro=rates[:, :3]))
 
 
-def time_command(csv: Path, repeats: int) -> tuple[list[float], list[float]]:
+def time_command(csv: Path, repeats: int, env: dict[str, str] | None = None
+                 ) -> tuple[list[float], list[float]]:
     """Wall and CPU (user + system of the child) of ``imu-station allan CSV --json``, per run."""
     exe = Path(sys.executable).with_name("imu-station")
     walls, cpus = [], []
     for _ in range(repeats):
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         start = time.perf_counter()
-        done = subprocess.run([str(exe), "allan", str(csv), "--json"], capture_output=True, text=True)
+        done = subprocess.run([str(exe), "allan", str(csv), "--json"], capture_output=True, text=True,
+                              env=env)
         walls.append(time.perf_counter() - start)
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpus.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
@@ -254,6 +256,8 @@ def main() -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="runs of the whole command (median)")
     parser.add_argument("--write-reference", type=Path, metavar="FILE")
+    parser.add_argument("--cold", action="store_true",
+                        help="also one run with an empty numba cache (as the first run after installing)")
     args = parser.parse_args()
     if not DATA.is_dir():
         raise SystemExit(f"{DATA} is not there: the ADIS16405 records are needed")
@@ -261,6 +265,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         csv = Path(tmp) / "adis_16405_imu2.csv"
         as_capture_csv(records[RECORDS[0]], csv)
+        if args.cold:
+            with tempfile.TemporaryDirectory() as cache:
+                cold_wall, cold_cpu = time_command(csv, 1, {**os.environ, "NUMBA_CACHE_DIR": cache})
+            print(f"imu-station allan with an empty numba cache (compiling the Allan kernel and the model "
+                  f"selection's solve): {cold_wall[0]:.2f} s wall, {cold_cpu[0]:.2f} s CPU "
+                  f"(load {os.getloadavg()[0]:.2f})")
         load_before = os.getloadavg()
         walls, cpus = time_command(csv, args.repeats)
     print(f"imu-station allan, {RECORDS[0]} (1,000,000 samples, six axes), whole process, median of "
