@@ -479,6 +479,6 @@ def add_table_options(parser: argparse.ArgumentParser, *, help: str) -> None:
                         metavar="DPS", help="refuse to turn the table faster than this (default: the table's "
                                             "own limit); a three-axis tilt keeps its peak within it too")
     parser.add_argument("--table-accel", type=positive("deg/s^2", MAX_TABLE_ACCEL_DPS2),
-                        default=TABLE_ACCEL_DPS2, metavar="DPS2",
-                        help=f"the table's acceleration, and the most it may be set to "
-                             f"(default {TABLE_ACCEL_DPS2:g} deg/s^2)")
+                        default=TABLE_ACCEL_DPS2, metavar="ACCEL",
+                        help=f"the table's acceleration in deg/s^2, and the most it may be set to "
+                             f"(default {TABLE_ACCEL_DPS2:g})")
