@@ -1,8 +1,9 @@
 """Every decoder's speed against its target, and the CPU of a frame-by-frame capture, in one run.
 
 Part 1, the table: each decoder (native, a frame description, Xsens MTData2, MAVLink HIGHRES_IMU,
-CSV text lines) decodes a stream of its own frames, clean and with one frame (line) in a hundred
-damaged (a byte in its middle flipped), fed in 4 KiB chunks (a serial read at a few hundred kbit/s)
+text lines: CSV, MotionCal ``Raw:`` and ``Uni:``, VectorNav ``$VNYMR`` and ``$VNIMU``) decodes a
+stream of its own frames, clean and with one frame (line) in a hundred damaged (a byte in its
+middle flipped), fed in 4 KiB chunks (a serial read at a few hundred kbit/s)
 and in 64 KiB chunks (a USB-CDC burst). Frames (lines) per CPU second of this process, median of
 ``--repeats`` runs, and the ratio to the target: 1,000,000 frames/s for the binary protocols,
 300,000 lines/s for text. A slow decoder is timed on fewer frames (a run of about 0.3 s): its rate
@@ -125,10 +126,24 @@ def protocols() -> list[Protocol]:
         found.append(Protocol("mavlink HIGHRES_IMU", "frames", BINARY_TARGET,
                               lambda s: mavlink.encode_samples(s, "HIGHRES_IMU"),
                               lambda b: _walk(b, _mavlink_length), mavlink.MavlinkDecoder))
-    found.append(Protocol("text (CSV lines)", "lines", TEXT_TARGET, ascii_lines.encode_csv,
-                          lambda b: np.flatnonzero(np.frombuffer(b"\n" + b[:-1], np.uint8) == 10),
-                          ascii_lines.AsciiDecoder))
+    dialects = (("CSV lines", ascii_lines.encode_csv),
+                ("Raw:", ascii_lines.encode_motioncal),
+                ("Uni:", _encode_uni),
+                ("$VNYMR", lambda s: ascii_lines.encode_vectornav(s, "VNYMR")),
+                ("$VNIMU", lambda s: ascii_lines.encode_vectornav(s, "VNIMU")))
+    found.extend(Protocol(f"text ({label})", "lines", TEXT_TARGET, encode, _line_starts,
+                          ascii_lines.AsciiDecoder) for label, encode in dialects)
     return found
+
+
+def _line_starts(b: bytes) -> np.ndarray:
+    return np.flatnonzero(np.frombuffer(b"\n" + b[:-1], np.uint8) == 10)
+
+
+def _encode_uni(s: np.ndarray) -> bytes:
+    """Adafruit's ``Uni:`` lines (m/s^2, rad/s, uT; a constant field): no package encoder writes them."""
+    return "".join(f"Uni:{a[0]:.4f},{a[1]:.4f},{a[2]:.4f},{g[0]:.5f},{g[1]:.5f},{g[2]:.5f},"
+                   "20.00,0.00,-40.00\r\n" for a, g in zip(s["acc"], s["gyro"], strict=True)).encode("ascii")
 
 
 def damage(stream: bytes, starts: np.ndarray, every: int) -> bytes:
