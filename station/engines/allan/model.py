@@ -23,26 +23,29 @@ where m = psi(edf / 2) - ln(edf / 2) and v = psi'(edf / 2) are the mean and vari
 a chi-square variable of edf degrees of freedom scaled by edf
 (:func:`station.engines.allan.uncertainty.log_chi2_moments`; ~ -1 / edf and 2 / edf for many EDF, but at
 the few EDF of the longest cluster times the mean matters: without it the fit sits under those points),
-over the logarithms of every coefficient and time constant (Levenberg-Marquardt type trust region, scipy),
+over the logarithms of every coefficient and time constant (scipy's trust-region reflective method, compiled
+with the residuals in the private ``_trf`` module),
 started from a non-negative least-squares fit of a dictionary of Gauss-Markov curves (correlation times
 six per decade: the active ones cluster where the curve needs a process). The fit of one combination is
 the package's private ``_wavelet_moments`` module; this one chooses among them.
 
 Which terms: every admissible combination (any subset of Q, B, K, R beside N, and zero to three Gauss-Markov
-processes; the filter and sinusoids where the curve shows them) is fitted, and the simplest (fewest
-parameters; then the smallest (1)) that describes the curve is chosen (:func:`preferred`). "Describes" is a
-goodness-of-fit test point by point: the model lies inside the curve's 68 % interval, or within TOLERANCE of
-the curve, at every cluster time of the valid range. Not an information criterion: the points of an
+processes; the filter and sinusoids where the curve shows them) is a candidate, and the simplest (fewest
+parameters; then the smallest (1)) that describes the curve is chosen (:func:`preferred`). They are fitted
+fewest parameters first, and those with more parameters than one that already describes the curve are not
+fitted at all (they could not be chosen; on the ADIS16405 records 20 to 40 of the 64 are fitted). "Describes"
+is a goodness-of-fit test point by point: the model lies inside the curve's 68 % interval, or within TOLERANCE
+of the curve, at every cluster time of the valid range. Not an information criterion: the points of an
 overlapping Allan curve are strongly correlated (neighbouring cluster times share most of their data), so (1)
 is not a log-likelihood and AIC or BIC would count the same evidence many times over. The band test asks of
-each point only what its own EDF promises, which is also what the plot shows and what a filter that takes
-the model as its process noise needs. Where no combination passes, the points left outside may be scatter (a
-third of independent points fall outside a 68 % interval by chance): then the fewest outside is the
-reference, and a simpler combination is preferred unless the reference lowers (1) by CHI2_GAIN per added
-parameter (about ln 53, BIC's for the points of a 10,000 s curve), so that chance is kept apart from
-evidence. The IEEE fit is tried first and stands where it describes the curve well enough (see
-:func:`choose_model`), which keeps records of the IEEE terms from gaining processes. Each term's 1-sigma
-comes from the Jacobian of (1) at the optimum, inflated by the reduced chi-square where that exceeds one.
+each point only what its own EDF promises, which is also what the plot shows and what a filter that takes the
+model as its process noise needs. Where no combination passes, the points left outside may be scatter (a third
+of independent points fall outside a 68 % interval by chance): then the fewest outside is the reference, and a
+simpler combination is preferred unless the reference lowers (1) by CHI2_GAIN per added parameter (about ln
+53, BIC's for the points of a 10,000 s curve), so that chance is kept apart from evidence. The IEEE fit is
+tried first and stands where it describes the curve well enough (see :func:`choose_model`), which keeps
+records of the IEEE terms from gaining processes. Each term's 1-sigma comes from the Jacobian of (1) at the
+optimum, inflated by the reduced chi-square where that exceeds one.
 """
 
 from __future__ import annotations
