@@ -15,13 +15,19 @@ milliseconds of the unit's stream: what the pty's line buffer holds (FIONREAD se
 4 KiB, so how often it was full is printed too) and what a full pty refused (the feed backing up).
 
     .venv/bin/python benchmarks/many_units.py [--units 32] [--old-units 4] [--rate 1000] [--seconds 30]
-        [--format csv|h5] [--repeats 1]
+        [--format csv|h5] [--repeats 1] [--write-ms 10]
+
+Each unit's frames reach its pty in writes of ``--write-ms`` of frames (10 ms by default: what a USB
+serial adapter hands over, ten frames of a 1 kHz unit a write); ``--write-ms 0`` is the former feed
+(whatever is due at each 10 ms tick of the feeder, in one write). The one-process figure is also
+given against the 0.3-core target of issue 30 (``--target-cores``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -47,7 +53,7 @@ import json, sys
 from mocks.device import SimDevice
 from mocks.pty_fleet import FleetUnit, PtyFleet
 units = [FleetUnit(SimDevice(seed=1000 + i, rate_hz={rate}), {stream_s}) for i in range({count})]
-with PtyFleet(units, watch_s={watch_s}) as fleet:
+with PtyFleet(units, tick_s={tick_s}, watch_s={watch_s}, write_s={write_s}) as fleet:
     print(json.dumps(fleet.ports), flush=True)
     sys.stdin.read()  # until the benchmark closes our stdin
     print(json.dumps({{"late_ticks": fleet.late_ticks, "units": [vars(s) for s in fleet.stats]}}), flush=True)
@@ -117,8 +123,13 @@ def station(*options: str) -> list[str]:
 def run_once(args: argparse.Namespace, out: Path) -> dict[str, float]:
     """One run: the old design on ``--old-units``, then the one-process capture on ``--units``."""
     count = args.old_units + args.units
+    if args.write_ms > 0:  # writes of --write-ms of frames each, on a feeder tick of half that
+        tick_s, write_s = args.write_ms / 2000, args.write_ms / 1000
+    else:  # the former feed: every 10 ms tick, whatever is due in one write
+        tick_s, write_s = 0.01, None
     fleet = subprocess.Popen([sys.executable, "-c", FLEET.format(rate=args.rate, stream_s=args.seconds + 3,
-                                                                 watch_s=args.seconds - 0.5, count=count)],
+                                                                 watch_s=args.seconds - 0.5, count=count,
+                                                                 tick_s=tick_s, write_s=write_s)],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
     assert fleet.stdout is not None and fleet.stdin is not None
     ports = json.loads(fleet.stdout.readline())
@@ -129,7 +140,7 @@ def run_once(args: argparse.Namespace, out: Path) -> dict[str, float]:
     old_dir = out / f"old-{args.format}"
     old_dir.mkdir()
     old = measure([watch(station("--port", p, "--duration", duration, "-o", str(old_dir / f"{i}{suffix}")),
-                         args.seconds) for i, p in enumerate(old_ports)], args.seconds)
+                         args.seconds) for i, p in enumerate(old_ports)], args.seconds) if old_ports else []
     new_dir = out / f"new-{args.format}"
     fleet_cpu1 = cpu_s(fleet.pid)
     new_started = time.monotonic()
@@ -151,8 +162,8 @@ def run_once(args: argparse.Namespace, out: Path) -> dict[str, float]:
     frame_ms = 1000.0 / (args.rate * SAMPLE_FRAME_SIZE)
     new_units = units[args.old_units :]
     return {
-        "old_cores_per_unit": statistics.fmean(m.steady_cores for m in old),
-        "old_total_cpu_s_per_unit": statistics.fmean(m.total_cpu_s for m in old),
+        "old_cores_per_unit": statistics.fmean(m.steady_cores for m in old) if old else math.nan,
+        "old_total_cpu_s_per_unit": statistics.fmean(m.total_cpu_s for m in old) if old else math.nan,
         "old_lost": sum(m for m, _ in old_loss), "old_gaps": sum(g for _, g in old_loss),
         "old_failed": sum(m.returncode != 0 for m in old),
         "new_cores": new.steady_cores, "new_cores_per_unit": new.steady_cores / args.units,
@@ -178,6 +189,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=30.0, help="seconds of device clock (default 30)")
     parser.add_argument("--format", choices=("csv", "h5"), default="csv", help="capture files (default csv)")
     parser.add_argument("--repeats", type=int, default=1, help="runs; medians are printed (default 1)")
+    parser.add_argument("--write-ms", type=float, default=10.0,
+                        help="each unit's frames handed over in writes of this many ms of frames, as a USB "
+                             "serial adapter does (default 10); 0: the former feed, everything due at each "
+                             "10 ms tick of the feeder in one write")
+    parser.add_argument("--target-cores", type=float, default=0.3,
+                        help="the one-process capture's target in cores (default 0.3, issue 30)")
     args = parser.parse_args()
 
     load_before = os.getloadavg()[0]
@@ -189,12 +206,16 @@ def main() -> None:
     def med(key: str) -> float:
         return statistics.median(r[key] for r in runs)
 
+    feed = (f"writes of {args.write_ms:g} ms of frames" if args.write_ms > 0
+            else "the former feed (everything due at each 10 ms tick, one write)")
     print(f"{args.units} units + {args.old_units} old-design units at {args.rate} Hz, {args.seconds:g} s of "
-          f"device clock, {args.format}; medians of {len(runs)} run(s); a 2-core machine shared with others "
-          f"(load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after)")
+          f"device clock, {args.format}, {feed}; medians of {len(runs)} run(s); a 2-core machine shared "
+          f"with others (load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after)")
     print(f"  one process, {args.units} units:  {med('new_cores'):.3f} cores in the steady window "
           f"({med('new_cores_per_unit'):.4f} per unit), {med('new_total_cpu_s'):.2f} CPU-s in all for "
           f"{med('new_wall_s'):.1f} s wall (start-up included), exit {int(med('new_returncode'))}")
+    print(f"  target: {args.target_cores:g} of a core for {args.units} units, 0 lost: "
+          f"{med('new_cores') / args.target_cores:.2f}x the target")
     print(f"  lost: {int(med('new_lost'))} samples missing, {int(med('new_gaps'))} gaps in t, "
           f"{int(med('new_files'))} of {args.units} files")
     print(f"  backlog: at most {int(med('max_backlog_bytes'))} bytes seen waiting for the station "
@@ -203,6 +224,8 @@ def main() -> None:
           f"{int(med('max_unwritten_bytes'))} bytes (0: a pty never filled, so no unit ever waited "
           f"~0.4 s)")
     print(f"  feeder: {med('fleet_cores'):.3f} cores, {int(med('fleet_late_ticks'))} late ticks")
+    if args.old_units == 0:
+        return
     print(f"  old design, one process per unit ({args.old_units} units): {med('old_cores_per_unit'):.4f} "
           f"cores per unit in the steady window, {med('old_total_cpu_s_per_unit'):.2f} CPU-s per unit in "
           f"all; lost {int(med('old_lost'))}, gaps {int(med('old_gaps'))}, {int(med('old_failed'))} failed")

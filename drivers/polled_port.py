@@ -34,6 +34,7 @@ from protocols.base import EMPTY_SAMPLES, Message
 from protocols.registry import make_decoder
 
 READ_CHUNK = 65_536
+LINE_BUFFER_BYTES = 4095  # the most a tty's line discipline holds for a read (raw mode)
 
 
 class PolledPort(Device):
@@ -72,6 +73,8 @@ class PolledPort(Device):
         self._hangup = select.poll()
         self._hangup.register(self._fd, select.POLLHUP | select.POLLERR | select.POLLNVAL)
         self._pending: list[np.ndarray] = []
+        self._gathered: list[bytes] = []  # bytes read and not yet decoded (gather())
+        self._gathered_bytes = 0
         self._log = MessageLog()
         self._monitor = LinkMonitor()
         self._error: DriverError | None = None
@@ -93,27 +96,58 @@ class PolledPort(Device):
 
     # -- reading -------------------------------------------------------------------------------
 
-    def _receive(self) -> None:
-        """Read and decode every byte waiting at the port, without blocking."""
+    def _read_port(self) -> None:
+        """Read every byte waiting at the port into the gathered bytes, without blocking or decoding.
+
+        A read shorter than the tty's line buffer took all the line discipline held: the port is
+        drained then, without the read that finds it empty (a read of an empty tty waits for the
+        kernel to push what it still holds, and costs as much as a full one). Bytes that arrive
+        meanwhile wait for the next call.
+        """
         if self._error is not None or self._closed:
             return
-        chunks: list[bytes] = []
+        chunks = self._gathered
+        got = False
         try:
             while True:
                 data = os.read(self._fd, READ_CHUNK)
                 if not data:
                     # pyserial's ports read nothing when nothing came (VMIN 0): only a hang-up says gone
-                    if not chunks and self._hangup.poll(0):
+                    if not got and self._hangup.poll(0):
                         raise OSError("hang-up")
                     break
-                chunks.append(data)  # a tty gives at most its line buffer (4 KiB) a read: read on
+                got = True
+                chunks.append(data)
+                self._gathered_bytes += len(data)
+                if len(data) < LINE_BUFFER_BYTES:
+                    break
+                # a tty gives at most its line buffer (4 KiB) a read: read on
         except BlockingIOError:
             pass
         except OSError as exc:
             self._error = PortLost(f"{self.port}: the port went away ({exc}); every sample received before "
                                    f"was kept; check the cable or the simulator and capture again", self.port)
+
+    def gather(self) -> int:
+        """Read what the port has without decoding it (:meth:`read_now` decodes it, in one batch with
+        what it reads then); the bytes gathered so far. An event loop that serves many ports reads
+        each every turn, so that no port's buffer fills, and decodes a port's bytes less often."""
+        self._read_port()
+        return self._gathered_bytes
+
+    def _decode_gathered(self) -> None:
+        """Decode the bytes gathered so far, in one batch."""
+        chunks = self._gathered
         if chunks:
-            self._ingest(b"".join(chunks) if len(chunks) > 1 else chunks[0])
+            data = chunks[0] if len(chunks) == 1 else b"".join(chunks)
+            self._gathered = []
+            self._gathered_bytes = 0
+            self._ingest(data)
+
+    def _receive(self) -> None:
+        """Read and decode every byte waiting at the port (and those gathered before), without blocking."""
+        self._read_port()
+        self._decode_gathered()
 
     def _ingest(self, data: bytes) -> None:
         decoded = self._decoder.feed(data)
@@ -132,6 +166,14 @@ class PolledPort(Device):
         Raises the link's error once everything received before it was delivered.
         """
         self._receive()
+        return self._take()
+
+    def read_gathered(self) -> np.ndarray:
+        """As :meth:`read_now`, without reading the port: the samples of the bytes :meth:`gather` read."""
+        self._decode_gathered()
+        return self._take()
+
+    def _take(self) -> np.ndarray:
         if self._pending:
             batch = self._pending[0] if len(self._pending) == 1 else np.concatenate(self._pending)
             self._pending = []

@@ -100,14 +100,20 @@ class PtyFleet:
         The backlog is measured over the first ``watch_s`` of each unit's stream only (the host
         stops reading a unit once it has what it wanted, and the bytes after that wait forever);
         None: over the whole stream.
+    write_s : float, optional
+        Hand the stream over in writes of ``write_s`` of frames each, as a USB serial adapter hands
+        over what it gathered (10 ms: ten 1 kHz frames a write), a write once its last frame is due,
+        several writes when a tick comes late. None: at every tick, everything due in one write.
     """
 
-    def __init__(self, units: list[FleetUnit], tick_s: float = 0.01, watch_s: float | None = None):
+    def __init__(self, units: list[FleetUnit], tick_s: float = 0.01, watch_s: float | None = None,
+                 write_s: float | None = None):
         for unit in units:
             if unit.mode not in MODES:
                 raise ValueError(f"unknown mode {unit.mode!r}; known: {', '.join(MODES)}")
         self.tick_s = tick_s
         self.watch_s = watch_s
+        self.write_s = write_s
         self._feeds = [self._prepare(unit) for unit in units]
         self.late_ticks = 0  # ticks served more than a tick late (the feeder itself falling behind)
         self._stop = threading.Event()
@@ -216,11 +222,17 @@ class PtyFleet:
             feed.pending += feed.answers
             feed.answer_front = len(feed.answers)
             feed.answers.clear()
-        due = min(len(feed.stream), (int(elapsed * unit.device.rate_hz) + 1) * feed.frame_size)
+        frames_due = int(elapsed * unit.device.rate_hz) + 1
+        block = 0
+        if self.write_s is not None:  # only whole writes' worth of frames, each write its own
+            per_write = max(1, round(self.write_s * unit.device.rate_hz))
+            frames_due -= frames_due % per_write
+            block = per_write * feed.frame_size
+        due = min(len(feed.stream), frames_due * feed.frame_size)
         if due > feed.due_bytes:
             feed.pending += feed.stream[feed.due_bytes:due]
             feed.due_bytes = due
-        self._write(feed)
+        self._write(feed, block)
         if self.watch_s is None or elapsed < self.watch_s:
             stats.max_unwritten_bytes = max(stats.max_unwritten_bytes, len(feed.pending))
             waiting = struct.unpack("i", fcntl.ioctl(feed.slave, termios.FIONREAD, b"\0\0\0\0"))[0]
@@ -232,16 +244,21 @@ class PtyFleet:
         if feed.due_bytes == len(feed.stream) and not feed.pending:
             stats.finished = True
 
-    def _write(self, feed: _Feed) -> None:
-        if not feed.pending:
-            return
-        try:
-            written = os.write(feed.master, feed.pending)
-        except BlockingIOError:
-            return
-        del feed.pending[:written]
-        feed.answer_front -= min(written, feed.answer_front)
-        feed.stats.bytes_sent += written
+    def _write(self, feed: _Feed, block: int = 0) -> None:
+        """Write what is pending: in one write, or (``block`` > 0) in writes of ``block`` stream bytes
+        each, the answers waiting at the front going with the first."""
+        while feed.pending:
+            size = len(feed.pending) if block <= 0 else min(len(feed.pending), feed.answer_front + block)
+            try:
+                chunk = feed.pending if size == len(feed.pending) else feed.pending[:size]
+                written = os.write(feed.master, chunk)
+            except BlockingIOError:
+                return
+            del feed.pending[:written]
+            feed.answer_front -= min(written, feed.answer_front)
+            feed.stats.bytes_sent += written
+            if block <= 0 or written < size:
+                return
 
     @staticmethod
     def _vanish(feed: _Feed) -> None:

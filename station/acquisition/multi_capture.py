@@ -54,6 +54,10 @@ from station.acquisition.recorder import (
 from station.common.text import printable
 
 READ_PERIOD_S = 0.02  # a pty holds ~20 KB: 0.4 s of a 1 kHz unit, far more than a turn
+# A port is read every turn (its buffer never fills) but its bytes are decoded every DECODE_PERIOD_S, or
+# once DECODE_BYTES gathered: fewer, larger decoder calls; a unit being asked who it is, every turn.
+DECODE_PERIOD_S = 0.04
+DECODE_BYTES = 16_384
 WRITE_PERIOD_S = 1.0  # the HDF5 writer costs ~1 ms a call whatever the rows: fewer, larger batches
 STATUS_INTERVAL_S = 0.25
 INFO_TIMEOUT_S = 0.5
@@ -142,11 +146,18 @@ class _Unit:
         self.result: CaptureResult | None = None  # set by the writer thread once the file is closed
         self.finishing = False  # the loop is done with it: port closed, the file's close queued
         self.received = 0  # samples read from the port
+        self.gathered = 0  # bytes read from the port and not yet decoded
 
-    def receive(self) -> None:
-        """Take what the port has; a broken link ends the unit once its samples are taken."""
+    def gather(self) -> None:
+        """Read what the port has, to be decoded later (:meth:`receive`)."""
+        self.gathered = self.port.gather()
+
+    def receive(self, read: bool = True) -> None:
+        """Take what the port has (``read`` False: what :meth:`gather` read); a broken link ends the
+        unit once its samples are taken."""
+        self.gathered = 0
         try:
-            batch = self.port.read_now()
+            batch = self.port.read_now() if read else self.port.read_gathered()
         except DriverError as exc:
             self.error, self.ended_by, self.done = exc, "link error", True
             return
@@ -327,6 +338,8 @@ class _Session:
         """Close the unit's port and queue what is left of it: its last samples, then the file's close
         and the unit's result."""
         unit.finishing = True
+        if unit.gathered and unit.error is None:  # the bytes read last, not yet decoded
+            unit.receive(read=False)
         try:
             if unit.stem is None:  # the capture ends before the unit was prepared
                 unit.asks.clear()
@@ -433,6 +446,7 @@ def _serve(session: _Session, selector: selectors.BaseSelector, interrupted: thr
            on_status: StatusCallback | None) -> None:
     """The loop: every turn, read the ready ports; name, write, check the units; show the status."""
     write_every = max(1, round(WRITE_PERIOD_S / READ_PERIOD_S))
+    decode_every = max(1, round(DECODE_PERIOD_S / READ_PERIOD_S))
     start = time.monotonic()
     last_status = 0.0
     turn = 0
@@ -449,13 +463,18 @@ def _serve(session: _Session, selector: selectors.BaseSelector, interrupted: thr
             if delay > 0:
                 time.sleep(delay)
             for key, _ in selector.select(0):
-                key.data.receive()
+                unit = key.data
+                unit.gather()
+                if unit.gathered >= DECODE_BYTES or unit.stem is None or unit.port.failed is not None:
+                    unit.receive(read=False)
             now = time.monotonic()
             if session.write_error is not None:
                 raise session.write_error
             for unit in units:
                 if unit.finishing:
                     continue
+                if unit.gathered and (turn + unit.index) % decode_every == 0:
+                    unit.receive(read=False)
                 rec = unit.recorder
                 if unit.stem is None and not unit.done:
                     session.prepare(unit, now)
