@@ -29,6 +29,7 @@ INTERNAL = {
     "_Stop",  # the factory run's early end, turned into the record's outcome
     "_Refused",  # the bounded YAML reader's loader signal, turned into an InputFileError
     "_Reject", "BadPacket",  # decoders' damaged-frame signals, counted, never raised to a caller
+    "_SupplyFailed",  # the TUI's turn-on worker's reason to stop, shown on its screen
 }
 
 

@@ -42,7 +42,7 @@ UI_PERIOD_S = 0.25
 SAMPLES_BACK_S = 10.0  # wall seconds a unit may take to boot and stream after its supply comes on
 
 
-class SupplyFailed(Exception):
+class _SupplyFailed(Exception):
     """The supply could not power-cycle the unit, or the unit did not stream again: why, in one line."""
 
 
@@ -82,7 +82,7 @@ class TurnOnsScreen(LongRecordingScreen):
                 try:
                     if k and not self._restart(device, k):
                         break
-                except SupplyFailed as failed:
+                except _SupplyFailed as failed:
                     self.post_message(Snapshot({"supply_failed": str(failed)}))
                     return  # the reason stays on the screen; Enter computes from the records made
                 batches: list[np.ndarray] = []
@@ -124,7 +124,7 @@ class TurnOnsScreen(LongRecordingScreen):
 
     def _supply_cycle(self, power: Any, device: Any, k: int) -> None:
         """Power-cycle the unit through ``power`` (a SupplyPowerCycle) for turn-on ``k``, saying each
-        switch on the screen, and wait for its samples; :class:`SupplyFailed` when either fails."""
+        switch on the screen, and wait for its samples; :class:`_SupplyFailed` when either fails."""
         url = power.supply.url
         self.post_message(Snapshot({"supply": k, "doing": f"{url}: output off, held off {power.off_s:g} s, "
                                                           "then on again"}))
@@ -132,7 +132,7 @@ class TurnOnsScreen(LongRecordingScreen):
             power(k + 1)
             volts, amps = power.supply.voltage_v(), power.supply.current_a()
         except (StationError, OSError) as exc:  # an instrument's errors are StationErrors
-            raise SupplyFailed(f"the supply failed at turn-on {k + 1}: {exc}") from None
+            raise _SupplyFailed(f"the supply failed at turn-on {k + 1}: {exc}") from None
         self.post_message(Snapshot({"supply": k, "doing": f"{url}: output on ({volts:.2f} V, {amps:.3f} A); "
                                                           "waiting for the unit's samples"}))
         device.read(0)  # the old power-up's samples, all in before the output went off
@@ -142,7 +142,7 @@ class TurnOnsScreen(LongRecordingScreen):
             if len(device.read(0.1)):
                 return
             if time.monotonic() > deadline:
-                raise SupplyFailed(f"no samples from the unit {SAMPLES_BACK_S:g} s after {url} switched "
+                raise _SupplyFailed(f"no samples from the unit {SAMPLES_BACK_S:g} s after {url} switched "
                                    f"it on (turn-on {k + 1}); check its wiring to the supply, the voltage "
                                    "(--supply-volts) and the current limit (--supply-amps)")
 
