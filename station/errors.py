@@ -15,6 +15,7 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
      ├── DemoFailed                       a check of the demo did not hold
      ├── TurnOnError                      the unit's power-ups could not be recorded (acquisition)
      ├── RateTableError                   a rate step never held its rate (acquisition)
+     ├── SettleTimeout                    exit 5: a soak's unit never settled (acquisition)
      ├── MavlinkUnavailable               the MAVLink protocol needs pymavlink (protocols)
      ├── FrameDescriptionError            a frame description breaks its schema's rules (protocols)
      ├── DescriptionError                 an instrument description breaks its schema (drivers.instruments)
