@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import struct
+from bisect import bisect_left
 from dataclasses import dataclass
 from typing import Any
 
@@ -233,6 +234,77 @@ def _decode_frames(buf: bytes | bytearray | memoryview, layout: _Layout) -> tupl
     return frames["payload"][:n_ok].copy(), n_ok * size
 
 
+class _Window:
+    """Up to ``_SAMPLE_WINDOW`` frame slots from ``base`` checked at once: which are good sample frames.
+
+    Slots up to ``checked`` have a sample frame's header (sync, id, length); ``bad`` lists those
+    among them whose CRC is wrong. A run of good frames starting at any checked slot is then a
+    slice, and a damaged frame's CRC is not computed again.
+    """
+
+    __slots__ = ("base", "layout", "frames", "checked", "bad")
+
+    def __init__(self, base: int, layout: _Layout, frames: np.ndarray | None, checked: int,
+                 bad: list[int]) -> None:
+        self.base, self.layout, self.frames, self.checked, self.bad = base, layout, frames, checked, bad
+
+    @classmethod
+    def check(cls, buf: bytearray, pos: int, layout: _Layout) -> _Window:
+        size = layout.frame.itemsize
+        count = min((len(buf) - pos) // size, _SAMPLE_WINDOW)
+        if count == 0:
+            return cls(pos, layout, None, 0, _NO_BAD)
+        frames = np.frombuffer(buf, dtype=layout.frame, count=count, offset=pos)
+        ok = (frames["sync"] == _SYNC_U16) & (frames["msg_id"] == layout.msg_id)
+        ok &= frames["length"] == layout.payload_size
+        checked = count if ok.all() else int(np.argmin(ok))
+        if checked == 0:
+            return cls(pos, layout, None, 0, _NO_BAD)
+        rows = np.frombuffer(buf, dtype=np.uint8, count=checked * size, offset=pos).reshape(checked, size)
+        payload = rows[:, HEADER_SIZE : HEADER_SIZE + layout.payload_size]
+        crc = np.bitwise_xor.reduce(layout.crc_flat[payload + layout.offsets], axis=1) ^ layout.crc_base
+        crc_ok = crc == frames["crc"][:checked]
+        bad = _NO_BAD if crc_ok.all() else np.flatnonzero(~crc_ok).tolist()
+        return cls(pos, layout, frames, checked, bad)
+
+    @property
+    def valid(self) -> bool:
+        """Whether the first slot holds a good sample frame."""
+        return self.checked > 0 and not (len(self.bad) and self.bad[0] == 0)
+
+    def covers(self, pos: int) -> bool:
+        """Whether ``pos`` is a checked slot of this window."""
+        off, size = pos - self.base, self.layout.frame.itemsize
+        return off >= 0 and off % size == 0 and off // size < self.checked
+
+    def _slot(self, pos: int) -> int:
+        return (pos - self.base) // self.layout.frame.itemsize
+
+    def run(self, pos: int) -> tuple[np.ndarray, int]:
+        """The samples of the good frames from slot ``pos`` on (a view of the buffer), the bytes they span."""
+        if self.frames is None or not self.covers(pos):
+            return (_EMPTY_MAG if self.layout is _MAG else EMPTY_SAMPLES), 0
+        i = self._slot(pos)
+        bad = self.bad
+        j = self.checked
+        if bad:
+            k = bisect_left(bad, i)
+            if k < len(bad):
+                j = bad[k]
+        return self.frames["payload"][i:j], (j - i) * self.layout.frame.itemsize
+
+    def bad_crc(self, pos: int) -> bool:
+        """Whether ``pos`` is a checked slot whose frame's CRC is wrong."""
+        if not self.bad or not self.covers(pos):
+            return False
+        i = self._slot(pos)
+        k = bisect_left(self.bad, i)
+        return k < len(self.bad) and self.bad[k] == i
+
+
+_NO_BAD: list[int] = []
+
+
 class NativeDecoder(StreamDecoderBase):
     """Incremental decoder of the native protocol.
 
@@ -254,15 +326,21 @@ class NativeDecoder(StreamDecoderBase):
         messages: list[Message] = []
         pos = 0
         stats = self.stats
+        window: _Window | None = None
         while True:
             pos, found = self._seek_sync(SYNC, pos)
             if not found:
                 break
-            samples, used = decode_sample_frames(memoryview(buf)[pos:])
-            if not used and len(buf) - pos > 2 and buf[pos + 2] == IMU_MAG_SAMPLE:
-                samples, used = decode_mag_frames(memoryview(buf)[pos:])
-                self._mag = self._mag or bool(used)
+            # A window checked once serves every run in it: after a damaged frame the next frame
+            # start is usually the next slot of the window, so nothing is checked twice.
+            if window is None or not window.covers(pos):
+                window = None  # its view of the buffer goes before a new one is taken
+                window = _Window.check(buf, pos, _IMU)
+                if not window.valid and len(buf) - pos > 2 and buf[pos + 2] == IMU_MAG_SAMPLE:
+                    window = _Window.check(buf, pos, _MAG)
+            samples, used = window.run(pos)
             if used:
+                self._mag = self._mag or window.layout is _MAG
                 batches.append(samples)
                 pos += used
                 continue
@@ -277,9 +355,12 @@ class NativeDecoder(StreamDecoderBase):
             end = pos + HEADER_SIZE + length + CRC_SIZE
             if len(buf) < end:
                 break
-            body = bytes(buf[pos + 2 : pos + HEADER_SIZE + length])
-            crc = buf[end - 2] | (buf[end - 1] << 8)
-            if crc16_ccitt_false(body) != crc:
+            if window.bad_crc(pos):  # a sample frame whose CRC the window found wrong
+                crc_good = False
+            else:
+                body = bytes(buf[pos + 2 : pos + HEADER_SIZE + length])
+                crc_good = crc16_ccitt_false(body) == buf[end - 2] | (buf[end - 1] << 8)
+            if not crc_good:
                 # A sync inside the claimed frame means this one was cut short by the next.
                 if buf.find(SYNC, pos + 1, end) >= 0:
                     stats.truncated += 1
@@ -287,7 +368,6 @@ class NativeDecoder(StreamDecoderBase):
                     stats.crc_errors += 1
                 pos = self._skip_candidate(SYNC, pos)
                 continue
-            payload = body[3:]
             if msg_id in (IMU_SAMPLE, IMU_MAG_SAMPLE):
                 # A sample frame with a good CRC but a wrong length: the vectorised path refused it.
                 stats.bad_payloads += 1
@@ -296,15 +376,24 @@ class NativeDecoder(StreamDecoderBase):
             stats.frames += 1
             if msg_id not in KNOWN_IDS:
                 stats.unknown_ids += 1
-            messages.append(Message(msg_id, payload))
+            messages.append(Message(msg_id, bytes(buf[pos + HEADER_SIZE : pos + HEADER_SIZE + length])))
             pos = end
-        if pos:
-            del buf[:pos]
+        # The batches are views of the buffer: copied out (joined) before the buffer is cut.
         if self._mag:
             samples = self._joined(batches)
-        else:  # a six-axis stream: IMU_SAMPLE records only, as fast as before the field existed
-            samples = batches[0] if len(batches) == 1 else (
-                np.concatenate(batches) if batches else EMPTY_SAMPLES)
+            if len(batches) == 1 and samples is batches[0]:
+                samples = samples.copy()
+        elif len(batches) == 1:  # a six-axis stream: IMU_SAMPLE records only
+            samples = batches[0].copy()
+        elif batches:  # joined as raw records: numpy's structured concatenate costs more
+            void = np.dtype((np.void, SAMPLE_DTYPE.itemsize))
+            samples = np.concatenate([b.view(void) for b in batches]).view(SAMPLE_DTYPE)
+        else:
+            samples = EMPTY_SAMPLES
+        batches.clear()
+        window = None  # releases the buffer before it is cut
+        if pos:
+            del buf[:pos]
         stats.frames += len(samples)
         stats.samples += len(samples)
         return Decoded(samples, messages)
