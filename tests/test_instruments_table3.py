@@ -8,6 +8,7 @@ Every wait is on a condition with a timeout, so the suite holds with both cores 
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Iterator
 
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from drivers.instruments import Table
+from drivers.instruments.errors import InstrumentError
 from drivers.paced_port import open_paced
 from mocks.device import SimDevice
 from mocks.instruments.acutrol import AcutrolEmulator, gimbal_attitude
@@ -112,6 +114,32 @@ def test_turn_about_an_axis_not_up_tilts_first_then_turns_the_outer_axis(
     assert emulator.position_deg(1) == pytest.approx(90.0, abs=0.05)
     assert [float(line.split(",")[1]) for line in emulator.lines if line.startswith(":D:R 1,")][0] == 45.0
     assert mounted.wait_stopped(5.0) < 5.0
+
+
+def test_a_stop_during_the_tilt_before_a_turn_ends_the_turn(table3: tuple[AcutrolEmulator, Table]) -> None:
+    # Abort while the unit is being tilted for a turn: rotate() ends at once, the turn never starts.
+    emulator, table = table3
+    capped = limited(table, Limits(max_rate_dps=20.0))  # a slow tilt: 90 deg at 20 deg/s
+    assert isinstance(capped, Table)
+    mounted = MountedTable(capped, mount="+z", accel_dps2=100.0)
+    failed: list[BaseException] = []
+
+    def turn() -> None:
+        try:
+            mounted.rotate("+x", 360.0, 90.0, timeout_s=60.0)
+        except InstrumentError as exc:
+            failed.append(exc)
+
+    worker = threading.Thread(target=turn)
+    worker.start()
+    wait_for(lambda: abs(emulator.rate_dps(2)) > 5.0, "the tilt under way")
+    started = time.monotonic()
+    mounted.stop()
+    worker.join(timeout=10.0)
+    assert not worker.is_alive() and time.monotonic() - started < 5.0
+    assert failed and "stopped while tilting" in str(failed[0])
+    assert not any(line.startswith(":D:R 1,") and not line.endswith(",0") for line in emulator.lines)
+    wait_for(lambda: all(emulator.rate_dps(a) == 0.0 for a in (1, 2, 3)), "every axis at rest")
 
 
 def test_a_tilt_stays_within_the_plans_rate(table3: tuple[AcutrolEmulator, Table]) -> None:

@@ -291,15 +291,20 @@ class MountedTable:
                     and abs(_wrap(inner - targets[1])) <= self.tolerance_deg
                     and max(abs(r) for r in rates) < 1e-3):
                 return
+            if self._abort.is_set():
+                raise InstrumentError(f"{self.table.url}: stopped while tilting the unit for a turn",
+                                      self.table.url)
             if time.monotonic() > deadline:
                 raise InstrumentTimeout(f"{self.table.url}: the middle and inner axes did not reach "
                                         f"{targets[0]:g}, {targets[1]:g} deg (at {middle:g}, {inner:g})",
                                         self.table.url)
-            time.sleep(self.poll_s)
+            self._abort.wait(self.poll_s)
 
     def rotate(self, axis: str, angle_deg: float, rate_dps: float, timeout_s: float = 30.0) -> None:
         """Start turning ``angle_deg`` about the sensor ``axis`` at ``rate_dps``; returns once the turn
         has started (on a three-axis table, after putting ``axis`` up if it is not)."""
+        # A new command: a stop() from here on ends it, the tilt's wait included.
+        self._abort.clear()
         if self.gimballed:
             if not _AXIS.match(axis):
                 raise ValueError(f"rotation axis {axis!r} is not a signed axis such as +z or -x")
@@ -322,7 +327,6 @@ class MountedTable:
         start = self._do(lambda: self.table.position_deg(1))
         target = start + table_angle
         rate = math.copysign(abs(rate_dps), table_angle)
-        self._abort.clear()
         self._do(lambda: self.table.turn(rate, 1))
         deadline = time.monotonic() + timeout_s
         self._worker = threading.Thread(target=self._finish, args=(target, abs(rate), deadline),
