@@ -243,7 +243,7 @@ def test_characterise_refuses_a_voltage_beyond_the_limit_before_sending_anything
                      "--supply", bench.url(), "--supply-volts", "24", "--supply-max-v", "12"])
     err = capsys.readouterr().err
     assert code == LimitRefused.exit_code, err
-    assert "voltage (V) 24 is beyond supply.max_v = 12 of --supply-max-v" in err
+    assert "--supply-volts 24: give a voltage within --supply-max-v, 0..12 (V)" in err
     assert bench.server.received == 0 and bench.emulator.commands == []
 
 

@@ -15,6 +15,8 @@ from station.console.options import (
     add_output_option,
     add_port_options,
     add_replace_option,
+    add_supply_options,
+    check_supply_options,
     number,
 )
 from station.errors import EngineInputError, ExitCode, InputFileError
@@ -55,8 +57,6 @@ examples:
   imu-station characterise --datasheet --params unit.yaml --json"""
 
 MAX_TURN_ONS = 1000
-SUPPLY_MAX_V = 12.0  # an IMU's input range rarely goes further; a higher voltage must be asked for
-SUPPLY_MAX_A = 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -69,19 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"power-ups to record with --port, 3 to {MAX_TURN_ONS}")
     parser.add_argument("--still", type=DURATION_S, default=None, metavar="S",
                         help="seconds recorded still at each power-up with --port")
-    parser.add_argument("--supply", metavar="URL",
-                        help="power-cycle the unit through this bench supply between turn-ons "
-                             "(scpi://HOST, korad://PORT, sim://supply) instead of RESTART")
-    parser.add_argument("--supply-volts", type=number(float, 0.0, 1000.0), default=None, metavar="V",
-                        help="the supply's voltage with --supply (default: as the supply is set)")
-    parser.add_argument("--supply-amps", type=number(float, 0.0, 100.0), default=None, metavar="A",
-                        help="the supply's current limit with --supply (default: as the supply is set)")
-    parser.add_argument("--supply-max-v", type=number(float, 0.0, 1000.0), default=SUPPLY_MAX_V, metavar="V",
-                        help=f"refuse a --supply-volts above this (default {SUPPLY_MAX_V:g})")
-    parser.add_argument("--supply-max-a", type=number(float, 0.0, 100.0), default=SUPPLY_MAX_A, metavar="A",
-                        help=f"refuse a --supply-amps above this (default {SUPPLY_MAX_A:g})")
-    parser.add_argument("--supply-off", type=number(float, 0.05, 600.0), default=2.0, metavar="S",
-                        help="seconds the supply's output stays off at each power cycle (default 2)")
+    add_supply_options(parser, help="power-cycle the unit through this bench supply between turn-ons "
+                                    "(scpi://HOST, korad://PORT, sim://supply) instead of RESTART")
     parser.add_argument("--table", metavar="TABLE",
                         help="the rate table's port: record constant-rate steps of the unit at --port")
     parser.add_argument("--rates", type=_rates, default=None, metavar="R,R,R",
@@ -123,12 +112,10 @@ def _check_options(args: argparse.Namespace) -> None:
                                "(give --table TABLE and --rates R,R,R)")
     if turn_ons and (args.turn_ons is None or args.still is None):
         raise EngineInputError("the turn-ons need both --turn-ons N (3 or more) and --still S")
-    supply_options = (args.supply_volts, args.supply_amps)
     if args.supply is not None and args.turn_ons is None:
         raise EngineInputError("--supply power-cycles the unit between turn-ons: give --turn-ons N and "
                                "--still S")
-    if args.supply is None and any(v is not None for v in supply_options):
-        raise EngineInputError("--supply-volts and --supply-amps go with --supply URL")
+    check_supply_options(args)
     if (args.table is None) != (args.rates is None):
         raise EngineInputError("rate steps need both --table TABLE and --rates R,R,R")
     if args.port is None and (turn_ons or args.table is not None or args.keep is not None):
