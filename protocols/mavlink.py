@@ -25,6 +25,17 @@ the first sample with a field on, batches are ``MAG_SAMPLE_DTYPE`` (NaN where a 
 One IMU makes the samples: the first IMU message seen (or the first of ``source``) fixes the
 message name, system, component and IMU id; other IMU messages are returned as messages and
 counted in ``sources_seen``. ``seq`` counts the samples (MAVLink has no per-sample counter).
+
+Runs of the chosen source's IMU frames take a vectorised path once that source is fixed: frames of
+one length are checked at once (header, the X.25 CRC with the message's CRC extra as per-byte
+tables, the payload zero-extended to the message's full length as MAVLink 2 trims trailing zeros)
+and their values read as columns; anything else (other messages or sources, signed frames, damage,
+a time that steps back before the clock zero) goes the per-frame path through pymavlink, and both
+give the same samples and counters (``tests/test_mavlink_fast.py``).
+
+Why this module is long: the per-frame decoder, the vectorised path for runs of IMU frames (which
+must agree with it frame for frame, so they sit side by side) and the encoder the tests and
+benchmarks use are one protocol; split, each part would import the others' internals.
 """
 
 from __future__ import annotations
@@ -167,10 +178,20 @@ class MavlinkDecoder(StreamDecoderBase):
         buf = self._buf
         buf += data
         rows: list[tuple] = []
+        batches: list[np.ndarray] = []  # MAG_SAMPLE_DTYPE runs of the fast path, rows before each
         messages: list[Message] = []
         stats = self.stats
         pos = 0
         while True:
+            if self._key is not None and pos < len(buf) and buf[pos] in (STX_V1, STX_V2):
+                run, used = self._fast_run(pos)
+                if used:
+                    if rows:
+                        batches.append(rows_to_batch(rows, True))
+                        rows = []
+                    batches.append(run)
+                    pos += used
+                    continue
             m = _STX.search(buf, pos)
             if m is None:
                 if len(buf) > pos:
@@ -238,7 +259,13 @@ class MavlinkDecoder(StreamDecoderBase):
                 rows.append(row)
         if pos:
             del buf[:pos]
-        samples = rows_to_batch(rows, self._mag)
+        if batches:
+            batches.append(rows_to_batch(rows, True))
+            samples = join_batches(batches)
+            if not self._mag:
+                samples = _without_mag(samples)
+        else:
+            samples = rows_to_batch(rows, self._mag)
         stats.samples += len(samples)
         return Decoded(samples, messages)
 
@@ -262,6 +289,104 @@ class MavlinkDecoder(StreamDecoderBase):
             messages += out.messages
         samples = join_batches(batches)
         return Decoded(with_mag(samples) if self._mag else samples, messages)
+
+    # -------------------------------------------------------------- fast path
+
+    def _fast_run(self, pos: int) -> tuple[np.ndarray, int]:
+        """Samples of the run of frames at ``pos`` that the per-frame path would turn into samples of the
+        chosen source without a second look: unsigned, of its message, system, component and IMU id,
+        of one length (a payload at most the message's full length), a good CRC, dated. Checked on
+        all frames at once; the run ends at the first other frame, which the per-frame path takes."""
+        buf = self._buf
+        key = self._key
+        assert key is not None
+        name, system, component, imu_id = key
+        v1 = buf[pos] == STX_V1
+        avail = len(buf) - pos
+        if avail < HEADER_V2:
+            return _EMPTY_MAG, 0
+        spec = _fast_spec(self._dialect, name)
+        plen = buf[pos + 1]
+        header = HEADER_V1 if v1 else HEADER_V2
+        size = header + plen + 2
+        count = min(avail // size, _FAST_WINDOW)
+        if count < 2 or plen > spec.size:
+            return _EMPTY_MAG, 0
+        rows = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
+        expect = spec.header_v1 if v1 else spec.header_v2
+        cols = spec.cols_v1 if v1 else spec.cols_v2
+        ok = (rows[:, cols] == expect(plen, system, component)).all(axis=1)
+        n = count if ok.all() else int(np.argmin(ok))
+        if n < 2:
+            return _EMPTY_MAG, 0
+        rows = rows[:n]
+        base, flat, offsets = _crc_tables(header, plen, spec.crc_extra)
+        crc = np.bitwise_xor.reduce(flat[rows[:, 1 : header + plen] + offsets], axis=1) ^ base
+        sent = rows[:, header + plen].astype(np.uint16) | (rows[:, header + plen + 1].astype(np.uint16) << 8)
+        good = crc == sent
+        if not good.all():
+            n = int(np.argmin(good))
+            if n < 2:
+                return _EMPTY_MAG, 0
+            rows = rows[:n]
+        payload = np.zeros((n, spec.size), dtype=np.uint8)
+        payload[:, :plen] = rows[:, header : header + plen]
+        msg = payload.view(spec.dtype)[:, 0]
+        if spec.has_id:
+            same = msg["id"] == imu_id
+            if not same.all():
+                n = int(np.argmin(same))
+                if n < 2:
+                    return _EMPTY_MAG, 0
+                msg = msg[:n]
+        out = np.empty(n, dtype=MAG_SAMPLE_DTYPE)
+        if name == "SCALED_IMU" or name == "SCALED_IMU2" or name == "SCALED_IMU3":
+            ms = msg["time_boot_ms"].astype(np.int64)
+            prev = ms[0] if self._boot_ms is None else self._boot_ms
+            steps = ((np.diff(ms, prepend=prev) + 2**31) & 0xFFFFFFFF) - 2**31
+            if self._boot_ms is None:
+                steps[0] = ms[0]
+                prev = 0
+            boot = prev + np.cumsum(steps)
+            if (boot < 0).any():
+                n = int(np.argmax(boot < 0))
+                if n < 2:
+                    return _EMPTY_MAG, 0
+                msg, boot, out = msg[:n], boot[:n], out[:n]
+            self._boot_ms = int(boot[-1])
+            out["t_us"] = boot * 1000
+        else:
+            out["t_us"] = msg["time_usec"]
+        out["seq"] = (np.arange(self._count, self._count + n) & 0xFFFFFFFF).astype(np.uint32)
+        self._count += n
+        if name == "HIGHRES_IMU":
+            acc_scale = gyro_scale = None
+            out["temp"] = msg["temperature"]
+            field = (msg["fields_updated"] & HIGHRES_MAG_UPDATED) == HIGHRES_MAG_UPDATED
+            mag_scale = UT_PER_GAUSS
+        else:
+            if name == "RAW_IMU":
+                acc_scale, gyro_scale = self.raw_acc_scale, self.raw_gyro_scale
+            else:
+                acc_scale, gyro_scale = MILLI_G, 1e-3
+            cdeg = msg["temperature"].astype(np.float64) if "temperature" in (spec.dtype.names or ()) \
+                else np.zeros(n)
+            out["temp"] = np.where(cdeg != 0, cdeg * 0.01, np.nan)
+            field = (msg["xmag"] != 0) | (msg["ymag"] != 0) | (msg["zmag"] != 0)
+            mag_scale = UT_PER_MILLIGAUSS
+        for i, axis in enumerate("xyz"):
+            # In double, then rounded to float32: as the per-frame path's Python floats.
+            a, g = msg[axis + "acc"].astype(np.float64), msg[axis + "gyro"].astype(np.float64)
+            out["acc"][:, i] = a if acc_scale is None else a * acc_scale
+            out["gyro"][:, i] = g if gyro_scale is None else g * gyro_scale
+            out["mag"][:, i] = np.where(field, msg[axis + "mag"].astype(np.float64) * mag_scale, np.nan)
+        if field.any():
+            self._mag = True
+        self.messages_seen[name] = self.messages_seen.get(name, 0) + n
+        label = f"{name} {system}/{component} id {imu_id}"
+        self.sources_seen[label] = self.sources_seen.get(label, 0) + n
+        self.stats.frames += n
+        return out, n * size
 
     # -------------------------------------------------------------- IMU messages
 
@@ -320,6 +445,103 @@ class MavlinkDecoder(StreamDecoderBase):
             return None
         self._boot_ms = unwrapped
         return unwrapped
+
+
+# ---------------------------------------------------------------------------------- fast path
+
+_FAST_WINDOW = 512  # frames a fast run checks at once
+_EMPTY_MAG = np.zeros(0, MAG_SAMPLE_DTYPE)
+_STRUCT_TYPES = {"Q": "<u8", "q": "<i8", "I": "<u4", "i": "<i4", "H": "<u2", "h": "<i2", "B": "u1",
+                 "b": "i1", "f": "<f4", "d": "<f8"}
+
+
+class _FastSpec:
+    """An IMU message for the fast path: its full payload as a record, CRC extra and header checks."""
+
+    def __init__(self, msgtype: Any) -> None:
+        fmt = msgtype.unpacker.format
+        fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
+        codes = fmt.lstrip("<")
+        names = list(msgtype.ordered_fieldnames)
+        if len(codes) != len(names) or any(c not in _STRUCT_TYPES for c in codes):
+            raise ValueError(f"{msgtype.msgname}: no fast path for the format {fmt}")
+        self.dtype = np.dtype([(n, _STRUCT_TYPES[c]) for n, c in zip(names, codes, strict=True)])
+        self.size = msgtype.unpacker.size
+        assert self.dtype.itemsize == self.size
+        self.crc_extra = msgtype.crc_extra
+        self.has_id = "id" in msgtype.fieldnames
+        self.msg_id = msgtype.id
+        # Header bytes checked: v2 STX, length, incompat flags, sys, comp, id (3 bytes); v1 STX,
+        # length, sys, comp, id.
+        self.cols_v2 = np.array([0, 1, 2, 5, 6, 7, 8, 9])
+        self.cols_v1 = np.array([0, 1, 3, 4, 5])
+
+    def header_v2(self, plen: int, system: int, component: int) -> np.ndarray:
+        mid = self.msg_id
+        return np.array([STX_V2, plen, 0, system, component, mid & 0xFF, (mid >> 8) & 0xFF, mid >> 16],
+                        dtype=np.uint8)
+
+    def header_v1(self, plen: int, system: int, component: int) -> np.ndarray:
+        return np.array([STX_V1, plen, system, component, self.msg_id if self.msg_id < 256 else 0],
+                        dtype=np.uint8)
+
+
+_SPECS: dict[str, _FastSpec] = {}
+
+
+def _fast_spec(dialect: Any, name: str) -> _FastSpec:
+    spec = _SPECS.get(name)
+    if spec is None:
+        msgtype = next(t for t in dialect.mavlink_map.values() if t.msgname == name)
+        spec = _SPECS[name] = _FastSpec(msgtype)
+    return spec
+
+
+_X25_TABLE = np.zeros(256, dtype=np.uint16)
+for _b in range(256):
+    _t = _b ^ ((_b << 4) & 0xFF)
+    _X25_TABLE[_b] = ((_t << 8) ^ (_t << 3) ^ (_t >> 4)) & 0xFFFF
+
+
+def _x25_rows(rows: np.ndarray) -> np.ndarray:
+    """The X.25 CRC (MAVLink's CRC-16/MCRF4XX) of every row of a 2-D uint8 array, a column at a time."""
+    crc = np.full(rows.shape[0], 0xFFFF, dtype=np.uint16)
+    for col in range(rows.shape[1]):
+        crc = (crc >> 8) ^ _X25_TABLE[(crc ^ rows[:, col]) & 0xFF]
+    return crc
+
+
+_CRC_TABLES: dict[tuple[int, int, int], tuple[int, np.ndarray, np.ndarray]] = {}
+
+
+def _crc_tables(header: int, plen: int, crc_extra: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """The X.25 CRC of a frame (the bytes after STX, then the CRC extra) as a sum of per-byte tables.
+
+    The CRC is affine in the message bits: crc(m) = crc(0 + extra) ^ XOR_i T[i, m_i], with
+    T[i, v] = crc(e_i(v) + 0) ^ crc(0) (e_i(v): byte v at position i, the extra's byte zero). A run
+    of frames is then one table look-up per byte and an XOR reduction, for all frames at once.
+    """
+    key = (header, plen, crc_extra)
+    found = _CRC_TABLES.get(key)
+    if found is None:
+        n = header - 1 + plen  # the bytes after STX under the CRC
+        rows = np.zeros((n, 256, n + 1), dtype=np.uint8)
+        for i in range(n):
+            rows[i, :, i] = np.arange(256)
+        zero = np.zeros((1, n + 1), dtype=np.uint8)
+        tables = _x25_rows(rows.reshape(-1, n + 1)).reshape(n, 256) ^ _x25_rows(zero)[0]
+        zero[0, n] = crc_extra
+        found = (int(_x25_rows(zero)[0]), tables.ravel(), (np.arange(n) * 256).astype(np.intp))
+        _CRC_TABLES[key] = found
+    return found
+
+
+def _without_mag(samples: np.ndarray) -> np.ndarray:
+    """``MAG_SAMPLE_DTYPE`` samples as ``SAMPLE_DTYPE`` (a stream that has carried no field)."""
+    out = np.empty(len(samples), dtype=SAMPLE_DTYPE)
+    for name in SAMPLE_DTYPE.names or ():
+        out[name] = samples[name]
+    return out
 
 
 # ---------------------------------------------------------------------------------- encoder

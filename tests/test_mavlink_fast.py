@@ -1,0 +1,128 @@
+"""The MAVLink decoder's vectorised path for runs of IMU frames gives what its per-frame path gives.
+
+The decoder with the fast path and one with it turned off decode the same streams (every IMU
+message, MAVLink 1 and 2, with and without a field, other messages and sources among them,
+damaged, spliced, garbage, time_boot_ms wrapping) cut at many chunk sizes: the same samples,
+messages and counters (skips without pymavlink).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pymavlink", reason="pymavlink is not installed (pip install 'imu-station[mavlink]')")
+
+from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE  # noqa: E402
+from protocols.mag_batches import join_batches  # noqa: E402
+from protocols.mavlink import _EMPTY_MAG, IMU_MESSAGES, MavlinkDecoder, encode_samples  # noqa: E402
+
+CHUNKS = (1, 5, 17, 63, 64, 100, 997, 4096, 65536)
+
+
+class PerFrameDecoder(MavlinkDecoder):
+    """The decoder with the fast path turned off: every frame through pymavlink."""
+
+    def _fast_run(self, pos: int) -> tuple[np.ndarray, int]:
+        return _EMPTY_MAG, 0
+
+
+def samples(n: int, seed: int, mag: bool, t0_us: int = 1_000_000) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    s = np.zeros(n, dtype=MAG_SAMPLE_DTYPE if mag else SAMPLE_DTYPE)
+    s["seq"] = np.arange(n)
+    s["t_us"] = t0_us + np.arange(n) * 5000
+    s["acc"] = rng.normal(0, 5, (n, 3))
+    s["gyro"] = rng.normal(0, 1, (n, 3))
+    s["temp"] = 25.0 + rng.normal(0, 1, n)
+    s["temp"][::17] = np.nan
+    if mag:
+        s["mag"] = rng.normal(20, 10, (n, 3))
+        s["mag"][5::23] = np.nan  # frames without a field among those with one
+    return s
+
+
+def decode(cls: type[MavlinkDecoder], data: bytes, chunk: int, source: str | None = None):
+    dec = cls(source=source)
+    batches, messages = [], []
+    for pos in range(0, len(data), chunk):
+        out = dec.feed(data[pos : pos + chunk])
+        batches.append(out.samples)
+        messages += out.messages
+    out = dec.flush()
+    batches.append(out.samples)
+    messages += out.messages
+    for b in batches:  # every batch of a stream has one dtype from its first field on
+        assert b.dtype in (SAMPLE_DTYPE, MAG_SAMPLE_DTYPE)
+    joined = join_batches(batches)
+    return (joined.dtype, joined.tobytes(), messages, dec.stats.as_dict(), dict(dec.messages_seen),
+            dict(dec.sources_seen))
+
+
+def assert_same(data: bytes, chunks=CHUNKS, source: str | None = None) -> None:
+    for chunk in chunks:
+        fast = decode(MavlinkDecoder, data, chunk, source)
+        slow = decode(PerFrameDecoder, data, chunk, source)
+        assert fast[0] == slow[0], chunk
+        assert fast[1] == slow[1], chunk
+        assert fast[2:] == slow[2:], chunk
+
+
+def damaged(data: bytes, seed: int, flips: int = 30, cuts: int = 10, garbage: int = 10) -> bytes:
+    rng = np.random.default_rng(seed)
+    b = bytearray(data)
+    for i in rng.integers(0, len(b), flips):
+        b[int(i)] ^= int(rng.integers(1, 256))
+    for _ in range(cuts):
+        i = int(rng.integers(0, len(b) - 80))
+        del b[i : i + int(rng.integers(1, 70))]
+    for _ in range(garbage):
+        i = int(rng.integers(0, len(b)))
+        b[i:i] = bytes(rng.integers(0, 256, int(rng.integers(1, 40)), dtype=np.uint8)) + b"\xfd" * int(
+            rng.integers(0, 3))
+    return bytes(b)
+
+
+@pytest.mark.parametrize("mavlink1", [False, True])
+@pytest.mark.parametrize("message", IMU_MESSAGES)
+@pytest.mark.parametrize("mag", [False, True])
+def test_clean_and_damaged_streams_decode_alike(message: str, mavlink1: bool, mag: bool) -> None:
+    clean = encode_samples(samples(600, 1, mag), message, mavlink1=mavlink1, heartbeat_every=97)
+    assert_same(clean)
+    assert_same(damaged(clean, 2), chunks=(7, 64, 4096))
+
+
+def test_spliced_sources_messages_and_versions_decode_alike() -> None:
+    parts = [
+        encode_samples(samples(300, 3, False), "HIGHRES_IMU"),
+        encode_samples(samples(200, 4, True), "SCALED_IMU2", system=2),
+        encode_samples(samples(300, 5, False, t0_us=2_000_000), "HIGHRES_IMU", mavlink1=True),
+        encode_samples(samples(100, 6, True), "HIGHRES_IMU", component=7),
+        encode_samples(samples(300, 7, True, t0_us=3_000_000), "HIGHRES_IMU", heartbeat_every=50),
+        encode_samples(samples(200, 8, False), "RAW_IMU"),
+    ]
+    data = b"".join(parts)
+    assert_same(data)
+    assert_same(data, source="SCALED_IMU2")
+    for seed in range(4):
+        assert_same(damaged(data, seed), chunks=(3, 61, 4096, 65536))
+
+
+def test_time_boot_ms_wrapping_and_stepping_back_decode_alike() -> None:
+    s = samples(400, 9, False)
+    s["t_us"] = ((2**32 - 200) + np.arange(400)) * 1000  # wraps past 2^32 ms in the middle
+    wrap = encode_samples(s, "SCALED_IMU")
+    back = samples(100, 10, False, t0_us=0)  # dated before the stream's clock zero: bad payloads
+    data = encode_samples(samples(100, 11, False, t0_us=500_000), "SCALED_IMU3") + encode_samples(
+        back, "SCALED_IMU3") + wrap
+    assert_same(data)
+    assert_same(wrap + data)
+
+
+def test_trimmed_payloads_of_varying_length_decode_alike() -> None:
+    s = samples(500, 12, True)
+    s["acc"][::3] = 0.0  # zeros at the payload's end are trimmed: frames of several lengths
+    s["mag"][::2] = np.nan
+    s["temp"][::4] = np.nan
+    for message in IMU_MESSAGES:
+        assert_same(encode_samples(s, message), chunks=(11, 4096))
