@@ -1,9 +1,11 @@
 """Record many units at once from one thread: one event loop, one file per unit named by its serial.
 
 Every port is a :class:`~drivers.polled_port.PolledPort` registered with one selector (epoll).
-The loop wakes every ``READ_PERIOD_S``, reads the ports that have bytes and decodes each one's
-bytes in one batch, so a unit costs a few system calls and one decoder call per turn whatever
-its rate (a reader thread per port wakes for every few bytes). Each unit's samples gather
+The loop wakes every ``READ_PERIOD_S`` and reads the ports that have bytes, each in one read
+of a large buffer (a port's buffer never fills); a port's bytes gather and are decoded in one batch
+every ``DECODE_PERIOD_S`` (every turn while the unit is asked who it is), so a unit costs one
+system call per turn and a decoder call every other turn, whatever its rate and however its bytes
+arrive (a reader thread per port wakes for every few bytes). Each unit's samples gather
 for ``WRITE_PERIOD_S`` and go to its :class:`~station.acquisition.recorder.Recorder` in one
 batch; the units take turns, so the writes are spread over the period, not all on one turn.
 The recorders write from a thread of their own, in order: a disk that stalls (writeback, a slow
@@ -299,7 +301,7 @@ class _Session:
         """Queue the unit's gathered samples for its recorder, in one batch."""
         if unit.stem is None or not unit.batch:
             return
-        batch = unit.batch[0] if len(unit.batch) == 1 else np.concatenate(unit.batch)
+        batch = unit.batch[0] if len(unit.batch) == 1 else _join(unit.batch)
         unit.batch = []
         self.writer.submit(self._guarded, self._record, unit, batch)
 
@@ -362,6 +364,16 @@ class _Session:
                                     link=_with_clock(port.stats, rec), ended_by=unit.ended_by,
                                     error=unit.error, non_increasing=rec.non_increasing,
                                     clock_jumps=list(rec.clock_jumps))
+
+
+def _join(batches: list[np.ndarray]) -> np.ndarray:
+    """The batches end to end: ``np.concatenate``, ten times faster for samples of one structured dtype
+    (joined as whole records, not field by field: numpy promotes each field of each array)."""
+    dtype = batches[0].dtype
+    if dtype.names is None or not all(b.dtype == dtype and b.flags.c_contiguous for b in batches):
+        return np.concatenate(batches)
+    record = np.dtype((np.void, dtype.itemsize))
+    return np.concatenate([b.view(record) for b in batches]).view(dtype)
 
 
 def capture_many(ports: Sequence[str], directory: str | Path, fmt: str = "csv", protocol: str = "native",
