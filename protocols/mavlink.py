@@ -374,12 +374,17 @@ class MavlinkDecoder(StreamDecoderBase):
             out["temp"] = np.where(cdeg != 0, cdeg * 0.01, np.nan)
             field = (msg["xmag"] != 0) | (msg["ymag"] != 0) | (msg["zmag"] != 0)
             mag_scale = UT_PER_MILLIGAUSS
-        for i, axis in enumerate("xyz"):
-            # In double, then rounded to float32: as the per-frame path's Python floats.
-            a, g = msg[axis + "acc"].astype(np.float64), msg[axis + "gyro"].astype(np.float64)
-            out["acc"][:, i] = a if acc_scale is None else a * acc_scale
-            out["gyro"][:, i] = g if gyro_scale is None else g * gyro_scale
-            out["mag"][:, i] = np.where(field, msg[axis + "mag"].astype(np.float64) * mag_scale, np.nan)
+        # xacc .. zmag are nine consecutive values of one type in every IMU message: one block.
+        # In double, then rounded to float32: as the per-frame path's Python floats.
+        block = payload[: len(out), spec.block_at : spec.block_at + 9 * spec.block_type.itemsize]
+        values = block.view(spec.block_type).astype(np.float64)
+        if acc_scale is not None and gyro_scale is not None:
+            values *= np.array([acc_scale] * 3 + [gyro_scale] * 3 + [mag_scale] * 3)
+        else:
+            values[:, 6:] *= mag_scale
+        out["acc"] = values[:, 0:3]
+        out["gyro"] = values[:, 3:6]
+        out["mag"] = np.where(field[:, None], values[:, 6:9], np.nan)
         if field.any():
             self._mag = True
         self.messages_seen[name] = self.messages_seen.get(name, 0) + n
@@ -470,6 +475,11 @@ class _FastSpec:
         assert self.dtype.itemsize == self.size
         self.crc_extra = msgtype.crc_extra
         self.has_id = "id" in msgtype.fieldnames
+        first = names.index("xacc")
+        if names[first : first + 9] != [a + q for q in ("acc", "gyro", "mag") for a in "xyz"]:
+            raise ValueError(f"{msgtype.msgname}: no fast path, its axes are not one block")
+        self.block_at = int(np.dtype(self.dtype).fields["xacc"][1]) if self.dtype.fields else 0
+        self.block_type = self.dtype["xacc"]
         self.msg_id = msgtype.id
         # Header bytes checked: v2 STX, length, incompat flags, sys, comp, id (3 bytes); v1 STX,
         # length, sys, comp, id.
