@@ -478,7 +478,8 @@ class _FastSpec:
         first = names.index("xacc")
         if names[first : first + 9] != [a + q for q in ("acc", "gyro", "mag") for a in "xyz"]:
             raise ValueError(f"{msgtype.msgname}: no fast path, its axes are not one block")
-        self.block_at = int(np.dtype(self.dtype).fields["xacc"][1]) if self.dtype.fields else 0
+        fields: Any = self.dtype.fields
+        self.block_at = int(fields["xacc"][1])
         self.block_type = self.dtype["xacc"]
         self.msg_id = msgtype.id
         # Header bytes checked: v2 STX, length, incompat flags, sys, comp, id (3 bytes); v1 STX,
