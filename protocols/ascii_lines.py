@@ -240,17 +240,11 @@ class AsciiDecoder(StreamDecoderBase):
         rows: list[tuple] = []
         messages: list[Message] = []
         pos = 0
-        fast = self._csv_block()
-        pieces: list[np.ndarray] = []
-        if fast is not None:
-            pos, batch = fast
-            if len(buf) == pos:
-                del buf[:pos]
-                self.stats.samples += len(batch)
-                return Decoded(batch, messages)
-            pieces.append(batch)
-        else:
-            pos, pieces = self._csv_blocks(rows, messages)
+        pos, pieces, clean = self._batched(rows, messages)
+        if clean and len(buf) == pos:
+            del buf[:pos]
+            self.stats.samples += len(pieces[0])
+            return Decoded(pieces[0], messages)
         while True:
             m = _LINE_END.search(buf, pos)
             if m is None:
@@ -277,121 +271,174 @@ class AsciiDecoder(StreamDecoderBase):
         samples = rows_to_batch(rows, self._field)
         if pieces:
             samples = join_batches([*pieces, samples])
-            if self._field and fast is None:  # as if every line had gone one by one
+            if self._field and not clean:  # as if every line had gone one by one
                 samples = with_mag(samples)
         self.stats.samples += len(samples)
         return Decoded(samples, messages)
 
-    def _csv_block(self) -> tuple[int, np.ndarray] | None:
-        """Fast path: the complete lines in the buffer, when every one is a plausible CSV sample.
+    def _batched(self, rows: list[tuple], messages: list[Message]) -> tuple[int, list[np.ndarray], bool]:
+        """The complete lines in the buffer, the well-formed sample lines of every dialect in batches.
 
-        Returns (bytes used, samples) or None, and then the lines go one by one (same result,
-        each oddity in its counter).
+        A line that is a sample as it stands (CSV in the columns, ``Raw:``, ``Uni:``, ``$VNYMR`` or
+        ``$VNIMU`` with its field count, only the characters of numbers, a two-digit checksum that
+        matches) is parsed with the others of its dialect in one ``np.loadtxt`` and checked in arrays;
+        every other line (and one the batch refuses) goes :meth:`_line` one by one, in order, so the
+        counters, messages and sample numbers are those of reading every line alone. Returns the bytes
+        used, the batches (the rows of the lines read one by one appended to ``rows``: their batch is
+        the last, made by the caller), and whether every line was a CSV sample (then the one batch has
+        the columns' dtype, as it always had).
         """
-        buf = self._buf
-        if self._first_line or self._discarding:
-            return None
-        end = max(buf.rfind(b"\n"), buf.rfind(b"\r")) + 1
-        if end == 0:
-            return None
-        cols = self.columns
-        delim = cols.delimiter.encode("ascii")
-        lines = [line for line in bytes(buf[:end]).replace(b"\r", b"\n").split(b"\n") if line]
-        if not lines or any(len(line) > self.max_line or line.count(delim) != len(cols.names) - 1
-                            for line in lines):
-            return None
-        out = self._csv_lines(lines)
-        return None if out is None else (end, out)
-
-    def _csv_blocks(self, rows: list[tuple], messages: list[Message]) -> tuple[int, list[np.ndarray]]:
-        """The complete lines in the buffer when some are not plausible CSV samples: runs of lines that
-        look like CSV samples (the columns' count of delimiters, only the characters of numbers) go
-        :meth:`_csv_lines` in one batch each, every other line (and a run it refuses) goes line by line, in
-        order. Returns the bytes used and the batches, the rows of the lines read one by one appended to
-        ``rows`` (their batch is the last, empty when none: the caller makes it)."""
         buf = self._buf
         end = max(buf.rfind(b"\n"), buf.rfind(b"\r")) + 1
         if end == 0 or self._first_line or self._discarding:
-            return 0, []
-        cols = self.columns
-        delim = cols.delimiter.encode("ascii")
-        want = len(cols.names) - 1
-        foreign = _not_number_chars(cols.delimiter)
-        lines = bytes(buf[:end]).replace(b"\r", b"\n").split(b"\n")
-        pieces: list[np.ndarray] = []
-        run: list[bytes] = []
-
-        def close_run() -> None:
-            if not run:
-                return
-            batch = self._csv_lines(run) if len(run) > 1 else None
-            if batch is None:
-                for line in run:
-                    self._line(line, rows, messages)
-            else:
-                if rows:
-                    pieces.append(rows_to_batch(rows, self._field))
-                    rows.clear()
-                pieces.append(batch)
-            run.clear()
-
-        for line in lines:
-            if not line:
-                continue
-            if len(line) <= self.max_line and line.count(delim) == want and foreign.search(line) is None:
-                run.append(line)
-                continue
-            close_run()
-            if len(line) > self.max_line:
-                self._too_long(len(line))
-            else:
-                self._line(line, rows, messages)
-        close_run()
-        return end, pieces
-
-    def _csv_lines(self, lines: list[bytes]) -> np.ndarray | None:
-        """The samples of CSV lines (each with the columns' count of delimiters), when every one is a
-        plausible sample; else None (nothing counted: the lines then go one by one)."""
-        cols = self.columns
-        try:
-            table = np.loadtxt(lines, delimiter=cols.delimiter, dtype=np.float64, ndmin=2, comments=None,
-                               encoding="ascii")
-        except ValueError:
-            return None
-        got = {name: table[:, i] * scale for i, (name, scale) in enumerate(zip(cols.names, cols.scales,
-                                                                                strict=True)) if name != SKIP}
-        acc = np.column_stack([got["ax"], got["ay"], got["az"]])
-        gyro = np.column_stack([got["gx"], got["gy"], got["gz"]])
-        temp = got.get("temp", np.full(len(lines), np.nan))
-        ok = np.isfinite(acc).all() and np.abs(acc).max() <= self.max_acc
-        ok = ok and np.isfinite(gyro).all() and np.abs(gyro).max() <= self.max_gyro
-        ok = ok and not ((temp < self.temp_range[0]) | (temp > self.temp_range[1])).any()
-        for name, limit in (("seq", _MAX_SEQ), ("t", _MAX_T_S)):
-            if name in got:
-                ok = ok and bool(((got[name] >= 0) & (got[name] < limit)).all())
-        if cols.has_mag:
-            mag = np.column_stack([got["mx"], got["my"], got["mz"]])
-            ok = ok and not (np.isinf(mag) | (np.abs(mag) > self.max_mag)).any()  # NaN: no field
-        if not ok:
-            return None
+            return 0, [], False
+        text = bytes(buf[:end]).replace(b"\r", b"\n")
+        lines = [line for line in text.split(b"\n") if line]
+        if not lines:
+            return end, [], False
         n = len(lines)
-        out = np.zeros(n, dtype=MAG_SAMPLE_DTYPE if cols.has_mag else SAMPLE_DTYPE)
-        if cols.has_mag:
-            out["mag"] = mag
-        counts = self._count + np.arange(n)
-        out["seq"] = (got["seq"].astype(np.int64) if "seq" in got else counts) & 0xFFFFFFFF
-        if "t" in got:
-            out["t_us"] = np.rint(got["t"] * 1e6)
-            self.clock_lines += n
+        match = _line_forms(self.columns.delimiter, len(self.columns.names)).fullmatch
+        long = max(map(len, lines)) > self.max_line
+        first = 0 if long or (m := match(lines[0])) is None else m.lastindex or 0
+        if first and self._uniform(first, text, lines):
+            kinds = [first] * n
+        else:
+            kinds = [m.lastindex or 0 if (m := match(line)) else 0 for line in lines]
+            if long:
+                kinds = [0 if len(line) > self.max_line else k for line, k in zip(lines, kinds, strict=True)]
+            first = kinds[0]
+        if first and kinds.count(first) == n:  # one dialect throughout: its arrays as they are
+            got = self._parse_kind(first, lines)
+            kind = np.full(n, first, dtype=np.int8)
+        else:
+            kind = np.array(kinds, dtype=np.int8)
+            got = _Parsed.empty(n)
+            for k in set(kinds) - {0}:
+                at = np.flatnonzero(kind == k)
+                got.put(at, self._parse_kind(k, [lines[i] for i in at.tolist()]))
+        ok = got.good
+        clean = first == _CSV and bool(ok.all()) and kinds.count(_CSV) == n
+        if clean:
+            return end, [self._batch(0, n, kind, got, self._csv_dtype)], True
+        field = self._field or bool((ok & (kind != _CSV)).any())
+        dtype = MAG_SAMPLE_DTYPE if field else SAMPLE_DTYPE
+        pieces: list[np.ndarray] = []
+        edges = np.flatnonzero(ok[1:] != ok[:-1]) + 1
+        bounds = [0, *edges.tolist(), n]
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            if not ok[a]:
+                for line in lines[a:b]:
+                    if len(line) > self.max_line:
+                        self._too_long(len(line))
+                    else:
+                        self._line(line, rows, messages)
+                continue
+            if rows:
+                pieces.append(rows_to_batch(rows, self._field))
+                rows.clear()
+            pieces.append(self._batch(a, b, kind, got, dtype))
+        return end, pieces, False
+
+    def _uniform(self, kind: int, text: bytes, lines: list[bytes]) -> bool:
+        """Whether every line of ``text`` (its ends all ``\\n``) has the form of ``kind`` (as
+        :func:`_line_forms`), checked on the whole text at once; a line with a field too many and another
+        with one too few pass, and their batch refuses them (:func:`_table`)."""
+        n = len(lines)
+        if kind == _CSV:
+            delim = self.columns.delimiter.encode("ascii")
+            return (not text.translate(None, _NUMBER_BYTES + delim + b"\n")
+                    and text.count(delim) == n * (len(self.columns.names) - 1))
+        head = _HEADS[kind]
+        if text.count(head) != n or (b"\n" + text).count(b"\n" + head) != n:
+            return False
+        if kind in (_RAW, _UNI):
+            body = text.replace(head, b"")
+            chars = _INT_BYTES if kind == _RAW else _NUMBER_BYTES
+            return not body.translate(None, chars + b",\n") and body.count(b",") == 8 * n
+        if text.count(b"*") != n or any(line[-3] != 42 for line in lines):  # '*'
+            return False
+        body = b"\n".join(line[len(head):-3] for line in lines)
+        sums = b"".join(line[-2:] for line in lines)
+        fields = 12 if kind == _VNYMR else 11
+        return (not body.translate(None, _NUMBER_BYTES + b",\n") and not sums.translate(None, _HEX_BYTES)
+                and body.count(b",") == (fields - 1) * n)
+
+    @functools.cached_property
+    def _csv_dtype(self) -> np.dtype:
+        return MAG_SAMPLE_DTYPE if self.columns.has_mag else SAMPLE_DTYPE
+
+    def _batch(self, a: int, b: int, kind: np.ndarray, got: _Parsed, dtype: np.dtype) -> np.ndarray:
+        """The samples of lines ``a:b`` (all of them samples), numbered from the decoder's count."""
+        m = b - a
+        out = np.zeros(m, dtype=dtype)
+        counts = self._count + np.arange(m)
+        kinds = np.bincount(kind[a:b], minlength=len(_KIND_NAMES) + 1)
+        csv = kind[a:b] == _CSV
+        if got.seq is not None:
+            out["seq"] = np.where(csv, got.seq[a:b], counts) & 0xFFFFFFFF
+        else:
+            out["seq"] = counts & 0xFFFFFFFF
+        if got.t is not None:
+            self.clock_lines += int(kinds[_CSV])
+            out["t_us"] = np.rint(np.where(csv, got.t[a:b] * 1e6, counts * 1e6 / self.rate_hz))
         else:
             out["t_us"] = np.rint(counts * 1e6 / self.rate_hz)
-        out["acc"] = acc
-        out["gyro"] = gyro
-        out["temp"] = temp
-        self._count += n
-        self.stats.frames += n
-        self.kinds_seen["csv"] = self.kinds_seen.get("csv", 0) + n
+        out["acc"] = got.acc[a:b]
+        out["gyro"] = got.gyro[a:b]
+        out["temp"] = got.temp[a:b]
+        if dtype == MAG_SAMPLE_DTYPE:
+            out["mag"] = np.nan if got.mag is None else got.mag[a:b]
+        self._count += m
+        self.stats.frames += m
+        for k, name in _KIND_NAMES.items():
+            if kinds[k]:
+                self.kinds_seen[name] = self.kinds_seen.get(name, 0) + int(kinds[k])
+                if name != "csv":
+                    self._field = True
         return out
+
+    def _parse_kind(self, k: int, lines: list[bytes]) -> _Parsed:
+        """The numbers of the lines of one dialect, and which of them are samples."""
+        t = seq = None
+        if k == _CSV:
+            cols = _csv_layout(self.columns)
+            table, good = _table(lines, self.columns.delimiter)
+            a = table[:, cols.acc] * cols.acc_scale
+            g = table[:, cols.gyro] * cols.gyro_scale
+            tc = np.full(len(lines), np.nan) if cols.temp is None else table[:, cols.temp] * cols.temp_scale
+            f = None if cols.mag is None else table[:, cols.mag] * cols.mag_scale
+            if cols.seq is not None:
+                value = table[:, cols.seq] * cols.seq_scale
+                good &= (value >= 0) & (value < _MAX_SEQ)
+                seq = np.zeros(len(lines), dtype=np.int64)
+                seq[good] = value[good].astype(np.int64)
+            if cols.t is not None:
+                t = table[:, cols.t] * cols.t_scale
+                good &= (t >= 0) & (t < _MAX_T_S)
+        elif k in (_RAW, _UNI):
+            table, good = _table([line[4:] for line in lines], ",")
+            if k == _RAW:
+                good &= (np.abs(table) <= _MAX_COUNTS).all(axis=1)
+                a = table[:, 0:3] * STANDARD_GRAVITY / MOTIONCAL_ACC_PER_G
+                g = (table[:, 3:6] / MOTIONCAL_GYRO_PER_DPS) * _DEG_TO_RAD
+                f = table[:, 6:9] / MOTIONCAL_MAG_PER_UT
+            else:
+                a, g, f = table[:, 0:3], table[:, 3:6], table[:, 6:9]
+            tc = np.full(len(lines), np.nan)
+        else:
+            table, good = _table([line[7:-3] for line in lines], ",")
+            good &= _checksums_match(lines)
+            if k == _VNYMR:
+                a, g, f = table[:, 6:9], table[:, 9:12], table[:, 3:6] * UT_PER_GAUSS
+                tc = np.full(len(lines), np.nan)
+            else:
+                a, g, f, tc = table[:, 3:6], table[:, 6:9], table[:, 0:3] * UT_PER_GAUSS, table[:, 9]
+        good &= (np.isfinite(a) & (np.abs(a) <= self.max_acc)).all(axis=1)
+        good &= (np.isfinite(g) & (np.abs(g) <= self.max_gyro)).all(axis=1)
+        good &= ~((tc < self.temp_range[0]) | (tc > self.temp_range[1]))
+        if f is not None:
+            good &= ~(np.isinf(f) | (np.abs(f) > self.max_mag)).any(axis=1)
+        return _Parsed(good, a, g, tc, f, t, seq)
 
     def flush(self) -> Decoded:
         """End of stream: a last line without its end of line is still read."""
@@ -581,10 +628,126 @@ class AsciiDecoder(StreamDecoderBase):
         return (seq & 0xFFFFFFFF, t_us, acc, gyro, temp, _NAN3 if mag is None else mag)
 
 
+@dataclass
+class _Parsed:
+    """Numbers of parsed lines (SI; the field in uT), and which lines are samples. ``mag`` None: no field;
+    ``t`` / ``seq`` None: the lines carry no clock / counter (then the decoder's count makes them)."""
+
+    good: np.ndarray
+    acc: np.ndarray
+    gyro: np.ndarray
+    temp: np.ndarray
+    mag: np.ndarray | None
+    t: np.ndarray | None
+    seq: np.ndarray | None
+
+    @classmethod
+    def empty(cls, n: int) -> _Parsed:
+        return cls(np.zeros(n, dtype=bool), np.zeros((n, 3)), np.zeros((n, 3)), np.full(n, np.nan),
+                   np.full((n, 3), np.nan), None, None)
+
+    def put(self, at: np.ndarray, part: _Parsed) -> None:
+        """Place ``part`` (the lines ``at``) in these arrays."""
+        self.good[at], self.acc[at], self.gyro[at], self.temp[at] = part.good, part.acc, part.gyro, part.temp
+        if part.mag is not None and self.mag is not None:
+            self.mag[at] = part.mag
+        if part.t is not None:
+            if self.t is None:
+                self.t = np.zeros(len(self.good))
+            self.t[at] = part.t
+        if part.seq is not None:
+            if self.seq is None:
+                self.seq = np.zeros(len(self.good), dtype=np.int64)
+            self.seq[at] = part.seq
+
+
+@dataclass(frozen=True)
+class _CsvLayout:
+    """Where each quantity sits in a CSV table (column indices) and its factors to SI."""
+
+    acc: list[int]
+    acc_scale: np.ndarray
+    gyro: list[int]
+    gyro_scale: np.ndarray
+    mag: list[int] | None
+    mag_scale: np.ndarray
+    temp: int | None
+    temp_scale: float
+    t: int | None
+    t_scale: float
+    seq: int | None
+    seq_scale: float
+
+
 @functools.cache
-def _not_number_chars(delimiter: str) -> re.Pattern[bytes]:
-    """A byte that no CSV line of numbers holds (digits, sign, point, exponent, blanks, the delimiter)."""
-    return re.compile(b"[^-+.0-9eE \t" + re.escape(delimiter.encode("ascii")) + b"]")
+def _csv_layout(cols: CsvColumns) -> _CsvLayout:
+    at = {name: i for i, name in enumerate(cols.names) if name != SKIP}
+
+    def axes(names: tuple[str, ...]) -> tuple[list[int], np.ndarray]:
+        return [at[n] for n in names], np.array([cols.scales[at[n]] for n in names])
+
+    acc, acc_scale = axes(("ax", "ay", "az"))
+    gyro, gyro_scale = axes(("gx", "gy", "gz"))
+    mag, mag_scale = axes(MAG_NAMES) if cols.has_mag else (None, np.ones(3))
+    one = {name: (at.get(name), cols.scales[at[name]] if name in at else 1.0)
+           for name in ("temp", "t", "seq")}
+    return _CsvLayout(acc, acc_scale, gyro, gyro_scale, mag, mag_scale, *one["temp"], *one["t"], *one["seq"])
+
+
+# Kinds of line the batches read (the group of _line_forms that matched), and their kinds_seen name.
+_CSV, _RAW, _UNI, _VNYMR, _VNIMU = 1, 2, 3, 4, 5
+_KIND_NAMES = {_CSV: "csv", _RAW: "motioncal", _UNI: "motioncal", _VNYMR: "vectornav", _VNIMU: "vectornav"}
+_DEG_TO_RAD = math.pi / 180.0  # math.radians' factor
+_NUMBER = "-+.0-9eE \t"
+_NUMBER_BYTES = b"-+.0123456789eE \t"
+_INT_BYTES = b"-+0123456789 \t"
+_HEX_BYTES = b"0123456789ABCDEFabcdef"
+_HEADS = {_RAW: b"Raw:", _UNI: b"Uni:", _VNYMR: b"$VNYMR,", _VNIMU: b"$VNIMU,"}
+
+
+@functools.cache
+def _line_forms(delimiter: str, fields: int) -> re.Pattern[bytes]:
+    """A sample line as it stands, group n the kind n (``_CSV`` ... ``_VNIMU``): the field count of its
+    dialect, only the characters of numbers in its fields, and for VectorNav a two-digit checksum.
+    CSV lines only with a one-character delimiter (other lines of a longer one go one by one)."""
+    def fields_of(chars: str, count: int, sep: str = ",") -> str:
+        one = f"[{chars.replace(sep, '')}]*"
+        return one + f"(?:{re.escape(sep)}{one}){{{count - 1}}}"
+
+    forms = [
+        fields_of(_NUMBER, fields, delimiter) if len(delimiter) == 1 else "(?!)",
+        "Raw:" + fields_of("-+0-9 \t", 9),
+        "Uni:" + fields_of(_NUMBER, 9),
+        r"\$VNYMR," + fields_of(_NUMBER, 12) + r"\*[0-9A-Fa-f]{2}",
+        r"\$VNIMU," + fields_of(_NUMBER, 11) + r"\*[0-9A-Fa-f]{2}",
+    ]
+    return re.compile("|".join(f"({form})" for form in forms).encode("ascii"))
+
+
+def _table(lines: list[bytes], delimiter: str) -> tuple[np.ndarray, np.ndarray]:
+    """The numbers of lines of one field count as a table, and which lines parsed (a line that does not
+    holds NaN, found by halving the lines where ``np.loadtxt`` refuses)."""
+    try:
+        table = np.loadtxt(lines, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
+                           encoding="ascii")
+        return table, np.ones(len(lines), dtype=bool)
+    except ValueError:
+        if len(lines) == 1:
+            width = lines[0].count(delimiter.encode("ascii")) + 1
+            return np.full((1, width), np.nan), np.zeros(1, dtype=bool)
+    half = len(lines) // 2
+    (t1, g1), (t2, g2) = _table(lines[:half], delimiter), _table(lines[half:], delimiter)
+    return np.concatenate([t1, t2]), np.concatenate([g1, g2])
+
+
+def _checksums_match(lines: list[bytes]) -> np.ndarray:
+    """Which ``$...*XX`` sentences carry the XOR of their body as XX."""
+    bodies = [line[1:-3] for line in lines]
+    data = np.frombuffer(b"".join(bodies), dtype=np.uint8)
+    starts = np.cumsum([0, *map(len, bodies[:-1])])
+    actual = np.bitwise_xor.reduceat(data, starts)
+    expected = np.array([int(line[-2:], 16) for line in lines])
+    return actual == expected
 
 
 def _is_number(text: str) -> bool:
