@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import re
+from bisect import bisect_left
 from typing import Any
 
 import numpy as np
@@ -177,6 +178,7 @@ class MavlinkDecoder(StreamDecoderBase):
     def _decode(self, data: bytes, final: bool) -> Decoded:
         buf = self._buf
         buf += data
+        self._win: _FastWindow | None = None  # slot positions hold until the buffer is cut
         rows: list[tuple] = []
         batches: list[np.ndarray] = []  # MAG_SAMPLE_DTYPE runs of the fast path, rows before each
         messages: list[Message] = []
@@ -257,6 +259,7 @@ class MavlinkDecoder(StreamDecoderBase):
                 messages.append(Message(msg.get_msgId(), bytes(frame)))
             else:
                 rows.append(row)
+        self._win = None
         if pos:
             del buf[:pos]
         if batches:
@@ -297,48 +300,25 @@ class MavlinkDecoder(StreamDecoderBase):
         chosen source without a second look: unsigned, of its message, system, component and IMU id,
         of one length (a payload at most the message's full length), a good CRC, dated. Checked on
         all frames at once; the run ends at the first other frame, which the per-frame path takes."""
-        buf = self._buf
         key = self._key
         assert key is not None
         name, system, component, imu_id = key
-        v1 = buf[pos] == STX_V1
-        avail = len(buf) - pos
-        if avail < HEADER_V2:
-            return _EMPTY_MAG, 0
-        spec = _fast_spec(self._dialect, name)
-        plen = buf[pos + 1]
-        header = HEADER_V1 if v1 else HEADER_V2
-        size = header + plen + 2
-        count = min(avail // size, _FAST_WINDOW)
-        if count < 2 or plen > spec.size:
-            return _EMPTY_MAG, 0
-        rows = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
-        expect = spec.header_v1 if v1 else spec.header_v2
-        cols = spec.cols_v1 if v1 else spec.cols_v2
-        ok = (rows[:, cols] == expect(plen, system, component)).all(axis=1)
-        n = count if ok.all() else int(np.argmin(ok))
-        if n < 2:
-            return _EMPTY_MAG, 0
-        rows = rows[:n]
-        base, flat, offsets = _crc_tables(header, plen, spec.crc_extra)
-        crc = np.bitwise_xor.reduce(flat[rows[:, 1 : header + plen] + offsets], axis=1) ^ base
-        sent = rows[:, header + plen].astype(np.uint16) | (rows[:, header + plen + 1].astype(np.uint16) << 8)
-        good = crc == sent
-        if not good.all():
-            n = int(np.argmin(good))
-            if n < 2:
+        win = self._win
+        if win is None or not win.covers(pos):
+            win = self._win = self._check_window(pos)
+            if win is None:
                 return _EMPTY_MAG, 0
-            rows = rows[:n]
-        payload = np.zeros((n, spec.size), dtype=np.uint8)
-        payload[:, :plen] = rows[:, header : header + plen]
-        msg = payload.view(spec.dtype)[:, 0]
-        if spec.has_id:
-            same = msg["id"] == imu_id
-            if not same.all():
-                n = int(np.argmin(same))
-                if n < 2:
-                    return _EMPTY_MAG, 0
-                msg = msg[:n]
+        spec, size = win.spec, win.size
+        i = (pos - win.base) // size
+        j = win.checked
+        if win.bad:
+            k = bisect_left(win.bad, i)
+            if k < len(win.bad):
+                j = win.bad[k]
+        n = j - i
+        if n < 1:
+            return _EMPTY_MAG, 0
+        payload, msg = win.payload[i:j], win.msg[i:j]
         out = np.empty(n, dtype=MAG_SAMPLE_DTYPE)
         if name == "SCALED_IMU" or name == "SCALED_IMU2" or name == "SCALED_IMU3":
             ms = msg["time_boot_ms"].astype(np.int64)
@@ -350,7 +330,7 @@ class MavlinkDecoder(StreamDecoderBase):
             boot = prev + np.cumsum(steps)
             if (boot < 0).any():
                 n = int(np.argmax(boot < 0))
-                if n < 2:
+                if n < 1:
                     return _EMPTY_MAG, 0
                 msg, boot, out = msg[:n], boot[:n], out[:n]
             self._boot_ms = int(boot[-1])
@@ -392,6 +372,45 @@ class MavlinkDecoder(StreamDecoderBase):
         self.sources_seen[label] = self.sources_seen.get(label, 0) + n
         self.stats.frames += n
         return out, n * size
+
+    def _check_window(self, pos: int) -> _FastWindow | None:
+        """Frame slots of the length announced at ``pos`` checked at once (header, CRC, IMU id): the
+        window, or None when no frame of the chosen source can start there."""
+        buf = self._buf
+        key = self._key
+        assert key is not None
+        name, system, component, imu_id = key
+        v1 = buf[pos] == STX_V1
+        avail = len(buf) - pos
+        if avail < HEADER_V2:
+            return None
+        spec = _fast_spec(self._dialect, name)
+        plen = buf[pos + 1]
+        header = HEADER_V1 if v1 else HEADER_V2
+        size = header + plen + 2
+        count = min(avail // size, _FAST_WINDOW)
+        if count < 1 or plen > spec.size:
+            return None
+        rows = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
+        expect = spec.header_v1 if v1 else spec.header_v2
+        cols = spec.cols_v1 if v1 else spec.cols_v2
+        ok = (rows[:, cols] == expect(plen, system, component)).all(axis=1)
+        n = count if ok.all() else int(np.argmin(ok))
+        if n < 1:
+            return None
+        rows = rows[:n]
+        base, flat, offsets = _crc_tables(header, plen, spec.crc_extra)
+        crc = np.bitwise_xor.reduce(flat[rows[:, 1 : header + plen] + offsets], axis=1) ^ base
+        sent = rows[:, header + plen].astype(np.uint16) | (rows[:, header + plen + 1].astype(np.uint16) << 8)
+        good = crc == sent
+        payload = np.zeros((n, spec.size), dtype=np.uint8)
+        payload[:, :plen] = rows[:, header : header + plen]
+        del rows  # the window keeps no view of the buffer
+        msg = payload.view(spec.dtype)[:, 0]
+        if spec.has_id:
+            good &= msg["id"] == imu_id
+        bad = [] if good.all() else np.flatnonzero(~good).tolist()
+        return _FastWindow(pos, size, n, bad, spec, payload, msg)
 
     # -------------------------------------------------------------- IMU messages
 
@@ -453,6 +472,24 @@ class MavlinkDecoder(StreamDecoderBase):
 
 
 # ---------------------------------------------------------------------------------- fast path
+
+
+class _FastWindow:
+    """Frame slots of one length from ``base`` checked at once; ``bad`` lists the slots (below
+    ``checked``) that are not good frames of the source. Runs from any slot are then slices, so a
+    damaged frame costs the next run no second check. Copies of the payloads: no buffer view."""
+
+    __slots__ = ("base", "size", "checked", "bad", "spec", "payload", "msg")
+
+    def __init__(self, base: int, size: int, checked: int, bad: list[int], spec: _FastSpec,
+                 payload: np.ndarray, msg: np.ndarray) -> None:
+        self.base, self.size, self.checked, self.bad = base, size, checked, bad
+        self.spec, self.payload, self.msg = spec, payload, msg
+
+    def covers(self, pos: int) -> bool:
+        """Whether ``pos`` is a checked slot."""
+        off = pos - self.base
+        return off >= 0 and off % self.size == 0 and off // self.size < self.checked
 
 _FAST_WINDOW = 512  # frames a fast run checks at once
 _EMPTY_MAG = np.zeros(0, MAG_SAMPLE_DTYPE)
