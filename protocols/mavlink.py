@@ -337,7 +337,7 @@ class MavlinkDecoder(StreamDecoderBase):
             out["t_us"] = boot * 1000
         else:
             out["t_us"] = msg["time_usec"]
-        out["seq"] = (np.arange(self._count, self._count + n) & 0xFFFFFFFF).astype(np.uint32)
+        out["seq"] = np.arange(self._count, self._count + n, dtype=np.uint64) & 0xFFFFFFFF
         self._count += n
         if name == "HIGHRES_IMU":
             acc_scale = gyro_scale = None
@@ -392,16 +392,19 @@ class MavlinkDecoder(StreamDecoderBase):
         if count < 1 or plen > spec.size:
             return None
         rows = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
-        expect = spec.header_v1 if v1 else spec.header_v2
         cols = spec.cols_v1 if v1 else spec.cols_v2
-        ok = (rows[:, cols] == expect(plen, system, component)).all(axis=1)
+        expect = _HEADERS.get((v1, plen, system, component, spec.msg_id))
+        if expect is None:
+            make = spec.header_v1 if v1 else spec.header_v2
+            expect = _HEADERS[(v1, plen, system, component, spec.msg_id)] = make(plen, system, component)
+        ok = (rows[:, cols] == expect).all(axis=1)
         n = count if ok.all() else int(np.argmin(ok))
         if n < 1:
             return None
         rows = rows[:n]
         base, flat, offsets = _crc_tables(header, plen, spec.crc_extra)
         crc = np.bitwise_xor.reduce(flat[rows[:, 1 : header + plen] + offsets], axis=1) ^ base
-        sent = rows[:, header + plen].astype(np.uint16) | (rows[:, header + plen + 1].astype(np.uint16) << 8)
+        sent = rows[:, header + plen : header + plen + 2].view("<u2")[:, 0]
         good = crc == sent
         payload = np.zeros((n, spec.size), dtype=np.uint8)
         payload[:, :plen] = rows[:, header : header + plen]
@@ -535,6 +538,7 @@ class _FastSpec:
 
 
 _SPECS: dict[str, _FastSpec] = {}
+_HEADERS: dict[tuple[bool, int, int, int, int], np.ndarray] = {}  # header bytes a run's frames share
 
 
 def _fast_spec(dialect: Any, name: str) -> _FastSpec:
