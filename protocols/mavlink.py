@@ -154,7 +154,7 @@ class MavlinkDecoder(StreamDecoderBase):
         crc = buf[end - 2] | (buf[end - 1] << 8)
         body = bytearray(buf[pos + 1 : end - 2])
         body.append(msgtype.crc_extra)
-        return self._dialect.x25crc(body).crc == crc
+        return _x25(body) == crc
 
     def _valid_frame_inside(self, start: int, end: int, final: bool = True) -> bool | None:
         """Whether a complete frame with a good CRC starts in ``buf[start:end]``; None (not ``final``)
@@ -231,9 +231,11 @@ class MavlinkDecoder(StreamDecoderBase):
                 continue
             frame = bytearray(buf[pos : pos + length])
             try:
+                if self._win is not None and self._win.crc_failed(pos):
+                    raise self._dialect.MAVError("bad CRC")  # what decode would find
                 msg = self._mav.decode(frame)  # checks the CRC too
             except self._dialect.MAVError:
-                if self._crc_ok(pos, length):
+                if not (self._win is not None and self._win.crc_failed(pos)) and self._crc_ok(pos, length):
                     stats.bad_payloads += 1
                     pos += length
                     continue
@@ -406,6 +408,7 @@ class MavlinkDecoder(StreamDecoderBase):
         crc = np.bitwise_xor.reduce(flat[rows[:, 1 : header + plen] + offsets], axis=1) ^ base
         sent = rows[:, header + plen : header + plen + 2].view("<u2")[:, 0]
         good = crc == sent
+        crc_bad = [] if good.all() else np.flatnonzero(~good).tolist()
         payload = np.zeros((n, spec.size), dtype=np.uint8)
         payload[:, :plen] = rows[:, header : header + plen]
         del rows  # the window keeps no view of the buffer
@@ -413,7 +416,7 @@ class MavlinkDecoder(StreamDecoderBase):
         if spec.has_id:
             good &= msg["id"] == imu_id
         bad = [] if good.all() else np.flatnonzero(~good).tolist()
-        return _FastWindow(pos, size, n, bad, spec, payload, msg)
+        return _FastWindow(pos, size, n, bad, crc_bad, spec, payload, msg)
 
     # -------------------------------------------------------------- IMU messages
 
@@ -482,12 +485,20 @@ class _FastWindow:
     ``checked``) that are not good frames of the source. Runs from any slot are then slices, so a
     damaged frame costs the next run no second check. Copies of the payloads: no buffer view."""
 
-    __slots__ = ("base", "size", "checked", "bad", "spec", "payload", "msg")
+    __slots__ = ("base", "size", "checked", "bad", "crc_bad", "spec", "payload", "msg")
 
-    def __init__(self, base: int, size: int, checked: int, bad: list[int], spec: _FastSpec,
-                 payload: np.ndarray, msg: np.ndarray) -> None:
-        self.base, self.size, self.checked, self.bad = base, size, checked, bad
+    def __init__(self, base: int, size: int, checked: int, bad: list[int], crc_bad: list[int],
+                 spec: _FastSpec, payload: np.ndarray, msg: np.ndarray) -> None:
+        self.base, self.size, self.checked, self.bad, self.crc_bad = base, size, checked, bad, crc_bad
         self.spec, self.payload, self.msg = spec, payload, msg
+
+    def crc_failed(self, pos: int) -> bool:
+        """Whether ``pos`` is a checked slot whose frame's CRC is wrong (known without a second look)."""
+        if not self.crc_bad or not self.covers(pos):
+            return False
+        i = (pos - self.base) // self.size
+        k = bisect_left(self.crc_bad, i)
+        return k < len(self.crc_bad) and self.crc_bad[k] == i
 
     def covers(self, pos: int) -> bool:
         """Whether ``pos`` is a checked slot."""
@@ -560,6 +571,18 @@ def _x25_rows(rows: np.ndarray) -> np.ndarray:
     crc = np.full(rows.shape[0], 0xFFFF, dtype=np.uint16)
     for col in range(rows.shape[1]):
         crc = (crc >> 8) ^ _X25_TABLE[(crc ^ rows[:, col]) & 0xFF]
+    return crc
+
+
+_X25_LIST = [int(v) for v in _X25_TABLE]
+
+
+def _x25(data: bytes | bytearray) -> int:
+    """The X.25 CRC of ``data`` (as pymavlink's ``x25crc``, a table look-up a byte)."""
+    crc = 0xFFFF
+    table = _X25_LIST
+    for byte in data:
+        crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
     return crc
 
 
