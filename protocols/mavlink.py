@@ -307,9 +307,10 @@ class MavlinkDecoder(StreamDecoderBase):
         name, system, component, imu_id = key
         win = self._win
         if win is None or not win.covers(pos):
-            win = self._win = self._check_window(pos)
-            if win is None:
+            found = self._check_window(pos)
+            if found is None:  # no run here (a false start): the window stays for the slots after
                 return _EMPTY_MAG, 0
+            win = self._win = found
         spec, size = win.spec, win.size
         i = (pos - win.base) // size
         j = win.checked
