@@ -215,7 +215,7 @@ def main() -> None:
           f"({med('new_cores_per_unit'):.4f} per unit), {med('new_total_cpu_s'):.2f} CPU-s in all for "
           f"{med('new_wall_s'):.1f} s wall (start-up included), exit {int(med('new_returncode'))}")
     print(f"  target: {args.target_cores:g} of a core for {args.units} units, 0 lost: "
-          f"{med('new_cores') / args.target_cores:.2f}x the target")
+          f"{med('new_cores') / args.target_cores:.2f}x the target's cores, {int(med('new_lost'))} lost")
     print(f"  lost: {int(med('new_lost'))} samples missing, {int(med('new_gaps'))} gaps in t, "
           f"{int(med('new_files'))} of {args.units} files")
     print(f"  backlog: at most {int(med('max_backlog_bytes'))} bytes seen waiting for the station "
