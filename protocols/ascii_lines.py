@@ -175,6 +175,8 @@ class _Options(TypedDict, total=False):
 _MAX_T_S = 2.0**63 / 1e6
 _MAX_SEQ = 2.0**63
 _MAX_COUNTS = 2**31
+_BELOW_MAX_T_S = float(np.nextafter(_MAX_T_S, 0.0))  # x < _MAX_T_S as x <= this
+_BELOW_MAX_SEQ = float(np.nextafter(_MAX_SEQ, 0.0))
 _LINE_END = re.compile(rb"[\r\n]")
 # "Cal1:...", "Info: ...": a tagged line of another kind, text for us (Raw: and Uni: are read before).
 _TAGGED = re.compile(r"[A-Za-z][A-Za-z0-9 _-]*:")
@@ -399,46 +401,78 @@ class AsciiDecoder(StreamDecoderBase):
 
     def _parse_kind(self, k: int, lines: list[bytes]) -> _Parsed:
         """The numbers of the lines of one dialect, and which of them are samples."""
-        t = seq = None
+        key = (k, self.columns, self.max_acc, self.max_gyro, self.max_mag, tuple(self.temp_range))
+        lay = self._layouts.get(key) or self._layouts.setdefault(key, self._layout(k))
         if k == _CSV:
-            cols = _csv_layout(self.columns)
             table, good = _table(lines, self.columns.delimiter)
-            a = table[:, cols.acc] * cols.acc_scale
-            g = table[:, cols.gyro] * cols.gyro_scale
-            tc = np.full(len(lines), np.nan) if cols.temp is None else table[:, cols.temp] * cols.temp_scale
-            f = None if cols.mag is None else table[:, cols.mag] * cols.mag_scale
-            if cols.seq is not None:
-                value = table[:, cols.seq] * cols.seq_scale
-                good &= (value >= 0) & (value < _MAX_SEQ)
-                seq = np.zeros(len(lines), dtype=np.int64)
-                seq[good] = value[good].astype(np.int64)
-            if cols.t is not None:
-                t = table[:, cols.t] * cols.t_scale
-                good &= (t >= 0) & (t < _MAX_T_S)
-        elif k in (_RAW, _UNI):
-            table, good = _table([line[4:] for line in lines], ",")
-            if k == _RAW:
-                good &= (np.abs(table) <= _MAX_COUNTS).all(axis=1)
-                a = table[:, 0:3] * STANDARD_GRAVITY / MOTIONCAL_ACC_PER_G
-                g = (table[:, 3:6] / MOTIONCAL_GYRO_PER_DPS) * _DEG_TO_RAD
-                f = table[:, 6:9] / MOTIONCAL_MAG_PER_UT
-            else:
-                a, g, f = table[:, 0:3], table[:, 3:6], table[:, 6:9]
-            tc = np.full(len(lines), np.nan)
         else:
-            table, good = _table([line[7:-3] for line in lines], ",")
-            good &= _checksums_match(lines)
-            if k == _VNYMR:
-                a, g, f = table[:, 6:9], table[:, 9:12], table[:, 3:6] * UT_PER_GAUSS
-                tc = np.full(len(lines), np.nan)
-            else:
-                a, g, f, tc = table[:, 3:6], table[:, 6:9], table[:, 0:3] * UT_PER_GAUSS, table[:, 9]
-        good &= (np.isfinite(a) & (np.abs(a) <= self.max_acc)).all(axis=1)
-        good &= (np.isfinite(g) & (np.abs(g) <= self.max_gyro)).all(axis=1)
-        good &= ~((tc < self.temp_range[0]) | (tc > self.temp_range[1]))
-        if f is not None:
-            good &= ~(np.isinf(f) | (np.abs(f) > self.max_mag)).any(axis=1)
-        return _Parsed(good, a, g, tc, f, t, seq)
+            head = len(_HEADS[k])
+            table, good = _table([line[head:-3] if k >= _VNYMR else line[head:] for line in lines], ",")
+            if k >= _VNYMR:
+                good &= _checksums_match(lines)
+            elif k == _RAW:
+                good &= (np.abs(table) <= _MAX_COUNTS).all(axis=1)
+        v = table
+        for factor, divide in ((lay.m1, False), (lay.div, True), (lay.m2, False)):
+            if factor is not None:
+                v = v / factor if divide else v * factor
+        inside = (v >= lay.lo) & (v <= lay.hi)
+        if lay.nan_ok is not None:
+            inside |= np.isnan(v) & lay.nan_ok
+        good &= inside.all(axis=1)
+        n = len(lines)
+        seq = None
+        if lay.seq is not None:
+            seq = np.zeros(n, dtype=np.int64)
+            seq[good] = v[good, lay.seq].astype(np.int64)
+        temp = np.full(n, np.nan) if lay.temp is None else v[:, lay.temp]
+        return _Parsed(good, v[:, lay.acc], v[:, lay.gyro], temp, None if lay.mag is None else v[:, lay.mag],
+                       None if lay.t is None else v[:, lay.t], seq)
+
+    @functools.cached_property
+    def _layouts(self) -> dict[tuple, _Layout]:
+        return {}
+
+    def _layout(self, k: int) -> _Layout:
+        """Where each quantity sits in the table of a dialect, its factors to SI (applied as
+        ``x * m1 / div * m2``, the order of the line-by-line arithmetic) and the bounds of a sample."""
+        width = {_CSV: len(self.columns.names), _RAW: 9, _UNI: 9, _VNYMR: 12, _VNIMU: 11}[k]
+        m1, div, m2 = np.ones(width), np.ones(width), np.ones(width)
+        lo, hi, nan_ok = np.full(width, -np.inf), np.full(width, np.inf), np.ones(width, dtype=bool)
+        at: dict[str, int]
+        if k == _CSV:
+            at = {name: i for i, name in enumerate(self.columns.names) if name != SKIP}
+            m1 = np.array(self.columns.scales)
+        else:
+            base = {_RAW: 0, _UNI: 0, _VNYMR: 6, _VNIMU: 3}[k]
+            at = {name: base + i for i, name in enumerate(("ax", "ay", "az", "gx", "gy", "gz"))}
+            at.update({n: ({_RAW: 6, _UNI: 6, _VNYMR: 3, _VNIMU: 0}[k] + i) for i, n in enumerate(MAG_NAMES)})
+            if k == _VNIMU:
+                at["temp"] = 9
+        acc = [at[n] for n in ("ax", "ay", "az")]
+        gyro = [at[n] for n in ("gx", "gy", "gz")]
+        mag = [at[n] for n in MAG_NAMES] if "mx" in at else None
+        if k == _RAW:
+            m1[acc], div[acc] = STANDARD_GRAVITY, MOTIONCAL_ACC_PER_G
+            div[gyro], m2[gyro] = MOTIONCAL_GYRO_PER_DPS, _DEG_TO_RAD
+            div[mag] = MOTIONCAL_MAG_PER_UT
+        elif k in (_VNYMR, _VNIMU):
+            m1[mag] = UT_PER_GAUSS
+        for cols, low, high, nan in ((acc, -self.max_acc, self.max_acc, False),
+                                     (gyro, -self.max_gyro, self.max_gyro, False),
+                                     (mag, -self.max_mag, self.max_mag, True),
+                                     ([at["temp"]] if "temp" in at else None, *self.temp_range, True),
+                                     ([at["t"]] if "t" in at else None, 0.0, _BELOW_MAX_T_S, False),
+                                     ([at["seq"]] if "seq" in at else None, 0.0, _BELOW_MAX_SEQ, False)):
+            if cols is not None:
+                lo[cols], hi[cols], nan_ok[cols] = low, high, nan
+
+        def unit(factors: np.ndarray) -> np.ndarray | None:
+            return None if (factors == 1.0).all() else factors
+
+        return _Layout(unit(m1), unit(div), unit(m2), lo, hi, nan_ok if nan_ok.any() else None,
+                       _columns(acc), _columns(gyro), None if mag is None else _columns(mag), at.get("temp"),
+                       at.get("t"), at.get("seq"))
 
     def flush(self) -> Decoded:
         """End of stream: a last line without its end of line is still read."""
@@ -662,36 +696,27 @@ class _Parsed:
 
 
 @dataclass(frozen=True)
-class _CsvLayout:
-    """Where each quantity sits in a CSV table (column indices) and its factors to SI."""
+class _Layout:
+    """A dialect's table: its factors to SI, the bounds of a sample's values (NaN allowed where
+    ``nan_ok``), and the columns of each quantity."""
 
-    acc: list[int]
-    acc_scale: np.ndarray
-    gyro: list[int]
-    gyro_scale: np.ndarray
-    mag: list[int] | None
-    mag_scale: np.ndarray
+    m1: np.ndarray | None
+    div: np.ndarray | None
+    m2: np.ndarray | None
+    lo: np.ndarray
+    hi: np.ndarray
+    nan_ok: np.ndarray | None
+    acc: slice | list[int]
+    gyro: slice | list[int]
+    mag: slice | list[int] | None
     temp: int | None
-    temp_scale: float
     t: int | None
-    t_scale: float
     seq: int | None
-    seq_scale: float
 
 
-@functools.cache
-def _csv_layout(cols: CsvColumns) -> _CsvLayout:
-    at = {name: i for i, name in enumerate(cols.names) if name != SKIP}
-
-    def axes(names: tuple[str, ...]) -> tuple[list[int], np.ndarray]:
-        return [at[n] for n in names], np.array([cols.scales[at[n]] for n in names])
-
-    acc, acc_scale = axes(("ax", "ay", "az"))
-    gyro, gyro_scale = axes(("gx", "gy", "gz"))
-    mag, mag_scale = axes(MAG_NAMES) if cols.has_mag else (None, np.ones(3))
-    one = {name: (at.get(name), cols.scales[at[name]] if name in at else 1.0)
-           for name in ("temp", "t", "seq")}
-    return _CsvLayout(acc, acc_scale, gyro, gyro_scale, mag, mag_scale, *one["temp"], *one["t"], *one["seq"])
+def _columns(at: list[int]) -> slice | list[int]:
+    """Consecutive columns as a slice (a view), others as a list."""
+    return slice(at[0], at[-1] + 1) if at == list(range(at[0], at[0] + len(at))) else at
 
 
 # Kinds of line the batches read (the group of _line_forms that matched), and their kinds_seen name.
