@@ -29,8 +29,10 @@ text that hold no numbers (banners, headers) and tagged lines of other kinds (``
 returned as messages.
 
 Why this module is long: every text dialect (CSV columns, MotionCal, VectorNav) goes
-through one line splitter and one rejection count in ``AsciiDecoder``, and their encoders sit beside
-the parser they must round-trip with; the fuzz table tests them as pairs.
+through one line splitter and one rejection count in ``AsciiDecoder``, read two ways that must agree
+line for line: one line at a time (``_line``) and in batches (``_batched``: each dialect's well-formed
+lines as one table checked in arrays, for speed, issue 30); and their encoders sit beside the parser they
+must round-trip with; the fuzz table tests them as pairs.
 """
 
 from __future__ import annotations
