@@ -119,8 +119,11 @@ def test_a_circle_is_named_with_its_lines() -> None:
 
 
 def _private_owner(module: str) -> str | None:
-    """The package that owns ``module`` when one of its parts is private (``_name``), else None."""
+    """The project package that owns ``module`` when one of its parts is private (``_name``), else None
+    (another library's private modules are that library's business)."""
     parts = module.split(".")
+    if parts[0] not in PACKAGES:
+        return None
     for i, part in enumerate(parts):
         if part.startswith("_") and not part.startswith("__"):
             return ".".join(parts[:i])
