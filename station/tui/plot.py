@@ -54,7 +54,24 @@ def _get_lines(x: list, y: list, *other: list) -> list:
     py = np.trunc(ys[:-1][seg] + k * sy).astype(np.int64)
     px, py = np.append(px, xs[-1]), np.append(py, ys[-1])
     px, py = _once(px, py)
-    return [px.tolist(), py.tolist(), *([o[0]] * len(px) for o in other)]
+    xl = px.tolist()
+    _UNIQUE.append(xl)  # plotext's brush, next, need not look for repeated points in these
+    del _UNIQUE[:-8]
+    return [xl, py.tolist(), *([o[0]] * len(px) for o in other)]
+
+
+_PLOTEXT_BRUSH = _plotext_utility.brush
+_UNIQUE: list[list] = []  # the x lists of the last curves of _get_lines: points each once
+
+
+def _brush(*lists: list) -> list:
+    """plotext's ``brush`` (the points each kept once, in a set's order), which has nothing to do on
+    the points of :func:`_get_lines`: they are each once already."""
+    first = lists[0] if lists else None
+    if first is not None and any(first is seen for seen in _UNIQUE) and \
+            all(len(other) == len(first) for other in lists):
+        return list(lists)
+    return _PLOTEXT_BRUSH(*lists)
 
 
 def _once(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -96,6 +113,7 @@ def _hd_group(x: list, y: list, xf: list, yf: list) -> tuple:
 if plotext.__version__ == "5.3.2":  # the version whose get_lines this one reproduces (pinned)
     _plotext_utility.get_lines = _get_lines
     _plotext_utility.hd_group = _hd_group
+    _plotext_utility.brush = _brush
 
 
 _SGR = re.compile(r"(\x1b\[[0-9;]*m)")
@@ -126,9 +144,13 @@ def ansi_text(ansi: str) -> Text:
             continue
         style = _style(codes) if codes else None
         plain.append(token)
+        end = at + len(token)
         if style is not None:
-            spans.append(Span(at, at + len(token), style))
-        at += len(token)
+            if spans and spans[-1].end == at and spans[-1].style is style:  # one span for a run
+                spans[-1] = Span(spans[-1].start, end, style)
+            else:
+                spans.append(Span(at, end, style))
+        at = end
     return Text("".join(plain), spans=spans)
 
 
