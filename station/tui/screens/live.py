@@ -20,6 +20,7 @@ from textual.timer import Timer
 from textual.widgets import Footer, Header, Static
 from textual_plotext import PlotextPlot
 
+from drivers.paced_port import PacedPort
 from protocols.base import has_mag
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.plot import FastPlot, Series, draw
@@ -110,7 +111,20 @@ class LiveScreen(StationScreen):
         self._plotted = 0.0  # time.monotonic() of the last traces drawn
         self._plotted_rows: tuple[int, float] | None = None  # (count, newest time) of the rows drawn
         self._values_shape: tuple[int, int, int] | None = None  # rows, widths drawn last
+        # The paced port read once a frame, not every 20 ms: the same samples in fewer, larger batches
+        # (a pty holds 0.4 s of a 1 kHz unit); the wizard's runner gets the port's own pacing back.
+        device = self.session.device
+        self._period: float | None = None
+        if isinstance(device, PacedPort):
+            self._period = device.period_s
+            device.period_s = max(device.period_s, 1.0 / UI_RATE_HZ)
         self._read()
+
+    def on_unmount(self) -> None:
+        """Give the port its own pacing back."""
+        device = self.station.session.device if self.station.session is not None else None
+        if self._period is not None and isinstance(device, PacedPort):
+            device.period_s = self._period
 
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
