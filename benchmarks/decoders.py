@@ -36,9 +36,10 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from frame_decode import DESCRIPTION, make_samples  # the 32-byte board frame both benchmarks decode
 
 from protocols import ascii_lines, mavlink, native, xsens
-from protocols.base import SAMPLE_DTYPE, StreamDecoderBase
+from protocols.base import StreamDecoderBase
 from protocols.frame import FrameDecoder, encode_frames
 from protocols.frame_description import describe
 
@@ -46,33 +47,6 @@ BINARY_TARGET = 1_000_000
 TEXT_TARGET = 300_000
 CHUNKS = (4096, 65536)
 DAMAGE_EVERY = 100
-
-# The frame description of benchmarks/frame_decode.py: a 32-byte board frame with a CRC-16.
-DESCRIPTION = {
-    "schema": "imu-station/frame/1", "name": "bench-32", "sync": [0xAA, 0x55], "length": 32,
-    "checksum": {"type": "crc16-ccitt-false"},
-    "fields": [
-        {"name": "seq", "at": 2, "type": "u16"},
-        {"name": "t", "at": 4, "type": "u32", "scale": 1.0e-6},
-        *[{"name": n, "at": 8 + 2 * i, "type": "i16", "scale": 0.0023956 if i < 3 else 0.00026632}
-          for i, n in enumerate(("ax", "ay", "az", "gx", "gy", "gz"))],
-        {"name": "temp", "at": 20, "type": "i16", "scale": 0.01, "offset": 25.0},
-        *[{"name": n, "at": 22 + 2 * i, "type": "i16", "scale": 0.15}
-          for i, n in enumerate(("mx", "my", "mz"))],
-    ],
-}
-
-
-def make_samples(n: int) -> np.ndarray:
-    rng = np.random.default_rng(0)
-    s = np.zeros(n, dtype=SAMPLE_DTYPE)
-    s["seq"] = np.arange(n)
-    s["t_us"] = np.arange(n) * 1000
-    s["acc"] = rng.normal(0, 5, (n, 3))
-    s["gyro"] = rng.normal(0, 1, (n, 3))
-    s["temp"] = 25.0 + rng.normal(0, 1, n)
-    return s
-
 
 # ------------------------------------------------------------------------------------- streams
 
