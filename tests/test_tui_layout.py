@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from serial.tools import list_ports
 from test_tui_ports import _ports
-from tui_helpers import assert_snapshot, ideal_run, results_ready, screen_text, wait_for
+from tui_helpers import expect_snapshot, ideal_run, results_ready, screen_text, wait_for
 
 from station.acquisition.checks import PoseCheck, Stillness
 from station.acquisition.runner import LiveStatus, State
@@ -45,8 +45,7 @@ def _run(config: TuiConfig, show, check, name: str) -> None:
             await show(pilot, app)
             for width, height in SIZES:
                 await pilot.resize_terminal(width, height)
-                await pilot.pause(0.4)
-                assert_snapshot(app.export_screenshot(), f"{name}_{width}x{height}")
+                await expect_snapshot(pilot, app, f"{name}_{width}x{height}")
                 check(screen_text(app), width)
             app.exit(0)
 

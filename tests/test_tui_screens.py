@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tui_helpers import assert_snapshot, svg_rows, wait_for
+from tui_helpers import expect_snapshot, svg_rows, wait_for
 
 from drivers import open_device
 from mocks.device import SimDevice
@@ -116,11 +116,9 @@ def test_wizard_snapshot_help_skip_and_abort(tmp_path):
             wizard = await wait_for(pilot, lambda: isinstance(app.screen, WizardScreen) and app.screen, 5,
                                     "the wizard")
             await wait_for(pilot, lambda: wizard.prompt is not None, 10, "the start prompt")
-            await pilot.pause(0.3)
-            assert_snapshot(app.export_screenshot(), "wizard_start")
+            await expect_snapshot(pilot, app, "wizard_start")
             await pilot.press("question_mark")
-            await pilot.pause(0.3)
-            assert_snapshot(app.export_screenshot(), "help")
+            await expect_snapshot(pilot, app, "help")
             await pilot.press("escape")
             await pilot.press("enter")  # start
             await wait_for(pilot, lambda: wizard.current == 0, 10, "the first step")
@@ -164,8 +162,7 @@ def test_results_snapshot_of_an_ideal_unit(tmp_path, monkeypatch):
             screen = await wait_for(pilot, lambda: isinstance(app.screen, ResultsScreen) and app.screen, 5,
                                     "results")
             await wait_for(pilot, lambda: screen.report is not None, 30, "the calibration")
-            await pilot.pause(0.3)
-            assert_snapshot(app.export_screenshot(), "results_ideal")
+            await expect_snapshot(pilot, app, "results_ideal")
             await pilot.press("enter")
             await wait_for(pilot, lambda: screen.saved, 5, "save")
             await pilot.press("enter")

@@ -49,22 +49,40 @@ def svg_size(svg: str) -> tuple[str, str]:
     return m.group(1), m.group(2)
 
 
-def assert_snapshot(svg: str, name: str) -> None:
-    """Compare with ``tests/snapshots/<name>.svg`` by size and the structure of its text rows (numbers
-    masked: values are checked by the tests themselves); UPDATE_SNAPSHOTS=1 rewrites it."""
+def _snapshot_difference(svg: str, name: str) -> str | None:
+    """What differs between ``svg`` and ``tests/snapshots/<name>.svg`` (size, and the structure of its
+    text rows with numbers masked: values are checked by the tests themselves), None if nothing does;
+    UPDATE_SNAPSHOTS=1 rewrites the snapshot."""
     path = SNAPSHOTS / f"{name}.svg"
     if os.environ.get("UPDATE_SNAPSHOTS") == "1" or not path.exists():
         if not path.exists() and os.environ.get("UPDATE_SNAPSHOTS") != "1":
             raise AssertionError(f"no snapshot {path}; run with UPDATE_SNAPSHOTS=1 to create it, then "
                                  "review it")
         path.write_text(svg, encoding="utf-8")
-        return
+        return None
     expected = path.read_text(encoding="utf-8")
-    assert svg_size(svg) == svg_size(expected), f"{name}: screen size changed"
+    if svg_size(svg) != svg_size(expected):
+        return f"{name}: screen size changed"
     got, want = structure(svg_rows(svg)), structure(svg_rows(expected))
     diff = [f"row {i}: expected {w!r}\n        got      {g!r}"
             for i, (g, w) in enumerate(zip(got, want, strict=False)) if g != w]
-    assert len(got) == len(want) and not diff, f"{name} differs from {path}:\n" + "\n".join(diff[:10])
+    if len(got) == len(want) and not diff:
+        return None
+    return f"{name} differs from {path}:\n" + "\n".join(diff[:10])
+
+
+async def expect_snapshot(pilot, app, name: str, timeout_s: float = 10.0) -> None:
+    """Wait until the app's screen matches ``tests/snapshots/<name>.svg``; fail with the rows that
+    still differ after ``timeout_s``. A screen is drawn a moment after its state changes, later on a
+    loaded machine, so one screenshot taken after a fixed pause may catch the previous frame."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        difference = _snapshot_difference(app.export_screenshot(), name)
+        if difference is None:
+            return
+        if time.monotonic() > deadline:
+            raise AssertionError(f"after {timeout_s} s: {difference}")
+        await pilot.pause(0.2)
 
 
 def ideal_run(hold_s: float = 1.0):
