@@ -180,7 +180,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or ExitCode.OK)
     except StationError as exc:
-        print(f"imu-station {args.command}: error: {exc}", file=sys.stderr)
+        from station.common.text import printable_message
+
+        # the message holds what the user, a file or a unit gave (a file name, a plan's key, a serial)
+        print(f"imu-station {args.command}: error: {printable_message(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"imu-station {args.command}: interrupted", file=sys.stderr)

@@ -4,16 +4,21 @@ One header row, then one row per sample; columns in any order, unknown columns i
 Required: t, ax, ay, az, gx, gy, gz; optional: temp, dtemp, step and the magnetometer's
 mx, my, mz (microtesla, all three or none; ``nan`` cells for a sample without a field).
 Malformed input is refused with a message naming the file, line and column.
+
+Memory stays bounded whatever the file holds: a line longer than ``MAX_LINE_CHARS`` is refused
+(naming its line) without being read whole, and a chunk ends once its lines hold ``CHUNK_CHARS``
+characters, so a chunk of long lines is not ``CHUNK_ROWS`` of them.
 """
 
 from __future__ import annotations
 
+import functools
 import gzip
 import io
 import itertools
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO
 
@@ -28,6 +33,14 @@ OPTIONAL_NUMERIC = ("temp", "dtemp")
 MAG_COLUMNS = ("mx", "my", "mz")
 HEADER = ("t", "ax", "ay", "az", "gx", "gy", "gz", "temp", "dtemp", "mx", "my", "mz", "step")
 CHUNK_ROWS = 200_000
+MAX_LINE_CHARS = 64 * 1024
+"""The longest line read (its end included). A sample row is under 200 characters; this leaves room
+for a few thousand columns the reader ignores, and refuses a file of one endless line (a 1 GB
+line used to be read whole, then split, and end in a MemoryError)."""
+CHUNK_CHARS = 64 * 1024 * 1024
+"""A chunk ends once its lines hold this many characters (and, checked every ``_BATCH`` lines, by
+at most ``_BATCH * MAX_LINE_CHARS`` more)."""
+_BATCH = 1024
 
 
 def _open_text(path: Path) -> IO[str]:
@@ -69,10 +82,13 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
     except OSError as exc:
         raise InputFileError(path, f"cannot be opened: {exc.strerror}") from None
     with fh:
+        # every line is read with readline(limit): a line without an end in reach is refused, never read whole
+        readline = functools.partial(fh.readline, MAX_LINE_CHARS + 1)
         try:
-            header_line = fh.readline()
+            header_line = readline()
         except (UnicodeDecodeError, OSError, EOFError) as exc:
             raise InputFileError(path, f"is not a readable text file ({exc})", line=1) from None
+        _check_length(path, [header_line], 1)
         header = [h.strip() for h in header_line.rstrip("\r\n").split(",")]
         if not header_line.strip():
             raise InputFileError(path, "is empty; expected a header row: " + ",".join(HEADER), line=1)
@@ -94,10 +110,10 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
         last_t = -math.inf
         while True:
             try:
-                lines = list(itertools.islice(fh, chunk_rows))
+                lines, at_end = _read_chunk(path, readline, chunk_rows, line_no + 1)
             except UnicodeDecodeError as exc:
                 raise InputFileError(path, f"is not UTF-8 text ({exc.reason})", line=line_no + 1) from None
-            if len(lines) < chunk_rows:
+            if at_end:
                 # The end of the file: blank lines there are harmless; inside the file they are refused.
                 while lines and not lines[-1].strip():
                     lines.pop()
@@ -139,6 +155,33 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
                 source=str(path),
                 mag=np.column_stack([cols[n] for n in MAG_COLUMNS]) if mag_present else None,
             )
+
+
+def _check_length(path: Path, lines: list[str], first_line: int) -> None:
+    """Refuse the first of ``lines`` (read with a limit of ``MAX_LINE_CHARS + 1``) that reached the limit."""
+    if max(map(len, lines), default=0) > MAX_LINE_CHARS:
+        at = next(i for i, line in enumerate(lines) if len(line) > MAX_LINE_CHARS)
+        raise InputFileError(path, f"line is longer than {MAX_LINE_CHARS} characters, the most a capture CSV "
+                             "row may hold (a sample row is under 200): is this a capture CSV? Cut the file "
+                             "at that line, or write it again with one sample per line",
+                             line=first_line + at)
+
+
+def _read_chunk(path: Path, readline: Callable[[], str], rows: int,
+                first_line: int) -> tuple[list[str], bool]:
+    """Up to ``rows`` lines, fewer once they hold ``CHUNK_CHARS`` characters, each checked for length;
+    and whether the file ended."""
+    lines: list[str] = []
+    chars = 0
+    while len(lines) < rows and chars < CHUNK_CHARS:
+        want = min(_BATCH, rows - len(lines))
+        batch = list(itertools.islice(iter(readline, ""), want))
+        _check_length(path, batch, first_line + len(lines))
+        lines += batch
+        chars += sum(map(len, batch))
+        if len(batch) < want:
+            return lines, True
+    return lines, False
 
 
 def _cell(line: str, idx: int) -> str:

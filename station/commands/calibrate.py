@@ -171,6 +171,7 @@ def run_mag(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from station.acquisition.capture import read_capture
+    from station.common.text import markup_safe
     from station.console.mag_summary import mag_report_dict, print_mag_report
     from station.engines.magnetometer.calibration import MagCapture, MagSettings, calibrate_mag
     from station.errors import InputFileError
@@ -218,7 +219,7 @@ def run_mag(args: argparse.Namespace) -> int:
     console = Console(file=sys.stdout, width=140)
     print_mag_report(cal, field_source, console)
     for path, what in outputs.items():
-        console.print(f"{path}: {what}")
+        console.print(f"{markup_safe(path)}: {what}")
     return ExitCode.OK
 
 
@@ -324,6 +325,7 @@ def print_report(report: CalibrationReport, out: IO[str]) -> None:
     import numpy as np
 
     from station.common.table import format_table
+    from station.common.text import printable, printable_message
 
     blocks = [f"{report.method} calibration, g = {report.gravity:.6f} m/s^2"]
     numbers = (False, True, True, True)
@@ -367,10 +369,10 @@ def print_report(report: CalibrationReport, out: IO[str]) -> None:
                 value = f"|a| - g {p['residual']:+.5f} m/s^2"
                 if p.get("gyro_residual") is not None:
                     value += f", gyro {p['gyro_residual']:.4f}"
-            rows.append([p["label"], f"{p['t0']:.1f}..{p['t1']:.1f}", value])
+            rows.append([printable(p["label"]), f"{p['t0']:.1f}..{p['t1']:.1f}", value])
         blocks += ["", format_table("per-pose residuals", ("step", "t (s)", "residual"), rows,
                                     (False, True, False))]
-    blocks += [f"warning: {w}" for w in report.warnings]
+    blocks += [f"warning: {printable_message(w)}" for w in report.warnings]
     out.write("\n".join(blocks) + "\n")
 
 
@@ -409,6 +411,7 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
     from station.acquisition.capture import read_capture
+    from station.common.text import printable
     from station.export.params.file import merge_sections, open_for_unit
 
     if args.method == "mag":
@@ -440,5 +443,5 @@ def run(args: argparse.Namespace) -> int:
         return ExitCode.OK
     print_report(report, sys.stdout)
     for path, what in outputs.items():
-        print(f"{path}: {what}")
+        print(f"{printable(path)}: {what}")
     return ExitCode.OK

@@ -124,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from station.acquisition.capture import read_capture
+    from station.acquisition.capture import read_capture, require_finite
+    from station.common.text import markup_safe, printable, printable_message
     from station.console.thermal_report import format_report
     from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
     from station.export.params.file import merge_sections, open_for_unit, to_plain
@@ -132,11 +133,13 @@ def run(args: argparse.Namespace) -> int:
     err = Console(stderr=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
                   transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task(f"reading {args.input}", total=1.0)
+        task = progress.add_task(f"reading {markup_safe(args.input)}", total=1.0)
         capture = read_capture(args.input)
         if capture.temp is None:
             raise InputFileError(args.input, "has no temperature; a thermal fit needs the 'temp' column",
                                  column="temp")
+        require_finite(capture, args.input, ("temp",), "a thermal fit needs the temperature of every sample; "
+                       "cut the rows without one, or fill them from their neighbours")
         # its accel and gyro sections calibrate the sweep: only the same unit's
         params = open_for_unit(args.output, capture.device, replace=args.replace)
         progress.update(task, description="fitting the thermal model", completed=0.0)
@@ -149,21 +152,22 @@ def run(args: argparse.Namespace) -> int:
                              accel_cal=params.accel, gyro_cal=params.gyro)
         fit = fit_thermal(sweep, settings, progress=lambda done: progress.update(task, completed=done))
         if args.plot:
-            progress.update(task, description=f"plotting {args.plot}")
+            progress.update(task, description=f"plotting {markup_safe(args.plot)}")
             from station.plots.thermal import plot_thermal
 
             plot_thermal(fit, args.plot)
-        progress.update(task, description=f"writing {args.output}")
+        progress.update(task, description=f"writing {markup_safe(args.output)}")
         merge_sections(args.output, capture.device, {"thermal": fit.model}, capture=args.input,
                        replace=args.replace)
     calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
     for message in fit.warnings:
-        print(f"warning: {message}", file=sys.stderr)
+        print(f"warning: {printable_message(message)}", file=sys.stderr)
     if args.json:
         report = fit.report()
         report.update({"input": str(args.input), "output": str(args.output), "calibrated": calibrated})
         print(json.dumps(to_plain(report), indent=2))
     else:
         print(format_report(fit, calibrated))
-        print(f"wrote the thermal section to {args.output}" + (f", plot {args.plot}" if args.plot else ""))
+        print(f"wrote the thermal section to {printable(args.output)}"
+              + (f", plot {printable(args.plot)}" if args.plot else ""))
     return ExitCode.OK

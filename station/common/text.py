@@ -11,9 +11,13 @@ goes through :func:`markup_safe`, which also escapes the markup.
 from __future__ import annotations
 
 MAX_CHARS = 120
+"""A value shown in a line of text: a serial, a name, a file name."""
+MAX_MESSAGE = 2000
+"""A whole message that holds values (an error, a warning): longer than any the station writes, short
+enough that a 60,000-character value in it does not flood the terminal."""
 
 
-def printable(value: object, max_chars: int = MAX_CHARS) -> str:
+def printable(value: object, max_chars: int = MAX_CHARS, escape_backslash: bool = True) -> str:
     """``value`` as one line of visible text: every character that is not printable (control
     characters, format characters such as bidirectional overrides, line separators) and the
     backslash become Python-style escapes (``\\x1b``, ``\\u202e``), so the text shows what was sent.
@@ -24,6 +28,10 @@ def printable(value: object, max_chars: int = MAX_CHARS) -> str:
         What the unit reported (``str()`` of it when it is not text).
     max_chars : int
         Longer results are cut and end with ``...``.
+    escape_backslash : bool
+        False for a message the station composed, whose values are already escaped (``repr()``,
+        or :func:`printable` itself): its backslashes are left as they are, so an escape is not
+        escaped twice; a control character left in it is still escaped.
 
     Returns
     -------
@@ -32,9 +40,27 @@ def printable(value: object, max_chars: int = MAX_CHARS) -> str:
         as ``rich.text.Text(printable(value))``, never as a markup string.
     """
     text = value if isinstance(value, str) else str(value)
-    if not (text.isprintable() and "\\" not in text):
-        text = "".join(ch if ch.isprintable() and ch != "\\" else _escape(ch) for ch in text)
+    plain = "" if escape_backslash else "\\"
+    if not (text.isprintable() and (plain or "\\" not in text)):
+        text = "".join(ch if (ch.isprintable() and ch != "\\") or ch == plain else _escape(ch) for ch in text)
     return text if len(text) <= max_chars else text[: max_chars - 3] + "..."
+
+
+def printable_message(message: object) -> str:
+    """A message the station composed (an error, a warning) with values in it, made safe to print:
+    :func:`printable` up to ``MAX_MESSAGE`` characters, its backslashes left as they are.
+
+    Parameters
+    ----------
+    message : object
+        The message, or the exception that carries it.
+
+    Returns
+    -------
+    str
+        One line without a control character.
+    """
+    return printable(message, MAX_MESSAGE, escape_backslash=False)
 
 
 def _escape(ch: str) -> str:

@@ -64,10 +64,12 @@ def print_mag_report(cal: MagCalibration, field_source: str, console: Console) -
     """
     from rich.table import Table
 
+    from station.common.text import MAX_MESSAGE, markup_safe
+
     console.print(f"[bold]{cal.method}[/] (frame: {cal.frame}), forward model raw = A true + b, microtesla")
     field_sd = cal.stddev.get("field_norm")
     field_text = _pm(cal.field_norm, field_sd if isinstance(field_sd, float) else None, 3)
-    console.print(f"field magnitude F = {field_text} uT ({field_source})")
+    console.print(f"field magnitude F = {field_text} uT ({markup_safe(field_source)})")
     console.print(f"coverage: {cal.coverage.share:.0%} of the sphere of field directions"
                   + (f"; missing: {', '.join(cal.coverage.missing[:6])}" if cal.coverage.missing else ""))
     table = Table(title="magnetometer: hard iron b and matrix A (1-sigma)")
@@ -89,4 +91,4 @@ def print_mag_report(cal: MagCalibration, field_source: str, console: Console) -
     dip_text = "" if cal.dip_rms is None else f"; dip {cal.dip_rms:.3g} uT RMS over {cal.still} still poses"
     console.print(f"residuals: |true| - F {cal.residual_rms:.3g} uT RMS over {cal.samples} samples{dip_text}")
     for w in cal.warnings:
-        console.print(f"[yellow]warning:[/] {w}")
+        console.print(f"[yellow]warning:[/] {markup_safe(w, MAX_MESSAGE)}")

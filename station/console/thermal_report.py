@@ -6,6 +6,7 @@ import math
 from typing import TYPE_CHECKING
 
 from protocols.units import STANDARD_GRAVITY
+from station.common.text import printable
 
 if TYPE_CHECKING:
     from station.engines.thermal.fit import ThermalFit
@@ -34,7 +35,8 @@ def format_report(fit: ThermalFit, calibrated: dict[str, bool]) -> str:
     lines = [
         f"temperature {fit.block_temp.min():.1f} .. {fit.block_temp.max():.1f} degC, dT "
         f"{fit.block_dtemp.min() * 60:.2f} .. {fit.block_dtemp.max() * 60:.2f} degC/min, "
-        f"{len(fit.block_temp)} blocks of {fit.block_s:g} s, poses {', '.join(fit.poses)}",
+        f"{len(fit.block_temp)} blocks of {fit.block_s:g} s, "
+        f"poses {', '.join(printable(p) for p in fit.poses)}",
         f"T_ref {m.reference_temp:g} degC, dT filter ema tau {m.dtemp_filter.tau_s:g} s",
     ]
     for name, tri in fit.triads.items():

@@ -57,6 +57,7 @@ import yaml
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition import sequences
 from station.acquisition.sequences import Sequence
+from station.common.text import printable
 from station.common.yaml_file import read_yaml
 from station.errors import InputFileError, StationError
 from station.instruments.bench import InstrumentPlan, OnAbort, check_on_abort
@@ -164,6 +165,15 @@ class Plan:
         return None
 
 
+KEY_CHARS = 60
+"""The most of a key or value of the file an error message shows."""
+
+
+def _shown(text: str) -> str:
+    """A key or value of the file in an error message: quoted, escaped and cut (a key may be anything)."""
+    return f"'{printable(text, KEY_CHARS)}'"
+
+
 class _Reader:
     """Walks the composed YAML nodes so every refusal can name its line."""
 
@@ -172,7 +182,9 @@ class _Reader:
 
     def fail(self, node: yaml.Node | None, problem: str, column: str | None = None) -> InputFileError:
         line = node.start_mark.line + 1 if node is not None else None
-        return InputFileError(self.path, problem, line=line, column=column)
+        # a key is the file's text: escaped and cut here, as the repr() of a key in a problem is
+        return InputFileError(self.path, problem, line=line,
+                              column=None if column is None else printable(column, KEY_CHARS))
 
     def mapping(self, node: yaml.Node, known: set[str], what: str) -> dict[str, yaml.Node]:
         if not isinstance(node, yaml.MappingNode):
@@ -181,10 +193,10 @@ class _Reader:
         for key_node, value_node in node.value:
             key = self.scalar(key_node, "a key")
             if known and key not in known:
-                raise self.fail(key_node, f"unknown key {key!r} in {what}; known keys are "
+                raise self.fail(key_node, f"unknown key {_shown(key)} in {what}; known keys are "
                                 f"{', '.join(sorted(known))}", column=key)
             if key in out:
-                raise self.fail(key_node, f"key {key!r} appears twice in {what}", column=key)
+                raise self.fail(key_node, f"key {_shown(key)} appears twice in {what}", column=key)
             out[key] = value_node
         return out
 
@@ -417,14 +429,14 @@ def _limits(r: _Reader, node: yaml.Node) -> tuple[LimitSpec, ...]:
     for quantity, value_node in entries.items():
         key_node = next(k for k, v in node.value if v is value_node)
         if quantity not in QUANTITIES:
-            raise r.fail(key_node, f"unknown quantity {quantity!r}; limits can be set on "
+            raise r.fail(key_node, f"unknown quantity {_shown(quantity)}; limits can be set on "
                          f"{', '.join(QUANTITIES)}", column=quantity)
         dimension = QUANTITIES[quantity][0]
         spec = r.mapping(value_node, _LIMIT, f"the limit of {quantity}")
         unit = r.scalar(spec["unit"], "'unit'") if "unit" in spec else SI_UNIT[dimension]
         allowed = [u for u, (d, _) in UNITS.items() if d == dimension]
         if unit not in UNITS or UNITS[unit][0] != dimension:
-            raise r.fail(spec.get("unit", value_node), f"unit {unit!r} is not a unit of {quantity} "
+            raise r.fail(spec.get("unit", value_node), f"unit {_shown(unit)} is not a unit of {quantity} "
                          f"({dimension}); use one of {', '.join(repr(u) for u in allowed)}", column="unit")
         if "max_abs" in spec and ("min" in spec or "max" in spec):
             raise r.fail(spec["max_abs"], "give either 'max_abs' or 'min'/'max', not both", column="max_abs")
