@@ -8,29 +8,56 @@ Records are stored in SQLite (WAL mode, so several station processes write one f
 PostgreSQL (``postgresql://...``, through psycopg: the optional extra ``postgres``), in the
 tables ``runs``, ``phases``, ``measurements`` and ``attachments``; ``runs.record`` also keeps the
 whole record as JSON, which is what queries return.
+
+A store opened ``readonly`` (every command that only reads) never takes a write lock, and a
+writer's store takes one only to create the tables of a new database; a lock held by another
+process is waited for a bounded time (:data:`READ_WAIT_S`, :data:`WRITE_WAIT_S`, or
+``$IMU_STATION_DB_WAIT``), then reported in one line. A damaged file, a file that is not a
+database, or a database of another table layout is refused in one line naming the file; a row
+whose JSON is not a record is refused in one line naming its run, and the other rows are read.
+
+Why this module is long: the record's dataclasses and the store that writes and reads them are one
+schema, kept in one place so the tables and the JSON cannot drift apart.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
+import logging
 import sqlite3
 import time
+import urllib.parse
 import uuid
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from station.common.files import sha256_file
+from station.common.text import printable
 from station.errors import ExitCode, StationError
+from station.factory.record_checks import BadRecord, attachment_problem, build, hash_problem, parse_json
+from station.factory.store_errors import (
+    RecordStoreError,
+    RecordsUnavailable,
+    db_error,
+    is_db_error,
+    wait_s,
+)
+
+__all__ = ["Attachment", "BadRecord", "Measurement", "Phase", "RecordStore", "RecordStoreError",
+           "RecordsUnavailable", "RunRecord", "sha256_file", "utc_now"]
 
 SCHEMA = "imu-station/record/1"
 OUTCOMES = ("PASS", "FAIL", "ABORTED", "TIMEOUT", "ERROR")
 EXIT_CODES = {"PASS": ExitCode.OK, "FAIL": ExitCode.OUT_OF_LIMITS, "ABORTED": ExitCode.ABORTED,
               "ERROR": ExitCode.DEVICE, "TIMEOUT": ExitCode.TIMEOUT}
-
-
+READ_WAIT_S = 5.0
+"""How long a command that only reads waits for another process's lock before saying so."""
+WRITE_WAIT_S = 30.0
+"""How long a run waits for another process's lock before keeping its record pending."""
+log = logging.getLogger("imu_station.records")
 def utc_now() -> str:
     """Now in UTC, ISO 8601 with microseconds: sorts as text, in SQLite and PostgreSQL alike."""
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
@@ -113,24 +140,47 @@ class RunRecord:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RunRecord:
-        """Read a record written by :meth:`to_dict`; refuses another schema (StationError)."""
-        if d.get("schema") != SCHEMA:
-            raise StationError(f"a stored record has schema {d.get('schema')!r}, this station reads "
-                               f"{SCHEMA!r}")
-        phases = [Phase(**{**p, "measurements": [Measurement(**m) for m in p["measurements"]],
-                           "attachments": [Attachment(**a) for a in p["attachments"]]}) for p in d["phases"]]
-        return cls(**{**d, "phases": phases})
+    def from_dict(cls, d: dict[str, Any], where: str = "a stored record") -> RunRecord:
+        """Read a record written by :meth:`to_dict`, every field checked against its type.
 
-    def verify(self) -> list[str]:
-        """Problems with the attachments on disk (missing, or a SHA-256 that differs); empty when intact."""
+        Parameters
+        ----------
+        d : dict
+            The record as plain data.
+        where : str
+            What to name in an error (the database row, the file).
+
+        Raises
+        ------
+        BadRecord
+            Another schema, a field missing or of another type (a reader refuses the row).
+        """
+        if not isinstance(d, dict) or d.get("schema") != SCHEMA:
+            shown = printable(d.get("schema"), 60) if isinstance(d, dict) else type(d).__name__
+            raise BadRecord(f"{where}: schema {shown!r}, this station reads {SCHEMA!r}")
+        record: RunRecord = build(cls, d, where)
+        return record
+
+    @classmethod
+    def from_json(cls, text: object, where: str) -> RunRecord:
+        """:meth:`from_dict` of the JSON text ``text`` (a database row, a spooled file); BadRecord."""
+        return cls.from_dict(parse_json(text, where), where)
+
+    def attachment_file(self, a: Attachment, root: Path | None = None) -> Path | None:
+        """Where the attachment ``a`` is, if it may be read: a path inside the record's files folder
+        (inside ``root`` too, when given); None for an absolute path, ``..`` or a link out of it."""
+        return None if attachment_problem(self.files_dir, a.path, root) else Path(self.files_dir) / a.path
+
+    def verify(self, root: Path | None = None) -> list[str]:
+        """Problems with the attachments on disk (missing, not readable as the record's, or a SHA-256
+        that differs); empty when intact. Only regular files inside the record's files folder (and
+        ``root``, when given) are read, never more bytes than recorded (:mod:`record_checks`)."""
         problems = []
         for a in self.attachments():
             path = Path(self.files_dir) / a.path
-            if not path.exists():
-                problems.append(f"{path}: missing")
-            elif sha256_file(path) != a.sha256:
-                problems.append(f"{path}: SHA-256 differs from the record's")
+            problem = attachment_problem(self.files_dir, a.path, root) or hash_problem(path, a.size, a.sha256)
+            if problem:
+                problems.append(f"{printable(path, 1000)}: {problem}")
         return problems
 
 
@@ -153,6 +203,18 @@ _DDL = [
         run_id TEXT NOT NULL, phase TEXT NOT NULL, name TEXT NOT NULL, path TEXT NOT NULL,
         sha256 TEXT NOT NULL, size BIGINT NOT NULL, mimetype TEXT NOT NULL, PRIMARY KEY (run_id, name))""",
 ]
+
+
+def _number(value: object, optional: bool = False) -> bool:
+    return (value is None and optional) or (isinstance(value, int | float) and not isinstance(value, bool))
+
+
+def _measurement_row_ok(row: tuple) -> bool:
+    """A measurement row as the station writes it: text name and unit, a number, numbers or nulls for
+    the limits (a foreign or hand-edited row may hold text anywhere)."""
+    name, unit, value, low, high = row[:5]
+    return isinstance(name, str) and isinstance(unit, str) and _number(value) and _number(low, True) \
+        and _number(high, True)
 
 
 def _date_bound(text: str, end: bool, what: str) -> str:
@@ -190,7 +252,7 @@ def _filters(serial: str | None, since: str | None, until: str | None, station: 
     return where, params
 
 
-def _enable_wal(conn: sqlite3.Connection, wait_s: float = 30.0) -> None:
+def _enable_wal(conn: sqlite3.Connection, wait_s: float) -> None:
     """Switch to write-ahead logging. While another station creates the same new database, the switch
     can fail at once with "database is locked" (SQLite does not call the busy handler for it), so it is
     retried until ``wait_s`` has passed."""
@@ -205,50 +267,126 @@ def _enable_wal(conn: sqlite3.Connection, wait_s: float = 30.0) -> None:
             time.sleep(0.05)
 
 
+# The columns of each table as _DDL creates them: a database without them is another program's.
+_COLUMNS = {
+    "meta": {"key", "value"},
+    "runs": {"run_id", "serial", "station", "plan_name", "plan_sha256", "start_utc", "end_utc", "outcome",
+             "exit_code", "reason", "files_dir", "record"},
+    "phases": {"run_id", "idx", "name", "outcome", "start_utc", "end_utc"},
+    "measurements": {"run_id", "phase", "name", "value", "text_value", "unit", "low", "high", "outcome"},
+    "attachments": {"run_id", "phase", "name", "path", "sha256", "size", "mimetype"},
+}
 class RecordStore:
     """Where records go: ``RecordStore.open('records.sqlite')`` or ``open('postgresql://...')``."""
 
-    def __init__(self, conn: Any, placeholder: str, url: str):
+    def __init__(self, conn: Any, placeholder: str, url: str, wait: float = 0.0):
         self.conn = conn
         self.ph = placeholder
         self.url = url
+        self.wait = wait
 
     @classmethod
-    def open(cls, url: str | Path) -> RecordStore:
-        """The store at ``url``: ``postgresql://...``, ``sqlite:///path`` or a path of a SQLite file."""
+    def open(cls, url: str | Path, readonly: bool = False, wait: float | None = None) -> RecordStore:
+        """The store at ``url``: ``postgresql://...``, ``sqlite:///path`` or a path of a SQLite file.
+
+        Parameters
+        ----------
+        url : str or Path
+            The database.
+        readonly : bool
+            Only read: never create, never take a write lock (SQLite opens the file read-only).
+        wait : float, optional
+            Seconds to wait for another process's lock; default :func:`wait_s` of
+            :data:`READ_WAIT_S` or :data:`WRITE_WAIT_S`.
+
+        Raises
+        ------
+        RecordsUnavailable
+            Locked past the wait, read-only for a writer, or unreachable.
+        RecordStoreError
+            Not a file, damaged, not a database, another table layout or schema.
+        """
         url = str(url)
+        wait = wait_s(READ_WAIT_S if readonly else WRITE_WAIT_S) if wait is None else wait
         if url.startswith(("postgresql://", "postgres://")):
-            return cls._open_postgres(url)
+            return cls._open_postgres(url, readonly, wait)
         path = Path(url.removeprefix("sqlite:///")) if url.startswith("sqlite:///") else Path(url)
-        return cls._open_sqlite(path)
+        return cls._open_sqlite(path, readonly, wait)
 
     @classmethod
-    def _open_sqlite(cls, path: Path) -> RecordStore:
+    def _open_sqlite(cls, path: Path, readonly: bool, wait: float) -> RecordStore:
+        shown = printable(path, 1000)
+        if path.exists() and not path.is_file():
+            raise RecordStoreError(f"--db {shown}: not a file; give the SQLite file 'imu-station run' wrote "
+                                   "(or set IMU_STATION_DB)")
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            conn = sqlite3.connect(path, timeout=30.0, isolation_level=None)
-            conn.execute("PRAGMA busy_timeout=30000")
-            _enable_wal(conn)
+            if readonly:
+                conn = cls._connect_readonly(path, wait)
+            else:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                conn = sqlite3.connect(path, timeout=wait, isolation_level=None)
+            conn.execute(f"PRAGMA busy_timeout={int(wait * 1000)}")
         except (sqlite3.Error, OSError) as exc:
-            raise StationError(f"--db {path}: cannot open the SQLite record database: {exc}") from None
-        store = cls(conn, "?", str(path))
-        store._create()
+            raise db_error(exc, shown, wait, "open") from None
+        store = cls(conn, "?", str(path), wait)
+        try:
+            with store._errors("open"):
+                if store._layout() == "empty":
+                    if readonly:
+                        raise RecordStoreError(f"--db {shown}: holds no record table; give the database "
+                                               "'imu-station run' wrote")
+                    _enable_wal(conn, wait)
+                    store._create()
+                else:
+                    store._check_schema()
+                    if not readonly and conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
+                        _enable_wal(conn, wait)
+        except BaseException:
+            conn.close()
+            raise
         return store
 
+    @staticmethod
+    def _connect_readonly(path: Path, wait: float) -> sqlite3.Connection:
+        uri = "file:" + urllib.parse.quote(str(path.resolve())) + "?mode=ro"
+        try:
+            return sqlite3.connect(uri, uri=True, timeout=wait, isolation_level=None)
+        except sqlite3.OperationalError:
+            # A folder this process cannot write (a read-only share) cannot hold the WAL index a reader
+            # needs; with no WAL file beside, everything is in the file and can be read as immutable.
+            if Path(f"{path}-wal").exists() or not path.is_file():
+                raise
+            return sqlite3.connect(uri + "&immutable=1", uri=True, timeout=wait, isolation_level=None)
+
     @classmethod
-    def _open_postgres(cls, url: str) -> RecordStore:
+    def _open_postgres(cls, url: str, readonly: bool, wait: float) -> RecordStore:
         try:
             import psycopg
         except ImportError:
             raise StationError("--db postgresql://...: psycopg is not installed; install the extra: "
                                "pip install 'imu-station[postgres]'") from None
+        shown = url.split("@")[-1]
         try:
             conn = psycopg.connect(url, autocommit=True, connect_timeout=10)
+            if readonly:
+                conn.execute("SET default_transaction_read_only = on")
+            conn.execute(f"SET lock_timeout = {int(wait * 1000)}")
         except psycopg.Error as exc:
-            shown = url.split("@")[-1]
-            raise StationError(f"--db postgresql://...@{shown}: cannot connect: {exc}".strip()) from None
-        store = cls(conn, "%s", url)
-        store._create()
+            raise RecordsUnavailable(f"--db postgresql://...@{shown}: cannot connect: {exc}".strip()) \
+                from None
+        store = cls(conn, "%s", url, wait)
+        try:
+            with store._errors("open"):
+                if readonly:
+                    if store._layout() == "empty":
+                        raise RecordStoreError(f"--db postgresql://...@{shown}: holds no record table")
+                    store._check_schema()
+                else:
+                    store._layout()  # refuses another program's tables of our names
+                    store._create()
+        except BaseException:
+            conn.close()
+            raise
         return store
 
     @property
@@ -258,6 +396,58 @@ class RecordStore:
 
     def _sql(self, text: str) -> str:
         return text.replace("?", self.ph)
+
+    @property
+    def _shown(self) -> str:
+        if self.is_postgres:
+            return f"postgresql://...@{self.url.split('@')[-1]}"
+        return printable(self.url, 1000)
+
+    def _errors(self, doing: str) -> Any:
+        """A context that turns a database's own errors into one line naming the database."""
+        store = self
+
+        class _Errors:
+            def __enter__(self) -> None:
+                return None
+
+            def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> Literal[False]:
+                if exc is None or isinstance(exc, StationError) or not is_db_error(exc):
+                    return False
+                raise db_error(exc, store._shown, store.wait, doing) from None
+
+        return _Errors()
+
+    def _layout(self) -> str:
+        """``empty`` (no table at all: a new database), else ``ours``; RecordStoreError for a database
+        holding other tables, or ours without their columns."""
+        if self.is_postgres:
+            rows = self.rows("SELECT table_name, column_name FROM information_schema.columns "
+                             "WHERE table_schema = current_schema()")
+        else:
+            rows = self.rows("SELECT m.name, p.name FROM sqlite_master m JOIN pragma_table_info(m.name) p "
+                             "WHERE m.type = 'table'")
+        columns: dict[str, set[str]] = {}
+        for table, column in rows:
+            columns.setdefault(str(table), set()).add(str(column))
+        if not columns:
+            return "empty"
+        lacking = [t for t, cols in _COLUMNS.items() if not cols <= columns.get(t, set())]
+        if lacking:
+            if self.is_postgres and not set(_COLUMNS) & set(columns):
+                return "empty"  # a PostgreSQL database holds other applications' tables beside ours
+            raise RecordStoreError(
+                f"--db {self._shown}: not a record database of this station (another table layout: "
+                f"{', '.join(lacking)} {'differs' if len(lacking) == 1 else 'differ'}); give the database "
+                "'imu-station run' wrote")
+        return "ours"
+
+    def _check_schema(self) -> None:
+        row = self.rows("SELECT value FROM meta WHERE key = ?", ("schema",))
+        if row and row[0][0] != SCHEMA:
+            raise RecordStoreError(f"--db {self._shown}: holds records of schema "
+                                   f"{printable(row[0][0], 60)!r}, this station writes {SCHEMA!r}; use "
+                                   "another database")
 
     def _create(self) -> None:
         with self._transaction() as cur:
@@ -271,8 +461,9 @@ class RecordStore:
             if row is None:
                 cur.execute(self._sql("INSERT INTO meta (key, value) VALUES (?, ?)"), ("schema", SCHEMA))
             elif row[0] != SCHEMA:
-                raise StationError(f"--db {self.url}: holds records of schema {row[0]!r}, this station "
-                                   f"writes {SCHEMA!r}; use another database")
+                raise RecordStoreError(f"--db {self._shown}: holds records of schema "
+                                       f"{printable(row[0], 60)!r}, this station writes {SCHEMA!r}; use "
+                                       "another database")
 
     def _transaction(self) -> Any:
         store = self
@@ -293,8 +484,14 @@ class RecordStore:
                     self.cur.close()
                     self.tx.__exit__(exc_type, exc, tb)
                 else:
-                    store.conn.execute("COMMIT" if exc_type is None else "ROLLBACK")
-                    self.cur.close()
+                    try:
+                        store.conn.execute("COMMIT" if exc_type is None else "ROLLBACK")
+                    except sqlite3.Error:
+                        if exc_type is None:
+                            raise
+                        # the statement's own error says more than a failed rollback of nothing
+                    finally:
+                        self.cur.close()
 
         return _Tx()
 
@@ -319,7 +516,7 @@ class RecordStore:
                                          m.high, m.outcome))
                 attachments += [(record.run_id, phase.name, a.name, a.path, a.sha256, a.size, a.mimetype)
                                 for a in phase.attachments]
-        with self._transaction() as cur:
+        with self._errors("write"), self._transaction() as cur:
             for table in ("attachments", "measurements", "phases", "runs"):
                 cur.executemany(self._sql(f"DELETE FROM {table} WHERE run_id = ?"), [(r[0],) for r in runs])
             cur.executemany(self._sql(
@@ -336,12 +533,30 @@ class RecordStore:
                 "VALUES (?, ?, ?, ?, ?, ?, ?)"), attachments)
 
     def query(self, serial: str | None = None, since: str | None = None, until: str | None = None,
-              station: str | None = None, outcome: str | None = None) -> list[RunRecord]:
-        """Records in start order; ``since``/``until`` are dates or ISO date-times (UTC when unzoned)."""
+              station: str | None = None, outcome: str | None = None,
+              refused: list[str] | None = None) -> list[RunRecord]:
+        """Records in start order; ``since``/``until`` are dates or ISO date-times (UTC when unzoned).
+
+        A row whose JSON is not a record (:class:`BadRecord`) is left out, with one line naming its
+        run appended to ``refused`` (when given, else logged as a warning)."""
         where, params = _filters(serial, since, until, station, outcome)
-        sql = "SELECT record FROM runs" + (" WHERE " + " AND ".join(where) if where else "")
+        sql = "SELECT run_id, record FROM runs" + (" WHERE " + " AND ".join(where) if where else "")
         sql += " ORDER BY start_utc, run_id"
-        return [RunRecord.from_dict(json.loads(row[0])) for row in self.rows(sql, params)]
+        records = []
+        for run_id, text in self.rows(sql, params):
+            try:
+                records.append(RunRecord.from_json(text, f"{self._shown}: run {printable(run_id, 40)}"))
+            except BadRecord as exc:
+                self._refuse(exc, refused)
+        return records
+
+    def _refuse(self, exc: BadRecord, refused: list[str] | None) -> None:
+        """One line for a row that is not a record: into ``refused``, else the log (stderr)."""
+        line = f"{exc}; refused, the other records are read"
+        if refused is not None:
+            refused.append(line)
+        else:
+            log.warning("%s", line)
 
     def run_rows(self, serial: str | None = None, since: str | None = None, until: str | None = None,
                  station: str | None = None, outcome: str | None = None) -> list[tuple]:
@@ -355,7 +570,7 @@ class RecordStore:
 
     def measurement_values(self, serial: str | None = None, since: str | None = None,
                            until: str | None = None, station: str | None = None,
-                           outcome: str | None = None) -> list[tuple]:
+                           outcome: str | None = None, refused: list[str] | None = None) -> list[tuple]:
         """Every numeric measurement of the runs the filters select, each naming its run by position.
 
         The fleet report reads these rows rather than the records' JSON: one join, small rows, no
@@ -370,15 +585,27 @@ class RecordStore:
         -------
         list of tuple
             ``(name, unit, value, low, high, run, failed)``: ``run`` is the run's 1-based position in
-            :meth:`run_rows` (start order), ``failed`` 1 when it was judged FAIL, else 0.
+            :meth:`run_rows` (start order), ``failed`` 1 when it was judged FAIL, else 0. A row of
+            another type (text where a number belongs) is left out, its run named once in
+            ``refused`` (when given, else logged as a warning).
         """
         where, params = _filters(serial, since, until, station, outcome)
         sql = ("WITH sel AS (SELECT run_id, ROW_NUMBER() OVER (ORDER BY start_utc, run_id) AS pos FROM runs"
                + (" WHERE " + " AND ".join(where) if where else "") + ") "
                "SELECT m.name, m.unit, m.value, m.low, m.high, sel.pos, "
-               "CASE WHEN m.outcome = 'FAIL' THEN 1 ELSE 0 END "
+               "CASE WHEN m.outcome = 'FAIL' THEN 1 ELSE 0 END, m.run_id "
                "FROM measurements m JOIN sel ON sel.run_id = m.run_id WHERE m.value IS NOT NULL")
-        return self.rows(sql, params)
+        kept: list[tuple] = []
+        bad: dict[Any, Any] = {}  # run id -> the first measurement refused
+        for row in self.rows(sql, params):
+            if _measurement_row_ok(row):
+                kept.append(row[:7])
+            else:
+                bad.setdefault(row[7], row[0])
+        for run_id, name in bad.items():
+            self._refuse(BadRecord(f"{self._shown}: run {printable(run_id, 40)}: measurement "
+                                   f"{printable(name, 60)!r} is not a number with numeric limits"), refused)
+        return kept
 
     def attachment_paths(self, name: str, serial: str | None = None, since: str | None = None,
                          until: str | None = None, station: str | None = None,
@@ -395,33 +622,31 @@ class RecordStore:
         Returns
         -------
         dict of str to Path
-            Run id to the file's path (its record's files folder joined with the attachment's path).
+            Run id to the file's path (its record's files folder joined with the attachment's path);
+            a path leading outside that folder is left out.
         """
         where, params = _filters(serial, since, until, station, outcome, prefix="r.")
         sql = ("SELECT r.run_id, r.files_dir, a.path FROM attachments a JOIN runs r ON r.run_id = a.run_id "
                "WHERE a.name = ?" + "".join(f" AND {w}" for w in where))
-        return {run_id: Path(files_dir) / path for run_id, files_dir, path in self.rows(sql, [name, *params])}
+        return {str(run_id): Path(files_dir) / path
+                for run_id, files_dir, path in self.rows(sql, [name, *params])
+                if isinstance(files_dir, str) and isinstance(path, str)
+                and not attachment_problem(files_dir, path)}
 
     def table_counts(self) -> dict[str, int]:
         """Rows per table (consistency checks)."""
-        cur = self.conn.cursor()
-        try:
-            out = {}
-            for table in ("runs", "phases", "measurements", "attachments"):
-                cur.execute(f"SELECT COUNT(*) FROM {table}")
-                out[table] = int(cur.fetchone()[0])
-            return out
-        finally:
-            cur.close()
+        return {table: int(self.rows(f"SELECT COUNT(*) FROM {table}")[0][0])
+                for table in ("runs", "phases", "measurements", "attachments")}
 
     def rows(self, sql: str, params: Iterable[Any] = ()) -> list[tuple]:
         """Raw rows of a read query written with ``?`` placeholders (for reports and tests)."""
-        cur = self.conn.cursor()
-        try:
-            cur.execute(self._sql(sql), tuple(params))
-            return [tuple(r) for r in cur.fetchall()]
-        finally:
-            cur.close()
+        with self._errors("read"):
+            cur = self.conn.cursor()
+            try:
+                cur.execute(self._sql(sql), tuple(params))
+                return [tuple(r) for r in cur.fetchall()]
+            finally:
+                cur.close()
 
     def close(self) -> None:
         """Close the database connection."""
