@@ -19,9 +19,9 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
      ├── MavlinkUnavailable               the MAVLink protocol needs pymavlink (protocols)
      ├── FrameDescriptionError            a frame description breaks its schema's rules (protocols)
      ├── DescriptionError                 an instrument description breaks its schema (drivers.instruments)
- ├── RecordStoreError                 the record database is damaged, foreign or unreachable (factory)
- │    └── RecordsUnavailable          locked or read-only now: a run's record waits, pending
- ├── BadRecord                        a stored record that is not one: its row is refused (factory)
+     ├── RecordStoreError                 the record database is damaged, foreign or unreachable (factory)
+     │    └── RecordsUnavailable          locked or read-only now: a run's record waits, pending
+     ├── BadRecord                        a stored record that is not one: its row is refused (factory)
      └── DriverError                      exit 3: device or link (drivers, see drivers.errors)
           ├── PortError                   opening the port failed
           │    ├── PortNotFound
