@@ -22,7 +22,14 @@ SCHEMA = "imu-station/frame/1"
 MAX_SYNC = 8
 MAX_LENGTH = 4096
 """The longest frame described (bytes); an IMU frame is a few tens."""
-MAX_RATE_HZ = 1_000_000.0
+MIN_RATE_HZ = 0.1
+"""The slowest ``rate_hz``: one frame in ten seconds (a smaller rate is a typo, and 1e-300 made
+every sample's time overflow)."""
+MAX_RATE_HZ = 100_000.0
+"""The fastest ``rate_hz``: above the fastest IMU outputs (32 kHz), within the clock's microseconds."""
+MAX_NAME = 64
+SHOWN_CHARS = 60
+"""The most of a value a message repeats (a name may be 60,000 characters)."""
 
 # Field types: numpy's scalar kind and size in bytes. 24-bit integers have no numpy type; the
 # decoder assembles them from their three bytes.
@@ -60,7 +67,9 @@ class FrameDescriptionError(StationError, ValueError):
     @property
     def where(self) -> str:
         """The key as the message names it: ``key 'fields[3].at' (field gx)``."""
-        text = "".join(f"[{k}]" if isinstance(k, int) else f".{k}" for k in self.keys).lstrip(".")
+        # a key may be the file's own (an unknown one): escaped and cut as a value is
+        text = "".join(f"[{k}]" if isinstance(k, int) else f".{_cut(repr(str(k))[1:-1])}"
+                       for k in self.keys).lstrip(".")
         where = f"key '{text}'" if text else "the description"
         return where + (f" (field {self.field})" if self.field else "")
 
@@ -120,6 +129,16 @@ class FrameDescription:
         return next((f for f in self.fields if f.name == name), None)
 
 
+def shown(value: Any) -> str:
+    """``repr(value)`` for a message, cut to ``SHOWN_CHARS`` (this layer has no ``station.common.text``;
+    repr() escapes what a terminal would act on, the cut keeps a huge value out of the message)."""
+    return _cut(repr(value))
+
+
+def _cut(text: str) -> str:
+    return text if len(text) <= SHOWN_CHARS else text[: SHOWN_CHARS - 3] + "..."
+
+
 def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -145,12 +164,12 @@ class _Checker:
 
     def integer(self, value: Any, keys: tuple, low: int, high: int, field: str | None = None) -> int:
         if not _is_int(value) or not low <= value <= high:
-            raise FrameDescriptionError(keys, f"{value!r}: give an integer {low}..{high}", field)
+            raise FrameDescriptionError(keys, f"{shown(value)}: give an integer {low}..{high}", field)
         return int(value)
 
     def byte_order(self, value: Any, keys: tuple, field: str | None = None) -> str:
         if value not in BYTE_ORDERS:
-            raise FrameDescriptionError(keys, f"{value!r}: give little or big", field)
+            raise FrameDescriptionError(keys, f"{shown(value)}: give little or big", field)
         return str(value)
 
     def offset(self, value: Any, keys: tuple, length: int, what: str) -> int:
@@ -166,7 +185,7 @@ class _Checker:
 def _sync(checker: _Checker, value: Any) -> bytes:
     values = [value] if _is_int(value) else value
     if not isinstance(values, list) or not 1 <= len(values) <= MAX_SYNC:
-        raise FrameDescriptionError(("sync",), f"{value!r}: give a list of 1..{MAX_SYNC} bytes, e.g. "
+        raise FrameDescriptionError(("sync",), f"{shown(value)}: give a list of 1..{MAX_SYNC} bytes, e.g. "
                                     "[0xAA, 0x55]")
     return bytes(checker.integer(v, ("sync", i), 0, 255) for i, v in enumerate(values))
 
@@ -176,11 +195,12 @@ def _checksum(checker: _Checker, value: Any, length: int, sync_len: int, order: 
     if isinstance(value, str):
         value = {"type": value}
     if not isinstance(value, Mapping):
-        raise FrameDescriptionError(keys, f"{value!r}: give a mapping with type (and from, to, at)")
+        raise FrameDescriptionError(keys, f"{shown(value)}: give a mapping with type (and from, to, at)")
     checker.known_keys(value, CHECKSUM_KEYS, keys)
     kind = value.get("type")
     if kind not in CHECKSUM_TYPES:
-        raise FrameDescriptionError((*keys, "type"), f"{kind!r}: give one of {', '.join(CHECKSUM_TYPES)}")
+        raise FrameDescriptionError((*keys, "type"), f"{shown(kind)}: give one of "
+                                    f"{', '.join(CHECKSUM_TYPES)}")
     if kind == "none":
         return None
     size = CHECKSUM_SIZES[kind]
@@ -207,14 +227,17 @@ def _field(checker: _Checker, value: Any, index: int, length: int, order: str, s
            checksum: ChecksumSpec | None) -> FieldSpec:
     keys: tuple[str | int, ...] = ("fields", index)
     if not isinstance(value, Mapping):
-        raise FrameDescriptionError(keys, f"{value!r}: give a mapping {{name: ax, at: 8, type: i16, ...}}")
+        raise FrameDescriptionError(keys, f"{shown(value)}: give a mapping "
+                                    "{name: ax, at: 8, type: i16, ...}")
     name = value.get("name")
     if name not in FIELD_NAMES:
-        raise FrameDescriptionError((*keys, "name"), f"{name!r}: give one of {', '.join(FIELD_NAMES)}")
+        raise FrameDescriptionError((*keys, "name"), f"{shown(name)}: give one of "
+                                    f"{', '.join(FIELD_NAMES)}")
     checker.known_keys(value, FIELD_KEYS, keys, name)
     kind = value.get("type")
     if kind not in FIELD_TYPES:
-        raise FrameDescriptionError((*keys, "type"), f"{kind!r}: give one of {' '.join(FIELD_TYPES)}", name)
+        raise FrameDescriptionError((*keys, "type"), f"{shown(kind)}: give one of "
+                                    f"{' '.join(FIELD_TYPES)}", name)
     if name == "seq" and FIELD_TYPES[kind][0] == "f":
         raise FrameDescriptionError((*keys, "type"), f"{kind}: a sample counter is an integer type", name)
     if "at" not in value:
@@ -235,7 +258,7 @@ def _field(checker: _Checker, value: Any, index: int, length: int, order: str, s
         number = value.get(key, default)
         if not _is_number(number) or (key == "scale" and number == 0):
             what = "a finite number other than 0" if key == "scale" else "a finite number"
-            raise FrameDescriptionError((*keys, key), f"{number!r}: give {what}", name)
+            raise FrameDescriptionError((*keys, key), f"{shown(number)}: give {what}", name)
         numbers[key] = float(number)
     byte_order = checker.byte_order(value.get("byte_order", order), (*keys, "byte_order"), name)
     return FieldSpec(str(name), at, str(kind), numbers["scale"], numbers["offset"], byte_order)
@@ -264,10 +287,12 @@ def describe(doc: Any, default_name: str = "frame") -> FrameDescription:
     checker = _Checker(doc)
     checker.known_keys(doc, TOP_KEYS, ())
     if doc.get("schema") != SCHEMA:
-        raise FrameDescriptionError(("schema",), f"{doc.get('schema')!r}: this station reads schema {SCHEMA}")
+        raise FrameDescriptionError(("schema",), f"{shown(doc.get('schema'))}: this station reads schema "
+                                    f"{SCHEMA}")
     name = doc.get("name", default_name)
-    if not isinstance(name, str) or not name.strip() or len(name) > 64 or not name.isprintable():
-        raise FrameDescriptionError(("name",), f"{name!r}: give a printable name of up to 64 characters")
+    if not isinstance(name, str) or not name.strip() or len(name) > MAX_NAME or not name.isprintable():
+        raise FrameDescriptionError(("name",), f"{shown(name)}: give a printable name of up to {MAX_NAME} "
+                                    "characters")
     order = checker.byte_order(doc.get("byte_order", "little"), ("byte_order",))
     if "sync" not in doc:
         raise FrameDescriptionError((), "missing key 'sync' (the bytes that start every frame)")
@@ -292,9 +317,9 @@ def describe(doc: Any, default_name: str = "frame") -> FrameDescription:
     if missing:
         raise FrameDescriptionError(("fields",), f"missing required field(s) {', '.join(missing)}")
     rate_hz = doc.get("rate_hz")
-    if rate_hz is not None and (not _is_number(rate_hz) or not 0 < rate_hz <= MAX_RATE_HZ):
-        raise FrameDescriptionError(("rate_hz",), f"{rate_hz!r}: give a rate above 0 up to "
-                                    f"{MAX_RATE_HZ:g} Hz")
+    if rate_hz is not None and (not _is_number(rate_hz) or not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
+        raise FrameDescriptionError(("rate_hz",), f"{shown(rate_hz)}: give the rate the board sends at, "
+                                    f"{MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz")
     if rate_hz is None and "t" not in seen:
         raise FrameDescriptionError(("fields",), "no field gives the time (t): add one, or give rate_hz")
     return FrameDescription(name.strip(), sync, length, fields, checksum,

@@ -8,7 +8,9 @@ One reader for all of them, so a hostile or broken file fails the same quick way
   otherwise expand to billions of nodes), as is an alias to a node that contains it;
 - nesting deeper than ``MAX_DEPTH`` is refused before it can exhaust the stack;
 - only plain YAML is constructed: mappings, lists, text, numbers, booleans and null. A timestamp
-  stays the text it was written as; binary data, sets and ordered pairs are refused.
+  stays the text it was written as; binary data, sets and ordered pairs are refused;
+- with ``unique_keys`` (frame descriptions), a key given twice in one mapping is refused at its
+  second line: PyYAML keeps the last silently, so a typo'd copy would win over the line it meant to fix.
 
 Every refusal is an :class:`~station.errors.InputFileError` of one line naming the file and,
 where there is one, the line.
@@ -23,6 +25,7 @@ from typing import Any
 
 import yaml
 
+from station.common.text import printable
 from station.errors import InputFileError
 
 MAX_BYTES = 256 * 1024  # a parameter file with 64 thermal segments per triad is 80 kB
@@ -150,8 +153,34 @@ def read_bytes(path: str | Path, missing: str, max_bytes: int = MAX_BYTES) -> by
     return data
 
 
-def read_yaml(path: str | Path, missing: str, max_bytes: int = MAX_BYTES) -> YamlFile:
-    """Read and compose a YAML file within the module's bounds (see the module docstring)."""
+def _duplicate_key(root: yaml.Node | None) -> tuple[yaml.Node, str, int] | None:
+    """The first key node given twice in one mapping (document order), its text and its first line."""
+    stack = [root] if root is not None else []
+    seen_nodes: set[int] = set()  # an alias repeats a node: walk it once
+    found: list[tuple[yaml.Node, str, int]] = []
+    while stack:
+        node = stack.pop()
+        if id(node) in seen_nodes:
+            continue
+        seen_nodes.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            lines: dict[str, int] = {}
+            for key_node, value_node in node.value:
+                if isinstance(key_node, yaml.ScalarNode):
+                    if key_node.value in lines:
+                        found.append((key_node, key_node.value, lines[key_node.value]))
+                        break
+                    lines[key_node.value] = key_node.start_mark.line + 1
+                stack.append(value_node)
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend(node.value)
+    return min(found, key=lambda f: f[0].start_mark.index, default=None)
+
+
+def read_yaml(path: str | Path, missing: str, max_bytes: int = MAX_BYTES,
+              unique_keys: bool = False) -> YamlFile:
+    """Read and compose a YAML file within the module's bounds (see the module docstring); with
+    ``unique_keys``, refuse a key given twice in one mapping."""
     path = Path(path)
     raw = read_bytes(path, missing, max_bytes)
     try:
@@ -170,4 +199,11 @@ def read_yaml(path: str | Path, missing: str, max_bytes: int = MAX_BYTES) -> Yam
                              line=line) from None
     except yaml.YAMLError as exc:
         raise InputFileError.invalid_yaml(path, exc) from None
+    if unique_keys:
+        twice = _duplicate_key(root)
+        if twice is not None:
+            node, key, first = twice
+            raise InputFileError(path, f"key given twice (first on line {first}); PyYAML would keep the last "
+                                 "silently: keep one", line=node.start_mark.line + 1,
+                                 column=printable(key, 60))
     return YamlFile(path, raw, root, loader)

@@ -24,6 +24,7 @@ import numpy as np
 
 from protocols.frame_checksums import CHECKSUM_SIZES, checksum_rows
 from protocols.frame_description import MAX_SYNC, REQUIRED_FIELDS
+from station.common.text import printable
 
 MIN_LENGTH = 6
 MAX_LENGTH = 256
@@ -187,6 +188,11 @@ def find_clock(frames: np.ndarray, free: list[int]) -> tuple[int, str, str, floa
     return best[1] if best else None
 
 
+def _repeats_exactly(data: np.ndarray, length: int) -> bool:
+    """Whether nearly every byte equals the one ``length`` bytes before it (no value varies)."""
+    return len(data) > length and float(np.mean(data[:-length] == data[length:])) >= CONSTANT
+
+
 def guess(raw: bytes) -> Guess:
     """What a raw capture's bytes say about its frames.
 
@@ -202,12 +208,22 @@ def guess(raw: bytes) -> Guess:
     """
     out = Guess()
     raw = raw[:MAX_BYTES]
-    out.length, out.score = frame_period(np.frombuffer(raw, dtype=np.uint8))
+    data = np.frombuffer(raw, dtype=np.uint8)
+    if len(data) and (data == data[0]).all():
+        # every lag "repeats" a constant stream: no period, sync or value can be told from it
+        out.problems.append(f"every byte is 0x{data[0]:02x}: the stream is constant and carries no frames "
+                            "(a line held idle, the unit not streaming, or the wrong baud rate?)")
+        return out
+    out.length, out.score = frame_period(data)
     if out.length is None:
         out.problems.append("the bytes do not repeat with any period up to 256: is this a binary stream at "
                             "the right baud rate?")
         return out
     out.sync, frames = find_sync(raw, out.length)
+    if not out.sync and _repeats_exactly(data, out.length):
+        out.problems.append(f"the bytes repeat exactly every {out.length} bytes: the stream carries no "
+                            "varying data (a unit sending a fixed pattern?): no sync can be told from values")
+        return out
     if not out.sync:
         out.problems.append(f"no byte holds its value in {CONSTANT:.0%} of the {out.length}-byte periods: "
                             "no sync")
@@ -264,6 +280,7 @@ def to_yaml(g: Guess, source: str) -> str:
         A description of schema ``imu-station/frame/1`` for the user to confirm.
     """
     assert g.length is not None
+    source = printable(source)  # a file name: one line in a comment, whatever it holds
     varies = "first" if g.byte_order == "little" else "last"
     lines = [f"# proposed by imu-station frame guess from {source} ({g.frames} frames): check every line,",
              "# set the scales, then try it: imu-station frame check THIS.yaml --file " + source,

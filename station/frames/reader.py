@@ -73,13 +73,13 @@ def load_description(path: str | Path) -> FrameDescription:
     Raises
     ------
     InputFileError
-        The file is missing, not YAML, too large, or breaks a rule of the schema: the message names
-        the file, the line and the key (and the field).
+        The file is missing, not YAML, too large, gives a key twice, or breaks a rule of the schema:
+        the message names the file, the line and the key (and the field).
     """
     file = resolve(path)
     known = ", ".join(sorted(shipped_descriptions()))
     doc = read_yaml(file, f"does not exist; give a frame description file (schema imu-station/frame/1) or "
-                          f"a shipped one: {known}", MAX_BYTES)
+                          f"a shipped one: {known}", MAX_BYTES, unique_keys=True)
     try:
         return describe(doc.construct(), default_name=file.stem)
     except FrameDescriptionError as exc:
