@@ -15,6 +15,7 @@ from drivers.errors import (
     NoSamples,
     PortBusy,
     PortError,
+    PortFlooding,
     PortLost,
     PortNotFound,
     PortPermission,
@@ -32,6 +33,7 @@ def open_device(port: str, protocol: str = "native", baudrate: int = DEFAULT_BAU
 
 __all__ = [
     "CommandError", "CommandRejected", "CommandTimeout", "CommandUnsupported", "Device", "DriverError",
-    "LinkStats", "NoSamples", "PortBusy", "PortError", "PortLost", "PortNotFound", "PortPermission",
+    "LinkStats", "NoSamples", "PortBusy", "PortError", "PortFlooding", "PortLost", "PortNotFound",
+    "PortPermission",
     "DEFAULT_BAUDRATE", "SerialDevice", "open_device",
 ]

@@ -62,6 +62,11 @@ class PortLost(DriverError):
     """The port disappeared while open. Every sample received before it is still delivered."""
 
 
+class PortFlooding(DriverError):
+    """The port sends more than the station can decode in its share of each turn; it was dropped so
+    that the other units go on. Every sample decoded before is still delivered."""
+
+
 class NoSamples(DriverError):
     """The port is open but no sample frame arrives (unit stopped, wrong baud rate or protocol)."""
 

@@ -10,6 +10,14 @@ The blocking calls of the interface (``read(timeout)``, the commands) are built 
 ``read(timeout)`` returns as soon as bytes are there, so a loop that wants batches waits between
 its calls, as an event loop does.
 
+Every call is bounded, so that one port cannot starve the others served by the same loop: a call
+reads at most ``READ_BUDGET_BYTES`` and decodes for at most ``DECODE_BUDGET_S`` (in slices sized
+to what the port's bytes decode in a fraction of it); what is left waits for the next call. Clean
+frames decode at tens of MB/s, so a unit's bytes are always decoded in one call; bytes that are
+all false starts (a frame header announcing a long payload, repeated) cost a CRC over a frame per
+byte, a thousand times more. A port whose undecoded bytes pass ``FLOOD_BACKLOG_BYTES`` is
+dropped with :class:`~drivers.errors.PortFlooding`, its samples decoded before delivered.
+
 It needs a port with a file descriptor: a device path or a pty, not a pyserial URL such as
 ``sim://`` (served by a Python object, not by the kernel).
 """
@@ -19,12 +27,13 @@ from __future__ import annotations
 import os
 import select
 import time
+from time import perf_counter
 from typing import Any
 
 import numpy as np
 import serial
 
-from drivers.errors import DriverError, PortError, PortLost
+from drivers.errors import DriverError, PortError, PortFlooding, PortLost
 from drivers.interface import Device
 from drivers.link_stats import LinkMonitor, LinkStats
 from drivers.message_log import MessageLog, no_answer, unsupported
@@ -35,6 +44,14 @@ from protocols.registry import make_decoder
 
 READ_CHUNK = 65_536
 LINE_BUFFER_BYTES = 4095  # the most a tty's line discipline holds for a read (raw mode)
+# A call's share of the loop: 64 KiB is 1.3 s of a 1 kHz native unit (a turn is 20 ms), and 5 ms of
+# decoding is a quarter of a turn, so four flooding ports still leave the others their turns.
+READ_BUDGET_BYTES = 65_536
+DECODE_BUDGET_S = 0.005
+SLICE_BYTES = (256, 65_536)  # the least and most bytes handed to the decoder at once
+# Undecoded bytes beyond this (5 s of a 1 kHz native unit) mean the port sends faster than its share
+# decodes: it would only fall further behind.
+FLOOD_BACKLOG_BYTES = 262_144
 
 
 def join_samples(batches: list[np.ndarray]) -> np.ndarray:
@@ -85,6 +102,7 @@ class PolledPort(Device):
         self._pending: list[np.ndarray] = []
         self._gathered: list[bytes] = []  # bytes read and not yet decoded (gather())
         self._gathered_bytes = 0
+        self._slice = SLICE_BYTES[0]  # bytes decoded at once: grows to what decodes in a part of the budget
         self._log = MessageLog()
         self._monitor = LinkMonitor()
         self._error: DriverError | None = None
@@ -100,6 +118,11 @@ class PolledPort(Device):
         return self._error
 
     @property
+    def backlog_bytes(self) -> int:
+        """Bytes read from the port and not decoded yet (beyond a call's share they wait for the next)."""
+        return self._gathered_bytes
+
+    @property
     def message_count(self) -> int:
         """Messages other than samples received so far (a mark for :meth:`answer_since`)."""
         return self._log.count
@@ -107,19 +130,21 @@ class PolledPort(Device):
     # -- reading -------------------------------------------------------------------------------
 
     def _read_port(self) -> None:
-        """Read every byte waiting at the port into the gathered bytes, without blocking or decoding.
+        """Read the bytes waiting at the port, at most ``READ_BUDGET_BYTES``, into the gathered
+        bytes, without blocking or decoding.
 
         A read shorter than the tty's line buffer took all the line discipline held: the port is
         drained then, without the read that finds it empty (a read of an empty tty waits for the
         kernel to push what it still holds, and costs as much as a full one). Bytes that arrive
-        meanwhile wait for the next call.
+        meanwhile, or beyond the budget (a port that never runs dry), wait for the next call.
         """
         if self._error is not None or self._closed:
             return
         chunks = self._gathered
         got = False
+        budget = READ_BUDGET_BYTES
         try:
-            while True:
+            while budget > 0:
                 data = os.read(self._fd, READ_CHUNK)
                 if not data:
                     # pyserial's ports read nothing when nothing came (VMIN 0): only a hang-up says gone
@@ -129,6 +154,7 @@ class PolledPort(Device):
                 got = True
                 chunks.append(data)
                 self._gathered_bytes += len(data)
+                budget -= len(data)
                 if len(data) < LINE_BUFFER_BYTES:
                     break
                 # a tty gives at most its line buffer (4 KiB) a read: read on
@@ -146,13 +172,38 @@ class PolledPort(Device):
         return self._gathered_bytes
 
     def _decode_gathered(self) -> None:
-        """Decode the bytes gathered so far, in one batch."""
+        """Decode the bytes gathered so far, in one batch when they decode within ``DECODE_BUDGET_S``
+        (clean frames always do), else in slices until the budget is spent: the rest waits for the
+        next call, and a port whose rest passes ``FLOOD_BACKLOG_BYTES`` is dropped."""
         chunks = self._gathered
-        if chunks:
-            data = chunks[0] if len(chunks) == 1 else b"".join(chunks)
-            self._gathered = []
-            self._gathered_bytes = 0
-            self._ingest(data)
+        if not chunks:
+            return
+        data = chunks[0] if len(chunks) == 1 else b"".join(chunks)
+        deadline = perf_counter() + DECODE_BUDGET_S
+        done = 0
+        while done < len(data):
+            piece = data if done == 0 and self._slice >= len(data) else data[done : done + self._slice]
+            began = perf_counter()
+            self._ingest(piece)
+            now = perf_counter()
+            done += len(piece)
+            # the next slice: what these bytes say decodes in a quarter of the budget
+            per_byte = max(now - began, 1e-7) / len(piece)
+            self._slice = int(min(max(DECODE_BUDGET_S / 4 / per_byte, SLICE_BYTES[0]), SLICE_BYTES[1]))
+            if now >= deadline:
+                break
+        rest = data[done:]
+        self._gathered = [rest] if rest else []
+        self._gathered_bytes = len(rest)
+        if len(rest) > FLOOD_BACKLOG_BYTES and self._error is None:
+            stats = self._monitor.stats
+            self._error = PortFlooding(
+                f"{self.port}: sends faster than the station can decode ({len(rest) // 1024} KiB waiting "
+                f"after {stats.bytes // 1024} KiB decoded, {stats.samples} samples and {stats.garbage_bytes} "
+                f"bytes of no frame in it); dropped so that the other units go on, every sample decoded "
+                f"before was kept; check the unit's protocol and baud rate, and that it sends frames, "
+                f"not noise", self.port)
+            self._gathered, self._gathered_bytes = [], 0
 
     def _receive(self) -> None:
         """Read and decode every byte waiting at the port (and those gathered before), without blocking."""

@@ -10,8 +10,10 @@ the unit (it sends GET_INFO on opening). Host commands are answered by the unit'
 told to stop keeps streaming).
 
 Besides a clean unit, a unit can be ``garbage`` (random bytes at the same byte rate, no
-answers), ``silent`` (nothing at all) or ``vanish`` after ``vanish_after_s`` (its pty closes, as
-a unit unplugged). The fleet keeps each slave end open itself, so that it can measure the bytes
+answers), ``flood`` (native frame headers that announce the longest payload, overlapping, as fast
+as the pty takes them: every byte a false start the decoder must check, no answers), ``silent``
+(nothing at all) or ``vanish`` after ``vanish_after_s`` (its pty closes, as a unit unplugged).
+The fleet keeps each slave end open itself, so that it can measure the bytes
 waiting for the host (the backlog: what the pty's line buffer holds, up to its 4 KiB, plus what a
 full pty refused).
 """
@@ -31,8 +33,12 @@ import numpy as np
 from mocks.device import SimDevice
 from mocks.pty_server import read_host
 from mocks.raw_pty import open_raw_pty
+from protocols import native
 
-MODES = ("stream", "garbage", "silent", "vanish")
+MODES = ("stream", "garbage", "flood", "silent", "vanish")
+# A sample frame's header announcing the longest payload, the sync repeated inside it: each byte
+# starts a candidate the decoder can reject only by a CRC over a whole frame.
+FLOOD_BLOCK = (native.SYNC + bytes([native.IMU_SAMPLE]) + native.MAX_PAYLOAD.to_bytes(2, "little")) * 4096
 # FIONREAD on a pty counts what its line buffer holds, at most this; the bytes beyond wait unseen in
 # the tty's own buffers (~20 KB in all before a write is refused).
 LINE_BUFFER_BYTES = 4095
@@ -129,6 +135,8 @@ class PtyFleet:
         if unit.mode == "garbage":
             noise = np.random.default_rng(len(stream)).integers(0, 256, len(stream), dtype=np.uint8)
             stream = noise.tobytes()
+        elif unit.mode == "flood":
+            stream = FLOOD_BLOCK
         master, slave, path = open_raw_pty()
         os.set_blocking(master, False)
         stats = FeedStats(serial=str(device.info().get("serial", "")))
@@ -147,7 +155,7 @@ class PtyFleet:
     @property
     def finished(self) -> bool:
         """Every unit that started has sent its whole stream (or vanished)."""
-        return all(feed.stats.finished or feed.unit.mode == "silent" for feed in self._feeds)
+        return all(feed.stats.finished or feed.unit.mode in ("silent", "flood") for feed in self._feeds)
 
     # -- life cycle ----------------------------------------------------------------------------
 
@@ -207,12 +215,21 @@ class PtyFleet:
         if host_bytes:
             if not stats.started:
                 stats.started, feed.t0 = True, now
-            if unit.mode != "garbage":
+            if unit.mode not in ("garbage", "flood"):
                 answer = unit.device.feed(host_bytes)
                 if answer:
                     stats.answers += 1
                     feed.answers += answer
         if not stats.started:
+            return
+        if unit.mode == "flood":
+            for _ in range(16):  # as much as the pty takes, a bounded number of writes a tick
+                if len(feed.pending) < len(FLOOD_BLOCK):
+                    feed.pending += FLOOD_BLOCK
+                waiting = len(feed.pending)
+                self._write(feed)
+                if len(feed.pending) == waiting:
+                    break
             return
         elapsed = now - feed.t0
         if unit.mode == "vanish" and elapsed >= unit.vanish_after_s:

@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import h5py
@@ -170,3 +171,31 @@ def test_file_stem_keeps_a_serial_inside_the_directory() -> None:
     assert file_stem("../../etc/passwd") == "_.._etc_passwd"
     assert file_stem("a b/c\x1b") == "a_b_c_"
     assert file_stem("...") == "unit"
+
+
+def test_a_flooding_unit_is_dropped_while_the_others_record_at_full_rate(tmp_path: Path) -> None:
+    # A port that floods native headers announcing the longest payload costs the decoder a CRC over a
+    # frame per byte: it gets a bounded share of each turn, and is dropped once it falls behind.
+    flood = FleetUnit(SimDevice(seed=30, rate_hz=RATE_HZ), 10.0, "flood")
+    duration_s = 3.0
+    with PtyServer(seed=31, rate_hz=1000, record=True) as a, \
+            PtyServer(seed=32, rate_hz=1000, record=True) as b, PtyFleet([flood]) as fleet:
+        shown: list[float] = []  # when the loop showed the units' status: it runs every turn or so
+        started = time.monotonic()
+        def show(_: object) -> None:
+            shown.append(time.monotonic())
+
+        outcomes = capture_many([a.port_path, fleet.ports[0], b.port_path], tmp_path, duration_s=duration_s,
+                                status=lambda ports, duration: nullcontext(show))
+        took = time.monotonic() - started
+        sent_a, sent_b = a.sent(), b.sent()
+    healthy = [o for o in outcomes if o.port != fleet.ports[0]]
+    for outcome, sent in zip(healthy, (sent_a, sent_b), strict=True):
+        assert outcome.error is None, outcome.error
+        assert outcome.capture is not None
+        assert_same_samples(outcome.capture.path, sent, round(duration_s * 1000))
+    flooded = next(o for o in outcomes if o.port == fleet.ports[0])
+    assert flooded.error is not None and "faster than the station can decode" in str(flooded.error)
+    assert took < duration_s + 10, f"the capture took {took:.1f} s"
+    # The status shows every 0.25 s while the loop turns; a flood's decoding held it 0.8 s before.
+    assert max(np.diff(shown)) < 0.7, f"the loop stalled {max(np.diff(shown)):.2f} s"

@@ -7,6 +7,7 @@ commands answered through later reads, and a vanished port's samples delivered b
 
 from __future__ import annotations
 
+import select
 import time
 from collections.abc import Iterator
 
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 import test_contract as contract
 
-from drivers import CommandRejected, CommandUnsupported, PortBusy, PortLost
+from drivers import CommandRejected, CommandUnsupported, PortBusy, PortFlooding, PortLost
 from drivers.polled_port import PolledPort
 from mocks.device import SimDevice
 from mocks.pty_fleet import FleetUnit, PtyFleet
@@ -87,3 +88,23 @@ def test_a_protocol_without_commands_says_so() -> None:
     with PtyServer(seed=5, rate_hz=200) as server, PolledPort(server.port_path, protocol="xsens") as dev:
         with pytest.raises(CommandUnsupported, match="xsens protocol has no GET_INFO"):
             dev.send(native.GET_INFO)
+
+
+def test_a_flooding_port_returns_at_once_and_is_dropped_once_it_falls_behind() -> None:
+    # Native headers announcing the longest payload, as fast as the pty takes them: each byte costs a
+    # CRC over a frame. A read takes a bounded share (it read and decoded the flood whole before: a
+    # read_now of 29.8 s in the audit), and the port is dropped once its undecoded bytes pile up.
+    flood = FleetUnit(SimDevice(seed=3, rate_hz=200), 10.0, "flood")
+    with PtyFleet([flood]) as fleet, PolledPort(fleet.ports[0]) as port:
+        port.send(native.GET_INFO)  # the fleet's units stream once the host speaks
+        longest = 0.0
+        deadline = time.monotonic() + 30
+        with pytest.raises(PortFlooding, match="sends faster than the station can decode"):
+            while time.monotonic() < deadline:
+                began = time.monotonic()
+                try:
+                    port.read_now()
+                finally:
+                    longest = max(longest, time.monotonic() - began)
+                select.select([port.fileno()], [], [], 0.02)
+    assert longest < 0.3, f"a read took {longest:.2f} s"

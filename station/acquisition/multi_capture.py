@@ -19,8 +19,10 @@ samples are dropped for a provisioning mistake. Samples that come before the ans
 memory and open the file.
 
 A unit that fails (its port does not open, vanishes, sends no sample in
-``NO_SAMPLES_TIMEOUT_S``: silent or garbage) ends with its error, keeping every sample it sent;
-the others go on. Ctrl-C ends every unit, keeping every sample received.
+``NO_SAMPLES_TIMEOUT_S``: silent or garbage, or floods more bytes than its share of each turn
+decodes: :class:`~drivers.errors.PortFlooding`) ends with its error, keeping every sample it sent;
+the others go on at their full rate (each port's reading and decoding per turn is bounded).
+Ctrl-C ends every unit, keeping every sample received.
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ READ_PERIOD_S = 0.02  # a pty holds ~20 KB: 0.4 s of a 1 kHz unit, far more than
 # once DECODE_BYTES gathered: fewer, larger decoder calls; a unit being asked who it is, every turn.
 DECODE_PERIOD_S = 0.04
 DECODE_BYTES = 16_384
+BEHIND_BYTES = 4 * DECODE_BYTES  # undecoded bytes a unit's status line reports (its port floods)
 WRITE_PERIOD_S = 1.0  # the HDF5 writer costs ~1 ms a call whatever the rows: fewer, larger batches
 STATUS_INTERVAL_S = 0.25
 INFO_TIMEOUT_S = 0.5
@@ -174,6 +177,8 @@ class _Unit:
             state = "done" if self.error is None else f"failed: {self.error}"
         else:
             state = "recording" if self.stem is not None else "preparing"
+            if self.port.backlog_bytes > BEHIND_BYTES:
+                state += f", {self.port.backlog_bytes // 1024} KiB not decoded yet (the port floods)"
         return UnitStatus(self.port.port, self.stem or self.port.port, self.port.stats,
                           rec.rows if rec is not None else 0, rec.device_time_s if rec is not None else 0.0,
                           state)
