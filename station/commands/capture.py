@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
+from station.common.text import printable, printable_message
 from station.console.options import DEFAULT_BAUDRATE, DURATION_S, add_output_option, add_port_options, number
 from station.errors import ExitCode, StationError
 
@@ -84,15 +85,16 @@ def report(result: CaptureResult, out: IO[str]) -> None:
     """
     link = result.link
     if result.rows or Path(result.path).exists():
-        print(f"wrote {result.rows} samples ({result.device_time_s:.3f} s of device clock) to {result.path}",
-              file=out)
+        print(f"wrote {result.rows} samples ({result.device_time_s:.3f} s of device clock) to "
+              f"{printable(result.path)}", file=out)
     else:
-        print(f"captured no sample: {result.path} was not written", file=out)
+        print(f"captured no sample: {printable(result.path)} was not written", file=out)
     print(f"link: {link.summary()}, {link.bytes} bytes", file=out)
     if result.non_increasing:
         print(f"left out {result.non_increasing} samples whose device time did not increase", file=out)
     if result.field_dropped:
-        print(f"the magnetic field came after the first rows and {result.path} could not be rewritten with "
+        print(f"the magnetic field came after the first rows and {printable(result.path)} could not be "
+              "rewritten with "
               f"mx, my, mz (the disk?): the field of {result.field_dropped} samples is not in the file; "
               "capture to .h5 to keep it", file=out)
     for jump in result.clock_jumps:
@@ -198,7 +200,7 @@ def resolve_protocol(port: str, protocol: str, baudrate: int, columns: str | Non
         found = sniff_protocol(port, baudrate)
         if found.protocol is None:
             raise NoSamples(f"{port}: {found.explanation}", port)
-        print(f"protocol: {found.protocol}: {found.explanation}", file=err)
+        print(f"protocol: {found.protocol}: {printable_message(found.explanation)}", file=err)
         protocol = found.protocol
     if protocol == "ascii" and (columns is not None or rate_hz is not None):
         protocol = f"ascii:{columns or ''}" + (f"@{rate_hz}" if rate_hz is not None else "")
@@ -232,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
                              status=lambda duration_s: CaptureStatusLine(sys.stderr, duration_s))
     report(result, sys.stdout)
     if result.error is not None:
-        print(f"imu-station capture: error: {result.error}", file=sys.stderr)
+        print(f"imu-station capture: error: {printable_message(result.error)}", file=sys.stderr)
         return result.error.exit_code
     if result.ended_by == "interrupted":
         print("imu-station capture: interrupted; the file keeps every sample received", file=sys.stderr)
@@ -261,16 +263,18 @@ def run_many(args: argparse.Namespace) -> int:
         result = outcome.capture
         if result is not None and result.rows:
             with_file += 1
-            print(f"{name} ({outcome.port}): wrote {result.rows} samples ({result.device_time_s:.3f} s of "
-                  f"device clock) to {result.path}; link: {result.link.summary()}", file=sys.stdout)
+            print(f"{printable(name)} ({printable(outcome.port)}): wrote {result.rows} samples "
+                  f"({result.device_time_s:.3f} s of device clock) to {printable(result.path)}; link: "
+                  f"{result.link.summary()}", file=sys.stdout)
             if outcome.note:
-                print(f"  note: {outcome.note}", file=sys.stdout)
+                print(f"  note: {printable_message(outcome.note)}", file=sys.stdout)
         if outcome.error is not None:
             failed += 1
-            print(f"imu-station capture: error: {outcome.error}", file=sys.stderr)
+            print(f"imu-station capture: error: {printable_message(outcome.error)}", file=sys.stderr)
         elif result is not None and result.ended_by == "interrupted":
             interrupted += 1
-    print(f"{with_file} of {len(outcomes)} units have a file, {failed} ended with an error ({args.output})",
+    print(f"{with_file} of {len(outcomes)} units have a file, {failed} ended with an error "
+          f"({printable(args.output)})",
           file=sys.stdout)
     if failed:
         return ExitCode.DEVICE

@@ -180,10 +180,11 @@ def _announce(args: argparse.Namespace, server: PtyServer, truth: UnitTruth, fau
               chamber: ChamberSweep | None, bench: SimulatedBench | None) -> None:
     """Print what is served: the unit, its port, the bench's URLs."""
     from mocks.chamber import describe_scenario
+    from station.common.text import printable
 
     speed = f", speed x{args.speed:g}" if args.speed != 1 else ""
-    print(f"simulated unit {truth.serial} ({truth.model}), {args.rate} Hz, scenario {args.scenario}, "
-          f"faults {faults}{speed}")
+    print(f"simulated unit {printable(truth.serial)} ({printable(truth.model)}), {args.rate} Hz, "
+          f"scenario {args.scenario}, faults {faults}{speed}")
     if chamber is not None:
         print(f"chamber: {describe_scenario(chamber)}")
     if truth.mag is not None:
@@ -192,7 +193,7 @@ def _announce(args: argparse.Namespace, server: PtyServer, truth: UnitTruth, fau
               f"declination {earth.declination_deg:g} deg")
     print(f"port: {server.port_path}")
     if args.link is not None:
-        print(f"link: {args.link} -> {server.port_path}")
+        print(f"link: {printable(args.link)} -> {server.port_path}")
     if bench is not None:
         for kind, url in bench.urls.items():
             print(f"{kind}: {url}")

@@ -182,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
 
     app = StationApp(config_from_args(args))
     code = app.run()
+    from station.common.text import printable
+
     for path in app.saved:
-        print(f"saved {path}")
+        print(f"saved {printable(path)}")
     return int(code or ExitCode.OK)

@@ -10,6 +10,7 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedCo
 from rich.table import Column
 
 from station.acquisition.multi_capture import UnitStatus
+from station.common.text import markup_safe
 from station.console.status_line import status_text
 
 # Fewer redraws than the single line's: 32 lines redrawn 10 times a second cost more than the units.
@@ -64,7 +65,7 @@ class UnitStatusLines:
             refresh_per_second=REFRESH_PER_SECOND,
         )
         self._tasks: dict[str, TaskID] = {
-            port: self._progress.add_task(port, total=duration_s, unit=port.ljust(self._width),
+            port: self._progress.add_task(port, total=duration_s, unit=markup_safe(port).ljust(self._width),
                                           status="opening")
             for port in ports
         }
@@ -87,8 +88,10 @@ class UnitStatusLines:
         """
         for unit in units:
             task = self._tasks[unit.port]
-            self._progress.update(task, completed=unit.device_time_s, unit=unit.name.ljust(self._width),
-                                  status=unit_text(unit))
+            # the name may be the port, the status a unit's error: both go into the columns' markup
+            self._progress.update(task, completed=unit.device_time_s,
+                                  unit=markup_safe(unit.name).ljust(self._width),
+                                  status=markup_safe(unit_text(unit), 2 * STATUS_WIDTH))
             if unit.state not in ("recording", "preparing") and task not in self._stopped:
                 self._progress.stop_task(task)  # its clock stops where the unit ended
                 self._stopped.add(task)

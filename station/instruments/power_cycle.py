@@ -16,6 +16,7 @@ from typing import IO
 
 from drivers.instruments import Supply
 from drivers.instruments.errors import InstrumentError
+from station.common.text import printable
 from station.instruments.limits import Limits, limited
 from station.instruments.open import open_instrument
 
@@ -49,7 +50,7 @@ class SupplyPowerCycle:
 
     def _say(self, text: str) -> None:
         if self.err is not None:
-            print(f"{self.supply.url}: {text}", file=self.err)
+            print(f"{printable(self.supply.url)}: {text}", file=self.err)
 
     def _switch(self, on: bool) -> None:
         self.supply.set_output(on)
