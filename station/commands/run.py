@@ -18,6 +18,7 @@ from station.errors import StationError
 
 if TYPE_CHECKING:
     from station.factory.records import RunRecord
+    from station.factory.spool import Pending
 
 NAME = "run"
 HELP = "run a factory plan on one unit unattended (turntable or --simulate), record it, exit with its outcome"
@@ -37,8 +38,12 @@ exit codes:
   3  device or link error: unit or turntable port missing, lost (unplugged) or not answering
   4  usage or configuration error: bad options, a plan with an error (the message names the line)
   5  timeout: the plan's run.timeout_s or run.step_timeout_s was exceeded
+A record the database does not take (locked past 30 s, read-only, unreachable) keeps the unit's exit
+code: it is kept in FILES/pending-records/<run id>.json, a line on stderr says so, and
+'imu-station records sync' (or the next run) stores it.
 
-environment: IMU_STATION_DB (default --db), IMU_STATION_ID (default --station)
+environment: IMU_STATION_DB (default --db), IMU_STATION_ID (default --station), IMU_STATION_DB_WAIT
+  (seconds to wait for another process's lock on the database, default 30)
 
 examples:
   imu-station run --plan plan.yaml --port /dev/ttyUSB0 --table-port /dev/ttyUSB1 --serial A1234 --json
@@ -120,9 +125,11 @@ def summary(record: RunRecord) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run the plan on the unit, store the record, print it; exit with the run's outcome."""
     from station.factory.plan import load_plan, with_instruments, with_protocol
-    from station.factory.records import RecordStore
+    from station.factory.records import READ_WAIT_S, RecordStore
     from station.factory.run import RunRequest, check_serial, configure_logging, run_unit
     from station.factory.simrig import SimulatedUnit
+    from station.factory.spool import keep
+    from station.factory.store_errors import RecordsUnavailable, wait_s
 
     _check(args)
     plan = load_plan(args.plan)
@@ -150,12 +157,33 @@ def run(args: argparse.Namespace) -> int:
                          if args.simulate else None)
     check_serial(request)  # before the record database is opened
     try:
-        with RecordStore.open(url) as store:
-            record = run_unit(request, store)
+        # A damaged or foreign database is refused before the unit is touched; one that is locked or
+        # read-only now does not stop the run: its record is kept pending.
+        RecordStore.open(url, wait=wait_s(READ_WAIT_S)).close()
+    except RecordsUnavailable as exc:
+        print(f"imu-station run: {exc}; the unit is run, its record will be kept pending if the database "
+              "still cannot take it", file=sys.stderr)
+    try:
+        record = run_unit(request)
     finally:
         logging.getLogger("imu_station.factory").removeHandler(handler)
+    pending = keep(record, url, request.files_root)
     if args.json:
         sys.stdout.write(json.dumps(record.to_dict(), indent=1, allow_nan=False) + "\n")
     else:
         print(summary(record))
-    return record.exit_code
+    if pending is not None:
+        if on_event is not None:
+            on_event({"serial": record.serial, "event": "record_pending", "path": str(pending.path),
+                      "reason": pending.reason})
+        print(pending_line(record, pending, url, request.files_root), file=sys.stderr)
+    return record.exit_code  # the unit's outcome, whether its record is stored or pending
+
+
+def pending_line(record: RunRecord, pending: Pending, url: str, root: Path) -> str:
+    """The one line that says a record is pending, where it is kept and how to store it."""
+    kept, db, files = (printable(x, 1000) for x in (pending.path, url, root))
+    return (f"imu-station run: record {record.run_id} ({record.outcome}, unit {printable(record.serial)}) "
+            f"is PENDING, not in the database: {pending.reason}; it is kept in {kept}; "
+            f"'imu-station records sync --db {db} --files {files}' stores it, as does the next run; the exit "
+            "code is the unit's outcome")

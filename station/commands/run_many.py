@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from station.common.text import printable
 from station.console.options import (
     MAX_SEED,
     SEED,
@@ -32,7 +33,9 @@ in the same order;
 or --simulate N simulated units on simulated tables), follow them in a live table on stderr
 (unit, serial, phase, step, time, outcome), and print the summary (or, with --json, every unit's
 outcome and record) on stdout. Every unit's record goes to the one database --db; each unit's log
-lines go to FILES/logs/<start>-<unit>.log."""
+lines go to FILES/logs/<start>-<unit>.log. A record the database does not take is kept in
+FILES/pending-records/ with the unit's outcome unchanged; a line on stderr says how many and that
+'imu-station records sync' stores them."""
 EPILOG = """\
 exit code: the worst of the units' exit codes (see 'imu-station run --help'), ranked
   0 pass < 1 fail < 2 aborted < 5 timeout < 3 device or link error < 4 usage or configuration.
@@ -140,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
 
     from station.factory.many import RunMany, summary_table, worst_exit_code
     from station.factory.plan import load_plan, with_protocol
+    from station.factory.spool import pending_dir
 
     units = units_of(args)
     plan = load_plan(args.plan)  # refused here, once, rather than by every child
@@ -166,9 +170,16 @@ def run(args: argparse.Namespace) -> int:
         out = {"plan": plan.name, "exit_code": code, "units": [
             {"unit": u.spec.label, "serial": u.serial or u.spec.serial, "outcome": u.outcome,
              "exit_code": u.exit_code, "reason": u.reason, "elapsed_s": round(u.elapsed_s, 3),
-             "log": str(u.log_path), "record": u.record} for u in results]}
+             "log": str(u.log_path), "record": u.record, "record_pending": u.pending or None}
+            for u in results]}
         sys.stdout.write(json.dumps(out, indent=1, allow_nan=False) + "\n")
     else:
         table = summary_table(results, f"run-many {plan.name}: exit {code}")
         Console(file=sys.stdout, width=140).print(table)
+    pending = [u for u in results if u.pending]
+    if pending:
+        # The units' outcomes stand; their records wait in the files folder for the database.
+        print(f"imu-station run-many: {len(pending)} record(s) PENDING, not in the database, kept in "
+              f"{printable(pending_dir(root), 1000)}; 'imu-station records sync --db {printable(url, 1000)} "
+              f"--files {printable(root, 1000)}' stores them, as does the next run", file=sys.stderr)
     return code

@@ -3,7 +3,8 @@
 Each child writes its record to the shared database (SQLite in WAL mode takes several writers;
 PostgreSQL is built for it), its JSON record on stdout and its progress as ``@event {json}``
 lines on stderr, which feed the table; its other log lines go to a log file per unit. The
-outcome of the whole is the worst of the units' (:data:`SEVERITY`).
+outcome of the whole is the worst of the units' (:data:`SEVERITY`). A unit whose record the
+database did not take keeps its outcome; its ``record_pending`` event marks it in the table.
 """
 
 from __future__ import annotations
@@ -74,6 +75,8 @@ class UnitProgress:
     exit_code: int | None = None
     reason: str = ""
     record: dict[str, Any] | None = None
+    pending: str = ""
+    """Where the unit's record is kept pending, when the database did not take it."""
 
     @property
     def outcome(self) -> str:
@@ -124,9 +127,11 @@ def summary_table(units: list[UnitProgress], title: str) -> Table:
         table.add_column(column, justify="right" if column == "time" else "left")
     for u in units:
         outcome = u.outcome
-        table.add_row(u.spec.label, Text(printable(u.serial or u.spec.serial)), u.phase, u.steps or u.step,
-                      f"{u.elapsed_s:.0f} s", f"[{STYLES.get(outcome, '')}]{outcome}[/]" if outcome in STYLES
-                      else outcome, u.reason[:60])
+        detail = ("record pending; " if u.pending else "") + u.reason
+        # Labels, serials, steps and reasons come from the units and the plan: Text, never markup.
+        table.add_row(Text(printable(u.spec.label)), Text(printable(u.serial or u.spec.serial)),
+                      Text(printable(u.phase)), Text(printable(u.steps or u.step)), f"{u.elapsed_s:.0f} s",
+                      Text(printable(outcome), style=STYLES.get(outcome, "")), Text(printable(detail, 60)))
     return table
 
 
@@ -217,6 +222,8 @@ class RunMany:
             elif kind == "step":
                 unit.step = event["label"]
                 unit.steps = f"{event['label']} ({event['index'] + 1}/{event['total']})"
+            elif kind == "record_pending":
+                unit.pending = str(event.get("path", ""))
             elif kind == "outcome":
                 unit.phase = "done"
                 unit.reason = event.get("reason", "")

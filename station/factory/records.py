@@ -398,7 +398,8 @@ class RecordStore:
         return text.replace("?", self.ph)
 
     @property
-    def _shown(self) -> str:
+    def shown(self) -> str:
+        """The database as messages name it (a PostgreSQL URL without its user and password)."""
         if self.is_postgres:
             return f"postgresql://...@{self.url.split('@')[-1]}"
         return printable(self.url, 1000)
@@ -414,7 +415,7 @@ class RecordStore:
             def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> Literal[False]:
                 if exc is None or isinstance(exc, StationError) or not is_db_error(exc):
                     return False
-                raise db_error(exc, store._shown, store.wait, doing) from None
+                raise db_error(exc, store.shown, store.wait, doing) from None
 
         return _Errors()
 
@@ -437,7 +438,7 @@ class RecordStore:
             if self.is_postgres and not set(_COLUMNS) & set(columns):
                 return "empty"  # a PostgreSQL database holds other applications' tables beside ours
             raise RecordStoreError(
-                f"--db {self._shown}: not a record database of this station (another table layout: "
+                f"--db {self.shown}: not a record database of this station (another table layout: "
                 f"{', '.join(lacking)} {'differs' if len(lacking) == 1 else 'differ'}); give the database "
                 "'imu-station run' wrote")
         return "ours"
@@ -445,7 +446,7 @@ class RecordStore:
     def _check_schema(self) -> None:
         row = self.rows("SELECT value FROM meta WHERE key = ?", ("schema",))
         if row and row[0][0] != SCHEMA:
-            raise RecordStoreError(f"--db {self._shown}: holds records of schema "
+            raise RecordStoreError(f"--db {self.shown}: holds records of schema "
                                    f"{printable(row[0][0], 60)!r}, this station writes {SCHEMA!r}; use "
                                    "another database")
 
@@ -461,7 +462,7 @@ class RecordStore:
             if row is None:
                 cur.execute(self._sql("INSERT INTO meta (key, value) VALUES (?, ?)"), ("schema", SCHEMA))
             elif row[0] != SCHEMA:
-                raise RecordStoreError(f"--db {self._shown}: holds records of schema "
+                raise RecordStoreError(f"--db {self.shown}: holds records of schema "
                                        f"{printable(row[0], 60)!r}, this station writes {SCHEMA!r}; use "
                                        "another database")
 
@@ -545,7 +546,7 @@ class RecordStore:
         records = []
         for run_id, text in self.rows(sql, params):
             try:
-                records.append(RunRecord.from_json(text, f"{self._shown}: run {printable(run_id, 40)}"))
+                records.append(RunRecord.from_json(text, f"{self.shown}: run {printable(run_id, 40)}"))
             except BadRecord as exc:
                 self._refuse(exc, refused)
         return records
@@ -603,7 +604,7 @@ class RecordStore:
             else:
                 bad.setdefault(row[7], row[0])
         for run_id, name in bad.items():
-            self._refuse(BadRecord(f"{self._shown}: run {printable(run_id, 40)}: measurement "
+            self._refuse(BadRecord(f"{self.shown}: run {printable(run_id, 40)}: measurement "
                                    f"{printable(name, 60)!r} is not a number with numeric limits"), refused)
         return kept
 

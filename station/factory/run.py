@@ -74,6 +74,7 @@ from station.factory.records import (
     utc_now,
 )
 from station.factory.simrig import SimulatedUnit, simulated_rig
+from station.factory.spool import keep
 from station.instruments.bench import Bench, open_bench
 from station.instruments.mounted_table import MountedTable, PoseTable
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT, RAW_CAPTURE
@@ -653,7 +654,8 @@ def check_serial(request: RunRequest) -> None:
 
 
 def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord:
-    """Run one unit and save its record in ``store`` (when given).
+    """Run one unit and save its record in ``store`` (when given); a record the store does not take
+    is kept pending in ``files_root`` (``station.factory.spool``), logged, and the record returned.
 
     Parameters
     ----------
@@ -669,7 +671,9 @@ def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord
     """
     record = UnitRun(request).execute()
     if store is not None:
-        store.save(record)
+        pending = keep(record, store, request.files_root)
+        if pending is not None:
+            log.warning("record %s pending in %s: %s", record.run_id, pending.path, pending.reason)
     return record
 
 

@@ -60,7 +60,7 @@ def db_error(exc: BaseException, shown: str, wait: float, doing: str) -> RecordS
                                   f"{wait:g} s (${WAIT_ENV} sets the wait); try again when it is done")
     if "readonly" in low or "read-only" in low:
         return RecordsUnavailable(f"--db {shown}: the record database is read-only here ({text}); make it "
-                                  "writable, then 'imu-station records sync' stores pending records")
+                                  "and its folder writable")
     if isinstance(exc, OSError):
         return RecordStoreError(f"--db {shown}: cannot {doing} the record database: {text}")
     if type(exc).__name__ == "OperationalError" or any(w in low for w in _TRANSIENT):
