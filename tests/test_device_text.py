@@ -10,12 +10,12 @@ import asyncio
 import dataclasses
 import io
 import json
-import re
 from pathlib import Path
 
 import pytest
 from export_params import make_params
 from rich.console import Console
+from text_helpers import CLEAR, CONTROL, TITLE
 from textual.widgets import Static
 from tui_helpers import svg_rows, wait_for
 
@@ -28,11 +28,7 @@ from station.export.params.file import ParamsFile
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
 
-CLEAR = "\x1b[2J\x1b[H"
-TITLE = "\x1b]0;pwned\x07"
 HOSTILE = {"serial": f"SN{CLEAR}{TITLE}-1", "model": "[bold red]IMU\u202e9", "firmware": "1.0\r\n\x9b31m"}
-# Control characters a terminal acts on: C0 but tab and newline, DEL, C1, and the bidirectional overrides.
-CONTROL = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u2069]")
 
 
 def hostile_unit() -> SimDevice:

@@ -40,7 +40,9 @@ line used to be read whole, then split, and end in a MemoryError)."""
 CHUNK_CHARS = 64 * 1024 * 1024
 """A chunk ends once its lines hold this many characters (and, checked every ``_BATCH`` lines, by
 at most ``_BATCH * MAX_LINE_CHARS`` more)."""
-_BATCH = 1024
+_BATCH = 64
+"""Lines read between checks of their length: an endless line costs at most ``_BATCH`` pieces of
+``MAX_LINE_CHARS`` (4 Mi characters) before it is refused."""
 
 
 def _open_text(path: Path) -> IO[str]:

@@ -108,14 +108,14 @@ def run(args: argparse.Namespace) -> int:
 
     from station.acquisition.capture import read_capture, require_finite
     from station.acquisition.capture_csv import write_csv
-    from station.common.text import markup_safe, printable
+    from station.common.text import PATH_CHARS, markup_safe, printable
     from station.export.params.file import ParamsFile
 
     params = ParamsFile.load(args.params)
     quiet = not sys.stderr.isatty()
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
                   console=Console(file=sys.stderr), transient=True, disable=quiet) as progress:
-        task = progress.add_task(f"reading {markup_safe(args.input)}", total=None)
+        task = progress.add_task(f"reading {markup_safe(args.input, PATH_CHARS)}", total=None)
         capture = read_capture(args.input)
         # a NaN would come out as a NaN corrected sample, unnoticed; temperature counts once a thermal
         # section uses it (without one, temp and dtemp are copied as they are)
@@ -124,9 +124,9 @@ def run(args: argparse.Namespace) -> int:
                        "rows without one")
         progress.update(task, description="correcting")
         corrected, how = apply_params(params, capture)
-        progress.update(task, description=f"writing {markup_safe(args.output)}")
+        progress.update(task, description=f"writing {markup_safe(args.output, PATH_CHARS)}")
         write_csv(args.output, corrected)
     for section, what in how.items():
         print(f"{section}: {what}")
-    print(f"{printable(args.output)}: {len(corrected)} samples written")
+    print(f"{printable(args.output, PATH_CHARS)}: {len(corrected)} samples written")
     return ExitCode.OK

@@ -171,7 +171,7 @@ def run_mag(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from station.acquisition.capture import read_capture
-    from station.common.text import markup_safe
+    from station.common.text import PATH_CHARS, markup_safe
     from station.console.mag_summary import mag_report_dict, print_mag_report
     from station.engines.magnetometer.calibration import MagCapture, MagSettings, calibrate_mag
     from station.errors import InputFileError
@@ -219,7 +219,7 @@ def run_mag(args: argparse.Namespace) -> int:
     console = Console(file=sys.stdout, width=140)
     print_mag_report(cal, field_source, console)
     for path, what in outputs.items():
-        console.print(f"{markup_safe(path)}: {what}")
+        console.print(f"{markup_safe(path, PATH_CHARS)}: {what}")
     return ExitCode.OK
 
 
@@ -411,7 +411,7 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
     from station.acquisition.capture import read_capture
-    from station.common.text import printable
+    from station.common.text import PATH_CHARS, printable
     from station.export.params.file import merge_sections, open_for_unit
 
     if args.method == "mag":
@@ -443,5 +443,5 @@ def run(args: argparse.Namespace) -> int:
         return ExitCode.OK
     print_report(report, sys.stdout)
     for path, what in outputs.items():
-        print(f"{printable(path)}: {what}")
+        print(f"{printable(path, PATH_CHARS)}: {what}")
     return ExitCode.OK

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from station.common.text import printable, printable_message
+from station.common.text import PATH_CHARS, printable, printable_message
 from station.console.options import DEFAULT_BAUDRATE, DURATION_S, add_output_option, add_port_options, number
 from station.errors import ExitCode, StationError
 
@@ -86,17 +86,16 @@ def report(result: CaptureResult, out: IO[str]) -> None:
     link = result.link
     if result.rows or Path(result.path).exists():
         print(f"wrote {result.rows} samples ({result.device_time_s:.3f} s of device clock) to "
-              f"{printable(result.path)}", file=out)
+              f"{printable(result.path, PATH_CHARS)}", file=out)
     else:
-        print(f"captured no sample: {printable(result.path)} was not written", file=out)
+        print(f"captured no sample: {printable(result.path, PATH_CHARS)} was not written", file=out)
     print(f"link: {link.summary()}, {link.bytes} bytes", file=out)
     if result.non_increasing:
         print(f"left out {result.non_increasing} samples whose device time did not increase", file=out)
     if result.field_dropped:
-        print(f"the magnetic field came after the first rows and {printable(result.path)} could not be "
-              "rewritten with "
-              f"mx, my, mz (the disk?): the field of {result.field_dropped} samples is not in the file; "
-              "capture to .h5 to keep it", file=out)
+        print(f"the magnetic field came after the first rows and {printable(result.path, PATH_CHARS)} could "
+              f"not be rewritten with mx, my, mz (the disk?): the field of {result.field_dropped} samples is "
+              "not in the file; capture to .h5 to keep it", file=out)
     for jump in result.clock_jumps:
         why = ("(a unit restart?); the rows after it are re-based to follow on" if jump.step_s < 0
                else "(a clock set anew, or samples lost that seq does not show?)")
@@ -264,8 +263,8 @@ def run_many(args: argparse.Namespace) -> int:
         if result is not None and result.rows:
             with_file += 1
             print(f"{printable(name)} ({printable(outcome.port)}): wrote {result.rows} samples "
-                  f"({result.device_time_s:.3f} s of device clock) to {printable(result.path)}; link: "
-                  f"{result.link.summary()}", file=sys.stdout)
+                  f"({result.device_time_s:.3f} s of device clock) to {printable(result.path, PATH_CHARS)}; "
+                  f"link: {result.link.summary()}", file=sys.stdout)
             if outcome.note:
                 print(f"  note: {printable_message(outcome.note)}", file=sys.stdout)
         if outcome.error is not None:
@@ -274,7 +273,7 @@ def run_many(args: argparse.Namespace) -> int:
         elif result is not None and result.ended_by == "interrupted":
             interrupted += 1
     print(f"{with_file} of {len(outcomes)} units have a file, {failed} ended with an error "
-          f"({printable(args.output)})",
+          f"({printable(args.output, PATH_CHARS)})",
           file=sys.stdout)
     if failed:
         return ExitCode.DEVICE

@@ -221,7 +221,7 @@ def _lines(keys: dict[str, Any]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Record or read the captures, compute the figures, merge them, print them (and the datasheet)."""
-    from station.common.text import printable
+    from station.common.text import PATH_CHARS, printable
     from station.export.params.characterisation import merged
     from station.export.params.file import ParamsFile, merge_sections, open_for_unit
 
@@ -265,8 +265,8 @@ def run(args: argparse.Namespace) -> int:
         for line in _lines(keys):
             print(line)
     if args.datasheet:
-        print(f"datasheet of {printable(result['datasheet']['params'])}:")
+        print(f"datasheet of {printable(result['datasheet']['params'], PATH_CHARS)}:")
         print(format_table(rows) if rows else "(no section of the file gives a datasheet figure)")
     if "output" in result:
-        print(f"{printable(result['output'])}: characterisation section written")
+        print(f"{printable(result['output'], PATH_CHARS)}: characterisation section written")
     return ExitCode.OK

@@ -101,14 +101,15 @@ def _check(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    from station.common.text import printable
+    from station.common.text import PATH_CHARS, printable
     from station.common.yaml_file import read_bytes
     from station.frames.check import check_bytes, watch_port
     from station.frames.reader import load_decoder, load_description
 
     desc = load_description(args.description)
     console = Console()
-    title = f"{printable(desc.name)}: {printable(args.file or args.port)}"  # shown as Text, not markup
+    # shown as Text, not markup
+    title = f"{printable(desc.name)}: {printable(args.file or args.port, PATH_CHARS)}"
     if args.file is not None:
         raw = read_bytes(args.file, "does not exist; give the raw capture's path", MAX_RAW_BYTES)
         report = check_bytes(load_decoder(args.description), raw)

@@ -141,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
     """Run every unit, print the summary (or JSON); exit with the worst unit's code."""
     from rich.console import Console
 
+    from station.common.text import markup_safe
     from station.factory.many import RunMany, summary_table, worst_exit_code
     from station.factory.plan import load_plan, with_protocol
     from station.factory.spool import pending_dir
@@ -174,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
             for u in results]}
         sys.stdout.write(json.dumps(out, indent=1, allow_nan=False) + "\n")
     else:
-        table = summary_table(results, f"run-many {plan.name}: exit {code}")
+        table = summary_table(results, f"run-many {markup_safe(plan.name)}: exit {code}")  # a title is markup
         Console(file=sys.stdout, width=140).print(table)
     pending = [u for u in results if u.pending]
     if pending:

@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from station.acquisition.capture import read_capture, require_finite
-    from station.common.text import markup_safe, printable, printable_message
+    from station.common.text import PATH_CHARS, markup_safe, printable, printable_message
     from station.console.thermal_report import format_report
     from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
     from station.export.params.file import merge_sections, open_for_unit, to_plain
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     err = Console(stderr=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
                   transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task(f"reading {markup_safe(args.input)}", total=1.0)
+        task = progress.add_task(f"reading {markup_safe(args.input, PATH_CHARS)}", total=1.0)
         capture = read_capture(args.input)
         if capture.temp is None:
             raise InputFileError(args.input, "has no temperature; a thermal fit needs the 'temp' column",
@@ -152,11 +152,11 @@ def run(args: argparse.Namespace) -> int:
                              accel_cal=params.accel, gyro_cal=params.gyro)
         fit = fit_thermal(sweep, settings, progress=lambda done: progress.update(task, completed=done))
         if args.plot:
-            progress.update(task, description=f"plotting {markup_safe(args.plot)}")
+            progress.update(task, description=f"plotting {markup_safe(args.plot, PATH_CHARS)}")
             from station.plots.thermal import plot_thermal
 
             plot_thermal(fit, args.plot)
-        progress.update(task, description=f"writing {markup_safe(args.output)}")
+        progress.update(task, description=f"writing {markup_safe(args.output, PATH_CHARS)}")
         merge_sections(args.output, capture.device, {"thermal": fit.model}, capture=args.input,
                        replace=args.replace)
     calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
@@ -168,6 +168,6 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(to_plain(report), indent=2))
     else:
         print(format_report(fit, calibrated))
-        print(f"wrote the thermal section to {printable(args.output)}"
-              + (f", plot {printable(args.plot)}" if args.plot else ""))
+        print(f"wrote the thermal section to {printable(args.output, PATH_CHARS)}"
+              + (f", plot {printable(args.plot, PATH_CHARS)}" if args.plot else ""))
     return ExitCode.OK

@@ -182,8 +182,8 @@ def run(args: argparse.Namespace) -> int:
 
     app = StationApp(config_from_args(args))
     code = app.run()
-    from station.common.text import printable
+    from station.common.text import PATH_CHARS, printable
 
     for path in app.saved:
-        print(f"saved {printable(path)}")
+        print(f"saved {printable(path, PATH_CHARS)}")
     return int(code or ExitCode.OK)

@@ -12,9 +12,11 @@ from __future__ import annotations
 
 MAX_CHARS = 120
 """A value shown in a line of text: a serial, a name, a file name."""
-MAX_MESSAGE = 2000
-"""A whole message that holds values (an error, a warning): longer than any the station writes, short
-enough that a 60,000-character value in it does not flood the terminal."""
+PATH_CHARS = 4096
+"""A file name, shown whole (Linux's PATH_MAX): cut at ``MAX_CHARS`` it would no longer say which file."""
+MAX_MESSAGE = 6000
+"""A whole message that holds values (an error, a warning): room for a file name or two and what is
+wrong, short enough that a 60,000-character value in it does not flood the terminal."""
 
 
 def printable(value: object, max_chars: int = MAX_CHARS, escape_backslash: bool = True) -> str:

@@ -24,7 +24,7 @@ import numpy as np
 
 from protocols.frame_checksums import CHECKSUM_SIZES, checksum_rows
 from protocols.frame_description import MAX_SYNC, REQUIRED_FIELDS
-from station.common.text import printable
+from station.common.text import PATH_CHARS, printable
 
 MIN_LENGTH = 6
 MAX_LENGTH = 256
@@ -280,7 +280,7 @@ def to_yaml(g: Guess, source: str) -> str:
         A description of schema ``imu-station/frame/1`` for the user to confirm.
     """
     assert g.length is not None
-    source = printable(source)  # a file name: one line in a comment, whatever it holds
+    source = printable(source, PATH_CHARS)  # a file name: one line in a comment, whatever it holds
     varies = "first" if g.byte_order == "little" else "last"
     lines = [f"# proposed by imu-station frame guess from {source} ({g.frames} frames): check every line,",
              "# set the scales, then try it: imu-station frame check THIS.yaml --file " + source,
