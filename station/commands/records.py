@@ -71,7 +71,7 @@ EXPORT_SCHEMA = "imu-station/records-export/1"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the records command's options to ``parser``."""
-    parser.add_argument("action", nargs="?", choices=["report", "sync"], metavar="report|sync",
+    parser.add_argument("action", nargs="?", choices=["report", "sync"], metavar="ACTION",
                         help="report: the fleet report of the selected records (-o FILE.html and/or --json); "
                              "sync: store the records runs kept pending")
     add_db_arguments(parser)
@@ -224,9 +224,12 @@ def _report(args: argparse.Namespace, url: str) -> int:
         if getattr(args, option):
             raise StationError(f"--{option} is not an option of 'records report'")
     query = {k: getattr(args, k) for k in ("serial", "since", "until", "station", "outcome")}
+    refused: list[str] = []
     with RecordStore.open(url, readonly=True) as store:
+        store.refused = refused
         fleet = collect(store, query)
         certificates = store.attachment_paths(CERTIFICATE_NAME, **query) if args.output else {}
+    _refused(refused)
     if args.output is not None:
         atomic_write_text(args.output, render_fleet(fleet, certificates, Path(args.output).resolve().parent))
         print(f"{args.output}: fleet report of {len(fleet.runs)} record(s), {len(fleet.limited)} "

@@ -284,6 +284,8 @@ class RecordStore:
         self.ph = placeholder
         self.url = url
         self.wait = wait
+        self.refused: list[str] | None = None
+        """Where the lines of refused rows go when a query is given no list of its own (else the log)."""
 
     @classmethod
     def open(cls, url: str | Path, readonly: bool = False, wait: float | None = None) -> RecordStore:
@@ -552,8 +554,10 @@ class RecordStore:
         return records
 
     def _refuse(self, exc: BadRecord, refused: list[str] | None) -> None:
-        """One line for a row that is not a record: into ``refused``, else the log (stderr)."""
+        """One line for a row that is not a record: into ``refused``, else :attr:`refused`, else the log."""
         line = f"{exc}; refused, the other records are read"
+        if refused is None:
+            refused = self.refused
         if refused is not None:
             refused.append(line)
         else:

@@ -47,16 +47,15 @@ def pending_dir(files_root: Path) -> Path:
 
 
 def pending_files(files_root: Path) -> list[Path]:
-    """The pending records' files, oldest first (regular files named ``*.json`` alone)."""
+    """The pending records' files (named ``*.json``), oldest first; :func:`sync` reads regular files
+    alone and refuses the others by name."""
     folder = pending_dir(files_root)
     if not folder.is_dir():
         return []
     found = []
     for path in folder.glob("*.json"):
         with contextlib.suppress(OSError):
-            info = path.lstat()
-            if stat.S_ISREG(info.st_mode):
-                found.append((info.st_mtime_ns, path.name, path))
+            found.append((path.lstat().st_mtime_ns, path.name, path))
     return [p for _, _, p in sorted(found)]
 
 
