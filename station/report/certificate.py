@@ -361,7 +361,7 @@ def from_record(record: RunRecord, captures: list[CaptureFile] | None = None) ->
     else:
         path = Path(record.files_dir) / attached.path
         params_path, params_sha = str(path), attached.sha256
-        if path.is_file():
+        if record.attachment_file(attached) is not None and path.is_file():  # never a path out of the folder
             try:
                 params = ParamsFile.load(path)
             except StationError as exc:
