@@ -172,6 +172,76 @@ def test_fuzzing_the_parser_finds_no_crash_overrun_or_disagreement(build: Path, 
     assert mismatches == 0 and missed == 0
 
 
+@pytest.mark.parametrize("rx_max", [None, 64])
+def test_the_resyncs_worst_byte_is_the_one_the_header_states(build: Path, rx_max: int | None) -> None:
+    """205 false starts 5 bytes apart, each ending at the buffer's last byte: that byte costs CRCs over
+    105,985 bytes (measured by counting what the CRCs cover); the header states that number."""
+    defines = [f"-DIMU_LINK_RX_MAX_PAYLOAD={rx_max}"] if rx_max else []
+    exe = compile_c(build / f"resync_cost_{rx_max}", [LIB / "tests" / "resync_cost.c"], SANITIZE + defines)
+    result = run([str(exe)])
+    assert result.returncode == 0 and result.stderr == "", result.stdout + result.stderr
+    match = re.fullmatch(r"worst_byte_crc_bytes (\d+) false_starts (\d+) clean_byte_crc_bytes (\d+)\n",
+                         result.stdout)
+    assert match, result.stdout
+    worst, starts, clean = map(int, match.groups())
+    capacity = (rx_max or 1024) + 7
+    assert abs(worst - capacity**2 / 10) < 0.1 * capacity**2 / 10  # the header's rule of thumb
+    assert clean == 5  # a clean stream's byte: one SET_RATE frame's CRC
+    if rx_max is None:
+        header = " ".join((LIB / "imu_link.h").read_text().split())
+        assert f"{starts} overlapping false starts" in header and f"CRCs over {worst} bytes" in header
+        assert (worst, starts) == (105_985, 205)
+
+
+RING_8_BIT = r"""
+#include <stdio.h>
+#include "imu_link.h"
+
+int main(void)
+{
+    imu_link_ring_t r;
+    unsigned long put = 0, got = 0, errors = 0;
+    uint8_t byte, expect = 0;
+    int burst, k;
+    imu_link_ring_init(&r);
+    if (sizeof r.head != 1u || sizeof r.tail != 1u) {
+        printf("indices of %u bytes\n", (unsigned)sizeof r.head);
+        return 1;
+    }
+    for (burst = 0; burst < 400; burst++) {  /* wraps the 8-bit indices many times */
+        for (k = 0; k < 1 + burst % 150; k++) {
+            put += (unsigned long)imu_link_ring_put(&r, (uint8_t)put);
+        }
+        while (imu_link_ring_get(&r, &byte)) {
+            errors += byte != expect;
+            expect++;
+            got++;
+        }
+    }
+    printf("put %lu got %lu dropped %lu errors %lu\n", put, got, (unsigned long)r.dropped, errors);
+    return 0;
+}
+"""
+
+
+def test_the_ring_takes_8_bit_indices_for_8_bit_parts(build: Path) -> None:
+    """-DIMU_LINK_RING_INDEX=uint8_t makes head and tail one byte each (read whole on an 8-bit part),
+    the queue still full at IMU_LINK_RING_SIZE and in order across the indices' wrap; a size the 8-bit
+    indices cannot tell full from empty (256) does not compile."""
+    source = build / "ring_8_bit.c"
+    source.write_text(RING_8_BIT, encoding="utf-8")
+    flags = SANITIZE + [f"-I{LIB}", "-DIMU_LINK_RING_INDEX=uint8_t", "-DIMU_LINK_RING_SIZE=128"]
+    exe = compile_c(build / "ring_8_bit", [source, LIB / "imu_link.c"], flags)
+    result = run([str(exe)])
+    assert result.returncode == 0, result.stdout + result.stderr
+    put, got, dropped, errors = map(int, re.findall(r"\d+", result.stdout))
+    assert put == got > 20_000 and errors == 0
+    assert dropped == sum(max(0, 1 + b % 150 - 128) for b in range(400))  # a burst beyond 128 drops the rest
+    refused = run([tool("gcc"), *STRICT, "-DIMU_LINK_RING_INDEX=uint8_t", "-DIMU_LINK_RING_SIZE=256", "-c",
+                   str(LIB / "imu_link.c"), "-o", str(build / "ring_256.o")])
+    assert refused.returncode != 0 and "imu_link_ring_size_is_a_power_of_two" in refused.stderr
+
+
 # ---- the parser against the station's decoder ----------------------------------------------------
 
 

@@ -7,8 +7,10 @@
 
 /* The sample encoder copies floats bit for bit: the protocol's floats are IEEE-754 binary32. */
 typedef char imu_link_float_is_32_bits[(sizeof(float) == 4u) ? 1 : -1];
+/* The ring's free-running indices must tell a full queue from an empty one: at most half their range. */
 typedef char imu_link_ring_size_is_a_power_of_two[
     (IMU_LINK_RING_SIZE >= 2u && IMU_LINK_RING_SIZE <= 32768u &&
+     IMU_LINK_RING_SIZE <= (size_t)(imu_link_ring_index_t)-1 / 2u + 1u &&
      (IMU_LINK_RING_SIZE & (IMU_LINK_RING_SIZE - 1u)) == 0u) ? 1 : -1];
 typedef char imu_link_rx_max_payload_in_range[
     (IMU_LINK_RX_MAX_PAYLOAD >= 2u && IMU_LINK_RX_MAX_PAYLOAD <= IMU_LINK_MAX_PAYLOAD) ? 1 : -1];
@@ -18,6 +20,12 @@ typedef char imu_link_rx_max_payload_in_range[
 #define HEADER_SIZE 5u
 #define CRC_SIZE 2u
 #define RX_CAPACITY (IMU_LINK_RX_MAX_PAYLOAD + IMU_LINK_OVERHEAD)
+
+/* Counts the bytes the parser's CRCs cover: a no-op, defined by tests/resync_cost.c to measure the
+   resync's worst case stated in imu_link.h. */
+#ifndef IMU_LINK_COUNT_CRC
+#define IMU_LINK_COUNT_CRC(bytes) ((void)0)
+#endif
 
 /* ---- CRC-16/CCITT-FALSE ------------------------------------------------------------------- */
 
@@ -345,6 +353,7 @@ int imu_link_parser_next(imu_link_parser_t *p, imu_link_command_t *cmd)
         if (n < end) {
             return 0;
         }
+        IMU_LINK_COUNT_CRC(3u + (size_t)length);
         if (imu_link_crc16(b + 2, 3u + (size_t)length) !=
             (uint16_t)(b[end - 2u] | (b[end - 1u] << 8))) {
             reject_candidate(p);
@@ -384,23 +393,23 @@ void imu_link_ring_init(imu_link_ring_t *r)
 
 int imu_link_ring_put(imu_link_ring_t *r, uint8_t byte)
 {
-    uint16_t head = r->head;
-    if ((uint16_t)(head - r->tail) >= IMU_LINK_RING_SIZE) {
+    imu_link_ring_index_t head = r->head;
+    if ((imu_link_ring_index_t)(head - r->tail) >= IMU_LINK_RING_SIZE) {
         r->dropped++;
         return 0;
     }
     r->data[head & (IMU_LINK_RING_SIZE - 1u)] = byte;
-    r->head = (uint16_t)(head + 1u);  /* published after the byte: both are volatile, so in order */
+    r->head = (imu_link_ring_index_t)(head + 1u);  /* published after the byte: both volatile, so in order */
     return 1;
 }
 
 int imu_link_ring_get(imu_link_ring_t *r, uint8_t *byte)
 {
-    uint16_t tail = r->tail;
+    imu_link_ring_index_t tail = r->tail;
     if (r->head == tail) {
         return 0;
     }
     *byte = r->data[tail & (IMU_LINK_RING_SIZE - 1u)];
-    r->tail = (uint16_t)(tail + 1u);
+    r->tail = (imu_link_ring_index_t)(tail + 1u);
     return 1;
 }

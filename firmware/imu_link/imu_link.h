@@ -8,11 +8,21 @@
  * Interrupt safety: every function works only on the objects it is given, so the UART receive
  * interrupt may call imu_link_parse_byte() on a parser that nothing else touches. Most bytes cost
  * a few comparisons, but the byte that completes a frame checks its CRC, and resynchronising
- * after a damaged frame searches again the bytes that frame claimed (up to
- * IMU_LINK_RX_MAX_PAYLOAD), so the worst byte costs far more than the average one. A firmware
- * that cannot spend that in its interrupt puts the bytes in an imu_link_ring_t from the interrupt
- * (imu_link_ring_put) and parses them in its main loop (imu_link_ring_get): the one-producer,
- * one-consumer queue below.
+ * after a damaged frame searches again the bytes that frame claimed, checking the CRC of every
+ * false start among them whose claimed frame is complete. The worst case, measured by
+ * tests/resync_cost.c: 205 overlapping false starts, 5 bytes apart and each claiming a frame that
+ * ends at the same byte, make that one byte cost CRCs over 105985 bytes with the default
+ * IMU_LINK_RX_MAX_PAYLOAD of 1024 (about 103 times the CRC of the longest frame; in general about
+ * (IMU_LINK_RX_MAX_PAYLOAD + 7)^2 / 10 bytes), where a byte of a clean stream costs at most one
+ * frame's CRC. A firmware that cannot spend that in its interrupt puts the bytes in an
+ * imu_link_ring_t from the interrupt (imu_link_ring_put) and parses them in its main loop
+ * (imu_link_ring_get): the one-producer, one-consumer queue below.
+ *
+ * 8-bit parts: the ring's head and tail are uint16_t by default, which an 8-bit CPU (AVR, 8051,
+ * PIC) reads in two instructions; an interrupt between them tears the value, and the main loop may
+ * take bytes that were never put. There, compile with -DIMU_LINK_RING_INDEX=uint8_t (and an
+ * IMU_LINK_RING_SIZE of at most 128): each index is then one byte, read and written whole. The
+ * `dropped` counter stays a uint32_t: read it with the receive interrupt disabled.
  */
 #ifndef IMU_LINK_H
 #define IMU_LINK_H
@@ -54,10 +64,16 @@ extern "C" {
 #define IMU_LINK_RX_MAX_PAYLOAD IMU_LINK_MAX_PAYLOAD
 #endif
 
-/* Size of imu_link_ring_t's queue, a power of two no larger than 32768. */
+/* Size of imu_link_ring_t's queue, a power of two no larger than 32768 (128 with 8-bit indices). */
 #ifndef IMU_LINK_RING_SIZE
 #define IMU_LINK_RING_SIZE 256u
 #endif
+
+/* The ring's index type: uint16_t, or uint8_t where a 16-bit read is not atomic (8-bit parts, see above). */
+#ifndef IMU_LINK_RING_INDEX
+#define IMU_LINK_RING_INDEX uint16_t
+#endif
+typedef IMU_LINK_RING_INDEX imu_link_ring_index_t;
 
 typedef struct {
     uint32_t seq;
@@ -85,8 +101,8 @@ typedef struct {
 
 /* One-producer, one-consumer byte queue: an interrupt puts, the main loop gets. */
 typedef struct {
-    volatile uint16_t head;     /* written only by imu_link_ring_put */
-    volatile uint16_t tail;     /* written only by imu_link_ring_get */
+    volatile imu_link_ring_index_t head;     /* written only by imu_link_ring_put */
+    volatile imu_link_ring_index_t tail;     /* written only by imu_link_ring_get */
     volatile uint32_t dropped;  /* bytes put while the queue was full */
     volatile uint8_t data[IMU_LINK_RING_SIZE];
 } imu_link_ring_t;
