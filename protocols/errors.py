@@ -27,6 +27,8 @@ class ExitCode(IntEnum):
     """A time limit of the factory plan was exceeded."""
     INTERRUPTED = 130
     """Ctrl-C (128 + SIGINT, as a shell reports it)."""
+    TERMINATED = 143
+    """SIGTERM (128 + SIGTERM), handled as Ctrl-C is: samples kept, unfinished output sets discarded."""
 
 
 class StationError(Exception):

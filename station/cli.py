@@ -12,12 +12,14 @@ import argparse
 import importlib
 import os
 import re
+import signal
 import sys
 from collections.abc import Sequence
-from typing import NoReturn
+from types import FrameType
+from typing import Any, NoReturn
 
 from station import __version__
-from station.errors import ExitCode, StationError
+from station.errors import ExitCode, StationError, Terminated
 
 # OpenBLAS's threads buy no wall time on the small matrices the commands use, and spin on the other core
 # meanwhile: on a busy two-core station an SVD of 4000 x 9 took 7 ms with two threads against 0.3 ms with
@@ -164,30 +166,77 @@ def main(argv: Sequence[str] | None = None) -> int:
         from argparse after its one-line message.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    previous = _raise_on_signals()
+    try:
+        return _main(argv)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _main(argv: list[str]) -> int:
     try:
         parser = build_parser(_chosen_command(argv))
-    except KeyboardInterrupt:
+        args = parser.parse_args(argv)
+        if not getattr(args, "_run", None):
+            parser.print_help()
+            return ExitCode.USAGE
+        # frame descriptions (--protocol frame:FILE.yaml, a plan's protocol) are readable by every command
+        # that talks to a unit; those that only read files skip the reader and protocols.frame (30 ms)
+        if args.command not in FILE_ONLY_COMMANDS:
+            from station.frames import reader  # noqa: F401
+    except BaseException as exc:
+        if not (isinstance(exc, KeyboardInterrupt) or _SIGNALLED):
+            raise
         print("imu-station: interrupted while starting", file=sys.stderr)
-        return ExitCode.INTERRUPTED
-    args = parser.parse_args(argv)
-    if not getattr(args, "_run", None):
-        parser.print_help()
-        return ExitCode.USAGE
-    # frame descriptions (--protocol frame:FILE.yaml, a plan's protocol) are readable by every command that
-    # talks to a unit; those that only read files skip the reader and protocols.frame (30 ms of start-up)
-    if args.command not in FILE_ONLY_COMMANDS:
-        from station.frames import reader  # noqa: F401
+        return _interrupted_code(exc)
     try:
-        return int(args._run(args) or ExitCode.OK)
+        code = int(args._run(args) or ExitCode.OK)
+        # a command that ended itself on the interrupt says Ctrl-C; the signal was SIGTERM
+        return ExitCode.TERMINATED if code == ExitCode.INTERRUPTED and signal.SIGTERM in _SIGNALLED else code
     except StationError as exc:
         from station.common.text import printable_message
 
         # the message holds what the user, a file or a unit gave (a file name, a plan's key, a serial)
         print(f"imu-station {args.command}: error: {printable_message(exc)}", file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
-        print(f"imu-station {args.command}: interrupted", file=sys.stderr)
-        return ExitCode.INTERRUPTED
+    except BaseException as exc:
+        if not (isinstance(exc, KeyboardInterrupt) or _SIGNALLED):
+            raise
+        code = _interrupted_code(exc)
+        print(f"imu-station {args.command}: {'terminated' if code == ExitCode.TERMINATED else 'interrupted'}",
+              file=sys.stderr)
+        return code
+
+
+_SIGNALLED: list[int] = []  # the signals that came while a command ran
+
+
+def _raise_on_signals() -> dict[int, Any]:
+    """Ctrl-C raises ``KeyboardInterrupt`` (in place of the handler ``station`` installs for the
+    imports) and SIGTERM :class:`~station.errors.Terminated`, so that both end a command the same
+    way: samples kept, unfinished output sets discarded, temporary files removed. Each signal is
+    noted too, since a library may turn the interrupt into an error of its own (numpy's import
+    into an ``ImportError``). Returns the handlers it replaced, to be put back."""
+    import threading
+
+    _SIGNALLED.clear()
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+
+    def interrupted(signum: int, frame: FrameType | None) -> None:
+        _SIGNALLED.append(signum)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    previous = {int(sig): signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    signal.signal(signal.SIGINT, interrupted)
+    signal.signal(signal.SIGTERM, interrupted)
+    return previous
+
+
+def _interrupted_code(exc: BaseException) -> ExitCode:
+    terminated = isinstance(exc, Terminated) or signal.SIGTERM in _SIGNALLED
+    return ExitCode.TERMINATED if terminated else ExitCode.INTERRUPTED
 
 
 if __name__ == "__main__":

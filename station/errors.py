@@ -44,13 +44,21 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
                └── CommandUnsupported
 
 Decoders never raise on bad bytes (they count them), so no decoding error appears here.
+
+Beside the tree, :class:`Terminated` is SIGTERM raised where Ctrl-C's ``KeyboardInterrupt`` would
+be, so that every command that keeps its samples or discards an unfinished output set on Ctrl-C
+does the same when a service manager or a factory script stops it (exit 143).
 """
 
 from __future__ import annotations
 
 from protocols.errors import ExitCode, StationError
 
-__all__ = ["EngineInputError", "ExitCode", "InputFileError", "OutputFileError", "StationError"]
+__all__ = ["EngineInputError", "ExitCode", "InputFileError", "OutputFileError", "StationError", "Terminated"]
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM: raised as Ctrl-C is, handled wherever Ctrl-C is; the command exits 143."""
 
 
 class InputFileError(StationError):

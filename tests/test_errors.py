@@ -95,7 +95,8 @@ def test_a_sequence_label_error_is_a_station_error() -> None:
 
 def test_the_exit_codes_are_the_documented_ones() -> None:
     assert {c.name: int(c) for c in ExitCode} == {"OK": 0, "OUT_OF_LIMITS": 1, "ABORTED": 2, "DEVICE": 3,
-                                                 "USAGE": 4, "TIMEOUT": 5, "INTERRUPTED": 130}
+                                                 "USAGE": 4, "TIMEOUT": 5, "INTERRUPTED": 130,
+                                                 "TERMINATED": 143}
     assert station.errors.ExitCode is ExitCode and station.errors.StationError is StationError
 
 

@@ -11,18 +11,15 @@ batch; the units take turns, so the writes are spread over the period, not all o
 The recorders write from a thread of their own, in order: a disk that stalls (writeback, a slow
 card) delays the files, never the reading of the ports, whose buffers hold well under a second.
 
-A unit is asked who it is (GET_INFO) as its port opens; its file is ``SERIAL.csv`` (or ``.h5``)
-in the directory, with the serial it reports. A unit that does not answer (twice), or speaks a
-protocol without commands, is named after its port. A serial reported by two ports names the
-second file ``SERIAL-2`` (the third ``SERIAL-3``...), which the outcome notes: no unit's
-samples are dropped for a provisioning mistake. Samples that come before the answer wait in
-memory and open the file.
+A unit is asked who it is (GET_INFO) as its port opens; its file is ``SERIAL.csv`` (or ``.h5``) in
+the directory. A unit that does not answer (twice), or speaks a protocol without commands, is named
+after its port. A serial reported by two ports names the second file ``SERIAL-2`` (the third
+``SERIAL-3``...), noted in the outcome: no samples are dropped for a provisioning mistake. Samples
+that come before the answer wait in memory and open the file.
 
-A unit that fails (its port does not open, vanishes, sends no sample in
-``NO_SAMPLES_TIMEOUT_S``: silent or garbage, or floods more bytes than its share of each turn
-decodes: :class:`~drivers.errors.PortFlooding`) ends with its error, keeping every sample it sent;
-the others go on at their full rate (each port's reading and decoding per turn is bounded).
-Ctrl-C ends every unit, keeping every sample received.
+A unit that fails (its port does not open, vanishes, sends no sample in ``NO_SAMPLES_TIMEOUT_S``,
+floods more than its bounded share of a turn decodes) ends with its error, keeping every sample it
+sent; the others go on at their full rate. Ctrl-C ends every unit, keeping every sample received.
 """
 
 from __future__ import annotations
@@ -58,11 +55,9 @@ from station.acquisition.recorder import (
 from station.common.text import printable
 
 READ_PERIOD_S = 0.02  # a pty holds ~20 KB: 0.4 s of a 1 kHz unit, far more than a turn
-# A port is read every turn (its buffer never fills) but its bytes are decoded every DECODE_PERIOD_S, or
-# once DECODE_BYTES gathered: fewer, larger decoder calls; a unit being asked who it is, every turn.
-DECODE_PERIOD_S = 0.04
-DECODE_BYTES = 16_384
-BEHIND_BYTES = 4 * DECODE_BYTES  # undecoded bytes a unit's status line reports (its port floods)
+# A port is read every turn (its buffer never fills), its bytes decoded every DECODE_PERIOD_S or once
+# DECODE_BYTES gathered (every turn while it is asked who it is); BEHIND_BYTES undecoded: it floods.
+DECODE_PERIOD_S, DECODE_BYTES, BEHIND_BYTES = 0.04, 16_384, 65_536
 WRITE_PERIOD_S = 1.0  # the HDF5 writer costs ~1 ms a call whatever the rows: fewer, larger batches
 STATUS_INTERVAL_S = 0.25
 INFO_TIMEOUT_S = 0.5
@@ -176,9 +171,9 @@ class _Unit:
         if self.done:
             state = "done" if self.error is None else f"failed: {self.error}"
         else:
-            state = "recording" if self.stem is not None else "preparing"
-            if self.port.backlog_bytes > BEHIND_BYTES:
-                state += f", {self.port.backlog_bytes // 1024} KiB not decoded yet (the port floods)"
+            behind = self.port.backlog_bytes
+            state = ("recording" if self.stem is not None else "preparing") + (
+                f", {behind // 1024} KiB not decoded yet (the port floods)" if behind > BEHIND_BYTES else "")
         return UnitStatus(self.port.port, self.stem or self.port.port, self.port.stats,
                           rec.rows if rec is not None else 0, rec.device_time_s if rec is not None else 0.0,
                           state)

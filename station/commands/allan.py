@@ -184,7 +184,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     """
     # the engines load here, not when --help is asked for
     from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
-    from station.common.files import atomic_write_text
+    from station.common.files import atomic_write_text, output_set
     from station.engines.allan.deviation import allan_curve, cluster_sizes
     from station.engines.allan.fit import identify_noise
     from station.export.estimators import kalibr
@@ -231,20 +231,22 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
         from station.export.estimators.gauss_markov import gm_yaml
 
         texts[args.gm] = gm_yaml(section, args.gm_rate)
-    for path, text in texts.items():
-        atomic_write_text(path, text)
-        outputs[str(path)] = "written"
-    if args.curve:
-        noise_file.write_curve_csv(args.curve, curve)
-        outputs[str(args.curve)] = "written"
-    if args.plot:
-        from station.plots.allan import write_png
+    # one set: a new Kalibr file never stands beside the old parameter file, whatever interrupts
+    with output_set():
+        for path, text in texts.items():
+            atomic_write_text(path, text)
+            outputs[str(path)] = "written"
+        if args.curve:
+            noise_file.write_curve_csv(args.curve, curve)
+            outputs[str(args.curve)] = "written"
+        if args.plot:
+            from station.plots.allan import write_png
 
-        write_png(args.plot, curve, noise, title=f"imu-station allan {args.input.name}")
-        outputs[str(args.plot)] = "written"
-    if args.output:
-        merge_sections(args.output, device, {"noise": section}, capture=args.input, replace=args.replace)
-        outputs[str(args.output)] = "noise section written"
+            write_png(args.plot, curve, noise, title=f"imu-station allan {args.input.name}")
+            outputs[str(args.plot)] = "written"
+        if args.output:
+            merge_sections(args.output, device, {"noise": section}, capture=args.input, replace=args.replace)
+            outputs[str(args.output)] = "noise section written"
     return {"noise": section, "outputs": outputs}
 
 

@@ -108,7 +108,8 @@ def run(args: argparse.Namespace) -> int:
 
     from station.acquisition.capture import read_capture, require_finite
     from station.acquisition.capture_csv import write_csv
-    from station.common.text import PATH_CHARS, markup_safe, printable
+    from station.common.text import PATH_CHARS, printable
+    from station.console.markup import markup_safe
     from station.export.params.file import ParamsFile
 
     params = ParamsFile.load(args.params)

@@ -171,8 +171,9 @@ def run_mag(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from station.acquisition.capture import read_capture
-    from station.common.text import PATH_CHARS, markup_safe
+    from station.common.text import PATH_CHARS
     from station.console.mag_summary import mag_report_dict, print_mag_report
+    from station.console.markup import markup_safe
     from station.engines.magnetometer.calibration import MagCapture, MagSettings, calibrate_mag
     from station.errors import InputFileError
     from station.export.params.file import merge_sections, open_for_unit

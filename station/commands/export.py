@@ -78,6 +78,7 @@ def _refuse_own_input(params: str, output: str, fmt: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export the parameter file and print the report (text, or JSON with ``--json``)."""
+    from station.common.files import output_set
     from station.export.params.file import ParamsFile
     from station.export.writers import AUTOPILOTS, MAX_INSTANCE, report_lines, write_export
 
@@ -89,9 +90,11 @@ def run(args: argparse.Namespace) -> int:
                            + (f" for {args.format}" if args.format in AUTOPILOTS else ""))
     _refuse_own_input(args.params, args.output, args.format)
     params = ParamsFile.load(args.params)
-    result = write_export(params, args.format, args.output, source=args.params, station_id=args.station_id,
-                          instance=args.instance, device_id=args.device_id,
-                          gyro_device_id=args.gyro_device_id, plot=args.plot)
+    # one set: a new header never stands beside an older unit's blob, whatever interrupts
+    with output_set():
+        result = write_export(params, args.format, args.output, source=args.params,
+                              station_id=args.station_id, instance=args.instance, device_id=args.device_id,
+                              gyro_device_id=args.gyro_device_id, plot=args.plot)
     report = result.report()
     autopilot_only = [name for name, given in (("--device-id", args.device_id is not None),
                                                ("--gyro-device-id", args.gyro_device_id is not None),

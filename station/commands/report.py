@@ -67,8 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _stage(text: str) -> None:
-    """A progress line on stderr: what long step starts (reading captures, an Allan curve, printing)."""
-    print(f"imu-station report: {text} ...", file=sys.stderr, flush=True)
+    """A progress line on stderr: what long step starts (reading captures, an Allan curve, printing);
+    it names files and a unit's serial, shown escaped."""
+    from station.common.text import printable
+
+    print(f"imu-station report: {printable(text, max_chars=400)} ...", file=sys.stderr, flush=True)
 
 
 def _from_params(args: argparse.Namespace) -> Certificate:
@@ -130,7 +133,9 @@ def _from_record(args: argparse.Namespace) -> Certificate:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Write the certificate (and its PDF); exit 0, or 4 for bad input."""
+    """Write the certificate (and its PDF) as one set of files; exit 0, or 4 for bad input."""
+    from station.common.files import output_set, staged_path
+    from station.common.text import printable
     from station.report.certificate import write_certificate
 
     if (args.params is None) == (args.serial is None):
@@ -142,18 +147,21 @@ def run(args: argparse.Namespace) -> int:
     cert.station = args.station or os.environ.get("IMU_STATION_ID") or cert.station
     cert.operator = args.operator or ""
     cert.on_stage = _stage
-    notes = write_certificate(cert, args.output)
+    # The page and its PDF appear together or not at all: a new page never stands beside an old PDF.
+    with output_set():
+        notes = write_certificate(cert, args.output)
+        if args.pdf is not None:
+            from station.report.pdf import html_to_pdf
+
+            _stage(f"printing {args.pdf} with headless Chromium")
+            html_to_pdf(staged_path(args.output), args.pdf)
     if cert.record is not None:
         serial = cert.record.serial
     else:
         serial = cert.params.device.get("serial", "?") if cert.params is not None else "?"
-    print(f"{args.output}: calibration certificate of unit {serial}")
+    print(f"{printable(args.output, 400)}: calibration certificate of unit {printable(serial)}")
     for note in notes:
-        print(f"imu-station report: note: {note}", file=sys.stderr)
+        print(f"imu-station report: note: {printable(note, 400)}", file=sys.stderr)
     if args.pdf is not None:
-        from station.report.pdf import html_to_pdf
-
-        _stage(f"printing {args.pdf} with headless Chromium")
-        html_to_pdf(args.output, args.pdf)
-        print(f"{args.pdf}: PDF printed")
+        print(f"{printable(args.pdf, 400)}: PDF printed")
     return ExitCode.OK

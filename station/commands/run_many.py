@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     """Run every unit, print the summary (or JSON); exit with the worst unit's code."""
     from rich.console import Console
 
-    from station.common.text import markup_safe
+    from station.console.markup import markup_safe
     from station.factory.many import RunMany, summary_table, worst_exit_code
     from station.factory.plan import load_plan, with_protocol
     from station.factory.spool import pending_dir

@@ -125,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from station.acquisition.capture import read_capture, require_finite
-    from station.common.text import PATH_CHARS, markup_safe, printable, printable_message
+    from station.common.text import PATH_CHARS, printable, printable_message
+    from station.console.markup import markup_safe
     from station.console.thermal_report import format_report
     from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
     from station.export.params.file import merge_sections, open_for_unit, to_plain

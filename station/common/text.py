@@ -5,7 +5,7 @@ serial number would clear the operator's screen or retitle the terminal, a bidir
 would show the text reversed, Rich markup would restyle a TUI table. Everything printed from a
 unit goes through :func:`printable` (the files the station writes escape in their own syntax: C
 string literals, YAML and JSON quoting, ``#`` comments); text placed inside a Rich markup string
-goes through :func:`markup_safe`, which also escapes the markup.
+goes through :func:`station.console.markup.markup_safe`, which also escapes the markup.
 """
 
 from __future__ import annotations
@@ -72,25 +72,3 @@ def _escape(ch: str) -> str:
     if code <= 0xFF:
         return f"\\x{code:02x}"
     return f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"
-
-
-def markup_safe(value: object, max_chars: int = MAX_CHARS) -> str:
-    """:func:`printable` with Rich markup escaped too, for data (a unit's serial, a plan or station
-    name, a record's reason, a file name) placed inside a markup string: ``[link=...]`` or
-    ``[/]`` in the data shows as typed instead of styling the terminal or failing to parse.
-
-    Parameters
-    ----------
-    value : object
-        What a unit, a plan, a record or the operator supplied.
-    max_chars : int
-        Longer results are cut and end with ``...`` (before the markup escapes are added).
-
-    Returns
-    -------
-    str
-        Text safe to interpolate into Rich markup.
-    """
-    from rich.markup import escape
-
-    return escape(printable(value, max_chars))

@@ -64,7 +64,8 @@ def print_mag_report(cal: MagCalibration, field_source: str, console: Console) -
     """
     from rich.table import Table
 
-    from station.common.text import MAX_MESSAGE, markup_safe
+    from station.common.text import MAX_MESSAGE
+    from station.console.markup import markup_safe
 
     console.print(f"[bold]{cal.method}[/] (frame: {cal.frame}), forward model raw = A true + b, microtesla")
     field_sd = cal.stddev.get("field_norm")

@@ -10,7 +10,7 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedCo
 from rich.table import Column
 
 from station.acquisition.multi_capture import UnitStatus
-from station.common.text import markup_safe
+from station.console.markup import markup_safe
 from station.console.status_line import status_text
 
 # Fewer redraws than the single line's: 32 lines redrawn 10 times a second cost more than the units.
