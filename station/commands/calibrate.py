@@ -171,6 +171,7 @@ def run_mag(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from station.acquisition.capture import read_capture
+    from station.common.files import output_set
     from station.common.text import PATH_CHARS
     from station.console.mag_summary import mag_report_dict, print_mag_report
     from station.console.markup import markup_safe
@@ -197,18 +198,19 @@ def run_mag(args: argparse.Namespace) -> int:
         cal = calibrate_mag(MagCapture(capture.t, capture.mag, acc, capture.gyro),
                             MagSettings(field_ut=field, model_dip_deg=dip, estimate_accel=accel is None))
     outputs = {}
-    if args.output:
-        merge_sections(args.output, capture.device, {MAG: mag_section(cal, field_source)}, capture=args.input,
-                       replace=args.replace)
-        outputs[str(args.output)] = "mag section written" + (
-            " (accelerometer corrected with its accel section)" if accel is not None
-            else " (accelerometer estimated from the still poses)" if cal.accel_estimated else "")
-    if args.plot:
-        from station.plots.magnetometer import plot_mag
+    with output_set():  # the section and its plot together, or neither
+        if args.output:
+            merge_sections(args.output, capture.device, {MAG: mag_section(cal, field_source)},
+                           capture=args.input, replace=args.replace)
+            outputs[str(args.output)] = "mag section written" + (
+                " (accelerometer corrected with its accel section)" if accel is not None
+                else " (accelerometer estimated from the still poses)" if cal.accel_estimated else "")
+        if args.plot:
+            from station.plots.magnetometer import plot_mag
 
-        plot_mag(cal, capture.t, capture.mag, args.plot,
-                 f"imu-station calibrate --method mag {args.input.name}")
-        outputs[str(args.plot)] = "written"
+            plot_mag(cal, capture.t, capture.mag, args.plot,
+                     f"imu-station calibrate --method mag {args.input.name}")
+            outputs[str(args.plot)] = "written"
     if args.json:
         import json
 
@@ -412,6 +414,7 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
     from station.acquisition.capture import read_capture
+    from station.common.files import output_set
     from station.common.text import PATH_CHARS, printable
     from station.export.params.file import merge_sections, open_for_unit
 
@@ -426,14 +429,15 @@ def run(args: argparse.Namespace) -> int:
         phase.show("calibrating")
         report = calibrate_capture(capture, args)
     outputs = {}
-    if args.output:
-        merge_sections(args.output, capture.device, {"accel": report.accel, "gyro": report.gyro},
-                       capture=args.input, replace=args.replace)
-        written = "accel and gyro sections" if report.gyro is not None else "accel section"
-        outputs[str(args.output)] = f"{written} written"
-    if args.plot:
-        write_plot(args.plot, report, args.input.name)
-        outputs[str(args.plot)] = "written"
+    with output_set():  # the sections and their plot together, or neither
+        if args.output:
+            merge_sections(args.output, capture.device, {"accel": report.accel, "gyro": report.gyro},
+                           capture=args.input, replace=args.replace)
+            written = "accel and gyro sections" if report.gyro is not None else "accel section"
+            outputs[str(args.output)] = f"{written} written"
+        if args.plot:
+            write_plot(args.plot, report, args.input.name)
+            outputs[str(args.plot)] = "written"
     if args.json:
         import json  # only --json needs it (2-4 ms of start-up)
 

@@ -109,7 +109,7 @@ def _from_record(args: argparse.Namespace) -> Certificate:
     if "://" not in url and not Path(url).exists():
         raise StationError(f"--db {url}: no such record database; give the file 'imu-station run' wrote "
                            "(or set IMU_STATION_DB)")
-    with RecordStore.open(url) as store:
+    with RecordStore.open(url, readonly=True) as store:
         records = store.query(serial=args.serial)
     if not records:
         raise StationError(f"--serial {args.serial}: no record of this unit in {url}; "
@@ -123,8 +123,8 @@ def _from_record(args: argparse.Namespace) -> Certificate:
     record = records[-1]
     captures = []
     for a in record.attachments():
-        path = Path(record.files_dir) / a.path
-        if a.mimetype == "text/csv" and path.is_file():
+        path = record.attachment_file(a)  # None: out of the record's folder, or not a regular file
+        if a.mimetype == "text/csv" and path is not None and path.is_file():
             try:
                 captures.append(CaptureFile(str(path), a.sha256, read_capture(path)))
             except StationError:
@@ -147,14 +147,17 @@ def run(args: argparse.Namespace) -> int:
     cert.station = args.station or os.environ.get("IMU_STATION_ID") or cert.station
     cert.operator = args.operator or ""
     cert.on_stage = _stage
+    from station.report.pdf import find_browser, html_to_pdf
+
+    printing = args.pdf is not None and find_browser() is not None
     # The page and its PDF appear together or not at all: a new page never stands beside an old PDF.
     with output_set():
         notes = write_certificate(cert, args.output)
-        if args.pdf is not None:
-            from station.report.pdf import html_to_pdf
-
+        if printing:
             _stage(f"printing {args.pdf} with headless Chromium")
             html_to_pdf(staged_path(args.output), args.pdf)
+    if args.pdf is not None and not printing:
+        html_to_pdf(args.output, args.pdf)  # no Chromium: says what to install, the page is written
     if cert.record is not None:
         serial = cert.record.serial
     else:

@@ -125,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from station.acquisition.capture import read_capture, require_finite
+    from station.common.files import output_set
     from station.common.text import PATH_CHARS, printable, printable_message
     from station.console.markup import markup_safe
     from station.console.thermal_report import format_report
@@ -152,14 +153,15 @@ def run(args: argparse.Namespace) -> int:
         sweep = ThermalSweep(capture.t, capture.temp, capture.acc, capture.gyro, capture.step,
                              accel_cal=params.accel, gyro_cal=params.gyro)
         fit = fit_thermal(sweep, settings, progress=lambda done: progress.update(task, completed=done))
-        if args.plot:
-            progress.update(task, description=f"plotting {markup_safe(args.plot, PATH_CHARS)}")
-            from station.plots.thermal import plot_thermal
+        with output_set():  # the section and its plot together, or neither
+            if args.plot:
+                progress.update(task, description=f"plotting {markup_safe(args.plot, PATH_CHARS)}")
+                from station.plots.thermal import plot_thermal
 
-            plot_thermal(fit, args.plot)
-        progress.update(task, description=f"writing {markup_safe(args.output, PATH_CHARS)}")
-        merge_sections(args.output, capture.device, {"thermal": fit.model}, capture=args.input,
-                       replace=args.replace)
+                plot_thermal(fit, args.plot)
+            progress.update(task, description=f"writing {markup_safe(args.output, PATH_CHARS)}")
+            merge_sections(args.output, capture.device, {"thermal": fit.model}, capture=args.input,
+                           replace=args.replace)
     calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
     for message in fit.warnings:
         print(f"warning: {printable_message(message)}", file=sys.stderr)
