@@ -59,8 +59,11 @@ class _Parser(argparse.ArgumentParser):
     on the factory line)."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(ExitCode.USAGE, f"{self.prog}: error: {message}{_did_you_mean(message)} "
-                                  f"(see '{self.prog} --help')\n")
+        from station.common.text import printable_message
+
+        # the message repeats what was typed (or pasted: escape sequences, a file name from a unit)
+        self.exit(ExitCode.USAGE, f"{self.prog}: error: {printable_message(message)}"
+                                  f"{printable_message(_did_you_mean(message))} (see '{self.prog} --help')\n")
 
 
 def _did_you_mean(message: str) -> str:

@@ -87,6 +87,16 @@ def small_capture(path: Path, rows: int = 400, temp: float = 25.0) -> Path:
 
 
 # ---- item 2: every command that prints what it was given -------------------------------------------------
+def test_a_usage_error_escapes_the_argument_it_repeats(capsys: pytest.CaptureFixture[str]) -> None:
+    argument = f"--nonsense{CONTROLS_TEXT}"
+    with pytest.raises(SystemExit) as ended:
+        cli.main(["allan", "x.csv", argument])
+    assert ended.value.code == 4
+    err = capsys.readouterr().err
+    assert "unrecognized arguments" in err
+    assert_inert(err, printable(argument))
+
+
 
 
 def test_capture_escapes_the_units_markup_and_the_file_name(tmp_path: Path, terminal) -> None:
