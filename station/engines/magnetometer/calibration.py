@@ -4,7 +4,9 @@ jointly with the dip-angle constraint (the equations are in :mod:`station.engine
 The steps:
 
 1. rows with a magnetometer sample; refuse constant or clipped readings (:mod:`inputs`);
-2. a start: the least-squares sphere (eq. (7) of ``fit``); where its directions cover at least
+2. a start: the least-squares sphere (eq. (7) of ``fit``), refused where the field's direction did
+   not move beyond the readings' noise or the sphere does not locate its centre (:mod:`determined`:
+   a sphere through a still unit's noise sees every direction); where its directions cover at least
    ``ELLIPSOID_COVERAGE`` of the sphere, the algebraic ellipsoid (eq. (6)) instead, since on a
    partial cover the quadric is poorly determined and may not even be an ellipsoid; refuse
    directions in a plane or covering less than ``MIN_COVERAGE``;
@@ -20,7 +22,9 @@ The steps:
    out, and so is a pose in a disturbed stretch;
 5. the final Levenberg-Marquardt fit, each residual set weighted by its own scatter, and its
    covariance s^2 (J^T J)^-1 (``calibration_common.covariance``) propagated to every reported value;
-   an accelerometer z bias held at zero near level adds its share as a consider parameter.
+   an accelerometer z bias held at zero near level adds its share as a consider parameter; a result
+   with a value that is not a finite real number, or a 1-sigma above a tenth of its quantity's size,
+   is refused (``determined`` eq. (4)).
 
 Without the operator's field magnitude F the data's own is used: the fit runs at the start's F and
 is then rescaled so that det C = 1 (the geometric mean of the ellipsoid's semi-axes becomes F):
@@ -44,13 +48,13 @@ from station.engines.calibration.common import covariance, propagate
 from station.engines.calibration.free_accel import acc_initial_guess
 from station.engines.magnetometer.accel import ALL, NO_Z_BIAS, PoseAccel
 from station.engines.magnetometer.coverage import MagCoverage, field_coverage
+from station.engines.magnetometer.determined import check_centre, check_result
 from station.engines.magnetometer.fit import (
     JointProblem,
     Start,
     ellipsoid_fit,
     initial_rotation,
     polar,
-    sphere_fit,
 )
 from station.engines.magnetometer.inputs import (
     Disturbance,
@@ -78,6 +82,9 @@ WARN_COVERAGE = 0.5
 # Still poses the dip constraint needs, and the least spread of their down directions (deg): with
 # one attitude only, the rotation about the field is free.
 MIN_POSES, MIN_DOWN_SPREAD_DEG = 4, 10.0
+# Still poses an accelerometer estimated with the fit needs: its nine intrinsics, and a few residuals
+# beyond them for their covariance (fewer: the least squares has more unknowns than residuals).
+MIN_ACCEL_POSES = 12
 # A dip residual beyond this many robust sigmas is a pose that was not still after all.
 DIP_OUTLIER_SIGMAS = 6.0
 # Differences between the estimated dip and the geomagnetic model's worth a warning (deg).
@@ -252,8 +259,10 @@ def rotation_vector(rot: np.ndarray) -> np.ndarray:
 
 
 def _start(m: np.ndarray) -> Start:
-    """Step 2: the sphere, or the ellipsoid where the sphere's directions cover enough."""
-    sphere = sphere_fit(m)
+    """Step 2: the sphere, or the ellipsoid where the sphere's directions cover enough; refused where
+    the field did not move beyond the noise or the sphere does not locate its centre (``determined``
+    eqs. (2)-(3)): a sphere through a still unit's noise sees directions everywhere."""
+    sphere = check_centre(m).start
     check_directions(m - sphere.bias)
     cover = field_coverage(m - sphere.bias)
     if cover.share < MIN_COVERAGE:
@@ -316,8 +325,9 @@ def calibrate_mag(data: MagCapture, settings: MagSettings = MagSettings()) -> Ma
     start = _start(m)
     warnings: list[str] = []
     gravity = _gravity_reference(data, rows, settings, warnings)
+    # |det|: a negative determinant (a left-handed start) would make the cube root complex
     field_fit = settings.field_ut if settings.field_ut is not None else float(
-        np.linalg.det(start.correction) ** (-1.0 / 3.0))
+        abs(np.linalg.det(start.correction)) ** (-1.0 / 3.0))
     # consecutive samples of a fast magnetometer repeat one another: a stride keeps the magnitude
     # fit's size bounded (the still poses' means use every sample)
     step = -(-len(m) // MAX_FIT_SAMPLES)
@@ -431,6 +441,13 @@ def _gravity_reference(data: MagCapture, rows: np.ndarray, settings: MagSettings
                         "rotation to the accelerometer needs still poses at several tilts (hold the unit "
                         "still for a second at each); fitted in the magnetometer's own axes instead")
         return replace(none, noise=noise)
+    if settings.estimate_accel and len(stretches) < MIN_ACCEL_POSES:
+        warnings.append(f"only {len(stretches)} still poses and no accelerometer calibration: its nine "
+                        f"intrinsics need at least {MIN_ACCEL_POSES} (hold the unit still for a second at "
+                        "each, or calibrate the accelerometer first with imu-station calibrate --method "
+                        "free -o PARAMS and run this again with the same PARAMS); fitted in the "
+                        "magnetometer's own axes instead")
+        return replace(none, noise=noise)
     spread = gravity_spread(acc, still)
     if not settings.estimate_accel and spread is not None and spread > GRAVITY_SPREAD:
         warnings.append(f"|a| differs by {spread:.2%} (1 sigma) between the still poses: the accelerometer "
@@ -498,7 +515,9 @@ def _normalised(problem: JointProblem, p: np.ndarray, given: bool) -> tuple[np.n
     b, c, _ = problem.unpack(p)
     if given:
         return c, b, problem.field
-    k = float(np.linalg.det(c)) ** (-1.0 / 3.0)
+    # |det|: a magnetometer mounted left-handed against the accelerometer has det C < 0, and a
+    # negative number's real power -1/3 is complex in Python
+    k = abs(float(np.linalg.det(c))) ** (-1.0 / 3.0)
     return k * c, b, k * problem.field
 
 
@@ -543,6 +562,8 @@ def _result(problem: JointProblem, p: np.ndarray, cov: np.ndarray, settings: Mag
         warnings.append(f"the estimated dip {dip:.1f} deg differs from the geomagnetic model's "
                         f"{model:.1f} deg: a disturbance the whole session long (a steel desk, a building's "
                         "frame), or a wrong place or date given")
+    check_result(matrix, c, b, field_norm, stddev,
+                 {"dip_deg": dip, "alignment_deg": float(np.degrees(np.linalg.norm(rotation_vector(rot))))})
     return MagCalibration(
         matrix=matrix, bias=b, frame="accel" if problem.joint else "sensor", field_norm=field_norm,
         field_given=given, residual_rms=_rms(np.linalg.norm(h, axis=1) - field_norm), dip_rms=dip_rms,
