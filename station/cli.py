@@ -14,12 +14,13 @@ import os
 import re
 import signal
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 from types import FrameType
 from typing import Any, NoReturn
 
 from station import __version__
-from station.errors import ExitCode, StationError, Terminated
+from station.errors import ExitCode, InputFileWarning, StationError, Terminated
 
 # OpenBLAS's threads buy no wall time on the small matrices the commands use, and spin on the other core
 # meanwhile: on a busy two-core station an SVD of 4000 x 9 took 7 ms with two threads against 0.3 ms with
@@ -194,7 +195,10 @@ def _main(argv: list[str]) -> int:
         print("imu-station: interrupted while starting", file=sys.stderr)
         return _interrupted_code(exc)
     try:
-        code = int(args._run(args) or ExitCode.OK)
+        with warnings.catch_warnings():  # restores what it changes, for a caller of main()
+            warnings.simplefilter("always", InputFileWarning)
+            warnings.showwarning = _warning_printer(args.command, warnings.showwarning)
+            code = int(args._run(args) or ExitCode.OK)
         # a command that ended itself on the interrupt says Ctrl-C; the signal was SIGTERM
         return ExitCode.TERMINATED if code == ExitCode.INTERRUPTED and signal.SIGTERM in _SIGNALLED else code
     except StationError as exc:
@@ -210,6 +214,20 @@ def _main(argv: list[str]) -> int:
         print(f"imu-station {args.command}: {'terminated' if code == ExitCode.TERMINATED else 'interrupted'}",
               file=sys.stderr)
         return code
+
+
+def _warning_printer(command: str, others: Callable[..., None]) -> Callable[..., None]:
+    """``warnings.showwarning`` that prints an :class:`InputFileWarning` as one line, as errors are."""
+
+    def show(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+        if not issubclass(category, InputFileWarning):
+            others(message, category, *args, **kwargs)
+            return
+        from station.common.text import printable_message
+
+        print(f"imu-station {command}: warning: {printable_message(message)}", file=sys.stderr)
+
+    return show
 
 
 _SIGNALLED: list[int] = []  # the signals that came while a command ran

@@ -54,7 +54,8 @@ from __future__ import annotations
 
 from protocols.errors import ExitCode, StationError
 
-__all__ = ["EngineInputError", "ExitCode", "InputFileError", "OutputFileError", "StationError", "Terminated"]
+__all__ = ["EngineInputError", "ExitCode", "InputFileError", "InputFileWarning", "OutputFileError",
+           "StationError", "Terminated"]
 
 
 class Terminated(KeyboardInterrupt):
@@ -84,6 +85,7 @@ class InputFileError(StationError):
             where += f", column '{column}'"
         super().__init__(f"{where}: {problem}")
         self.path = path
+        self.problem = problem
         self.line = line
         self.column = column
 
@@ -95,6 +97,11 @@ class InputFileError(StationError):
         parts = [getattr(exc, "context", None), getattr(exc, "problem", None)]
         problem = ", ".join(" ".join(str(p).split()) for p in parts if p) or " ".join(str(exc).split())
         return cls(path, f"is not valid YAML: {problem}", line=mark.line + 1 if mark is not None else None)
+
+
+class InputFileWarning(UserWarning):
+    """A file the user gave was read with part of it left out (a capture's last line cut by a power
+    loss): the command goes on, and the CLI prints the message as one ``warning:`` line."""
 
 
 class EngineInputError(StationError):

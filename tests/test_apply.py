@@ -153,7 +153,8 @@ def test_apply_corrects_the_field_and_removes_g_sensitivity(tmp_path, capsys) ->
     text = capsys.readouterr().out
     assert "g-sensitivity: removed at the corrected specific force" in text
     assert "mag: soft and hard iron, field in accel axes" in text
-    assert out.read_text().splitlines()[0].split(",")[7:10] == ["mx", "my", "mz"]
+    header = next(line for line in out.read_text().splitlines() if not line.startswith("#"))  # after metadata
+    assert header.split(",")[7:10] == ["mx", "my", "mz"]
     corrected = read_csv(out)
     # The CSV keeps 9 significant digits: the truth comes back to that.
     np.testing.assert_allclose(corrected.acc, truth["f"], atol=1e-6)

@@ -36,6 +36,11 @@ from station.acquisition.runner import samples_to_capture
 from station.errors import InputFileError
 
 
+def _header(path: Path) -> str:
+    """A capture CSV's header row, after its ``#`` metadata lines."""
+    return next(line for line in path.read_text().splitlines() if not line.startswith("#"))
+
+
 def make_mag_samples(n: int, first_seq: int = 0, seed: int = 0) -> np.ndarray:
     """Nine-axis records: the six-axis ones of the serial tests and a field of about 50 uT."""
     out = with_mag(make_samples(n, first_seq, seed)).copy()
@@ -115,7 +120,7 @@ def test_csv_round_trip_keeps_the_field(tmp_path: Path) -> None:
     cap = _capture()
     cap.mag[3] = np.nan  # a sample without a field stays one
     write_csv(tmp_path / "c.csv", cap)
-    header = (tmp_path / "c.csv").read_text().splitlines()[0].split(",")
+    header = _header(tmp_path / "c.csv").split(",")
     assert header[-4:] == ["mx", "my", "mz", "step"]
     back = read_capture(tmp_path / "c.csv")
     assert back.mag is not None and np.allclose(back.mag, cap.mag, equal_nan=True, rtol=1e-7)
@@ -156,7 +161,7 @@ def test_streaming_csv_header_follows_the_first_batch(tmp_path: Path) -> None:
     assert np.isnan(back.mag[20:]).all()
     empty = CsvCaptureWriter(tmp_path / "e.csv")
     empty.close()
-    assert (tmp_path / "e.csv").read_text().startswith("t,ax,ay,az,gx,gy,gz,temp\n")
+    assert _header(tmp_path / "e.csv") == "t,ax,ay,az,gx,gy,gz,temp"
 
 
 @pytest.mark.parametrize("with_step", [False, True])
@@ -374,7 +379,7 @@ def test_simulate_command_serves_a_mag_unit(tmp_path: Path, protocol: str, toler
     truth = mag_from_options({"mag": "1", "field": "40", "dip": "70"}, 7)
     assert truth is not None and cap.mag is not None and len(cap) > 100
     assert abs(np.linalg.norm(truth.correct(cap.mag), axis=1).mean() - 40.0) < tolerance_ut
-    assert out.read_text().splitlines()[0].endswith("mx,my,mz")
+    assert _header(out).endswith("mx,my,mz")
 
 
 def test_capture_field_scales_an_xsens_units_field(tmp_path: Path) -> None:

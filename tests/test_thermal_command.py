@@ -141,7 +141,7 @@ def test_warnings_go_to_stderr(unit, tmp_path, capsys) -> None:
 
 def test_refusals_name_the_problem(sweep_csv, sweep_h5, tmp_path, capsys) -> None:
     no_temp = tmp_path / "no_temp.csv"
-    lines = sweep_csv.read_text().splitlines()
+    lines = [line for line in sweep_csv.read_text().splitlines() if not line.startswith("#")]  # metadata
     header = lines[0].split(",")
     keep = [i for i, h in enumerate(header) if h != "temp"]
     no_temp.write_text("\n".join(",".join(row.split(",")[i] for i in keep) for row in lines[:400]) + "\n")

@@ -437,9 +437,9 @@ def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterable
     name = path.name.lower()
     if name.endswith((".h5", ".hdf5")):
         return H5Chunks(path), _h5_device(path), size
-    from station.acquisition.capture_csv import iter_csv_chunks
+    from station.acquisition.capture_csv import iter_csv_chunks, read_csv_device
 
-    return ((c.t, c.acc, c.gyro) for c in iter_csv_chunks(path)), {}, size
+    return ((c.t, c.acc, c.gyro) for c in iter_csv_chunks(path)), read_csv_device(path), size
 
 
 def _h5_file(path: Path):

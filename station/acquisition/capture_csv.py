@@ -1,9 +1,13 @@
 """The capture CSV of ``shared/specs/capture-csv.md``: reader and streaming writer.
 
-One header row, then one row per sample; columns in any order, unknown columns ignored.
+``# key: value`` metadata lines naming the unit (:mod:`station.acquisition.capture_metadata`; read
+into ``Capture.device``), one header row, then one row per sample; columns in any order, unknown
+columns ignored.
 Required: t, ax, ay, az, gx, gy, gz; optional: temp, dtemp, step and the magnetometer's
 mx, my, mz (microtesla, all three or none; ``nan`` cells for a sample without a field).
-Malformed input is refused with a message naming the file, line and column.
+Malformed input is refused with a message naming the file, line and column, but for a last line
+cut short (no line end, not a whole row: a power loss during a capture), which is left out with an
+:class:`~station.errors.InputFileWarning`.
 
 Memory stays bounded whatever the file holds: a line longer than ``MAX_LINE_CHARS`` is refused
 (naming its line) without being read whole, and a chunk ends once its lines hold ``CHUNK_CHARS``
@@ -18,15 +22,17 @@ import io
 import itertools
 import math
 import os
-from collections.abc import Callable, Iterator
+import warnings
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 
 from protocols.base import has_mag
+from station.acquisition import capture_metadata
 from station.acquisition.capture_data import Capture
-from station.errors import InputFileError, OutputFileError
+from station.errors import InputFileError, InputFileWarning, OutputFileError
 
 REQUIRED = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 OPTIONAL_NUMERIC = ("temp", "dtemp")
@@ -54,6 +60,13 @@ def _open_text(path: Path) -> IO[str]:
 def _locate_bad_value(path: Path, lines: list[str], first_line: int,
                       columns: dict[str, int]) -> InputFileError:
     """Slow path, only after the fast parse failed: find the first bad cell and name it."""
+    found = _bad_cell(path, lines, first_line, columns)
+    return found or InputFileError(path, "could not be parsed as numbers", line=first_line)
+
+
+def _bad_cell(path: Path, lines: list[str], first_line: int,
+              columns: dict[str, int]) -> InputFileError | None:
+    """The error of the first bad cell of ``lines``, or None when every row is whole and numeric."""
     for offset, line in enumerate(lines):
         cells = line.rstrip("\r\n").split(",")
         for name, idx in columns.items():
@@ -68,7 +81,48 @@ def _locate_bad_value(path: Path, lines: list[str], first_line: int,
             if name in REQUIRED and not math.isfinite(value):
                 return InputFileError(path, f"value {cells[idx]!r} is not a finite number",
                                       line=first_line + offset, column=name)
-    return InputFileError(path, "could not be parsed as numbers", line=first_line)
+    return None
+
+
+def _drop_cut_line(path: Path, lines: list[str], first_line: int, columns: dict[str, int]) -> None:
+    """Drop the file's last line from ``lines`` if a write cut it short, and warn.
+
+    A capture written in place loses the end of its last row when the power or the station goes
+    (``CsvCaptureWriter`` keeps whole rows, but the OS may not have written them all): that row has
+    no line end and does not parse. It alone is dropped; a bad row anywhere else is refused.
+    """
+    if not lines or lines[-1].endswith("\n"):
+        return
+    at = first_line + len(lines) - 1
+    problem = _bad_cell(path, lines[-1:], at, columns)
+    if problem is None:
+        return
+    lines.pop()
+    where = f", column '{problem.column}'" if problem.column else ""
+    warnings.warn(InputFileWarning(
+        f"{path}, line {at}: the last line is cut short ({problem.problem}{where}; no line end), as a power "
+        "loss during a capture leaves it: it is left out"), stacklevel=2)
+
+
+def _read_metadata(path: Path, readline: Callable[[], str]) -> tuple[str, int, dict[str, Any]]:
+    """The header line, its line number and the device info of the ``# key: value`` lines before it."""
+    metadata: dict[str, str] = {}
+    line_no = 0
+    while True:
+        line_no += 1
+        try:
+            line = readline()
+        except (UnicodeDecodeError, OSError, EOFError) as exc:
+            raise InputFileError(path, f"is not a readable text file ({exc})", line=line_no) from None
+        _check_length(path, [line], line_no)
+        if not line.startswith("#"):
+            return line, line_no, capture_metadata.device_of(metadata)
+        if line_no > capture_metadata.MAX_LINES:
+            raise InputFileError(path, f"has more than {capture_metadata.MAX_LINES} '#' lines before the "
+                                 "header row: is this a capture CSV?", line=line_no)
+        parsed = capture_metadata.parse_line(line)
+        if parsed is not None:
+            metadata.setdefault(*parsed)
 
 
 def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[Capture]:
@@ -86,29 +140,24 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
     with fh:
         # every line is read with readline(limit): a line without an end in reach is refused, never read whole
         readline = functools.partial(fh.readline, MAX_LINE_CHARS + 1)
-        try:
-            header_line = readline()
-        except (UnicodeDecodeError, OSError, EOFError) as exc:
-            raise InputFileError(path, f"is not a readable text file ({exc})", line=1) from None
-        _check_length(path, [header_line], 1)
+        header_line, line_no, device = _read_metadata(path, readline)
         header = [h.strip() for h in header_line.rstrip("\r\n").split(",")]
         if not header_line.strip():
-            raise InputFileError(path, "is empty; expected a header row: " + ",".join(HEADER), line=1)
+            raise InputFileError(path, "is empty; expected a header row: " + ",".join(HEADER), line=line_no)
         for name in REQUIRED:
             if name not in header:
-                raise InputFileError(path, f"header lacks the required column; it has {header}", line=1,
+                raise InputFileError(path, f"header lacks the required column; it has {header}", line=line_no,
                                      column=name)
         mag_present = [n for n in MAG_COLUMNS if n in header]
         if mag_present and len(mag_present) < len(MAG_COLUMNS):
             missing = [n for n in MAG_COLUMNS if n not in header]
             raise InputFileError(path, f"header has {', '.join(mag_present)} but not {', '.join(missing)}: "
-                                 f"the magnetometer needs all three columns (microtesla) or none", line=1,
-                                 column=missing[0])
+                                 f"the magnetometer needs all three columns (microtesla) or none",
+                                 line=line_no, column=missing[0])
         numeric = {n: header.index(n) for n in REQUIRED + OPTIONAL_NUMERIC + MAG_COLUMNS if n in header}
         step_idx = header.index("step") if "step" in header else None
         names = list(numeric)
         usecols = [numeric[n] for n in names]
-        line_no = 1
         last_t = -math.inf
         while True:
             try:
@@ -119,6 +168,7 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
                 # The end of the file: blank lines there are harmless; inside the file they are refused.
                 while lines and not lines[-1].strip():
                     lines.pop()
+                _drop_cut_line(path, lines, line_no + 1, numeric)
             if not lines:
                 return
             first = line_no + 1
@@ -156,6 +206,7 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
                 step=step,
                 source=str(path),
                 mag=np.column_stack([cols[n] for n in MAG_COLUMNS]) if mag_present else None,
+                device=dict(device),
             )
 
 
@@ -191,6 +242,18 @@ def _cell(line: str, idx: int) -> str:
     return cells[idx].strip() if idx < len(cells) else ""
 
 
+def read_csv_device(path: str | Path) -> dict[str, Any]:
+    """The device info of a capture CSV's metadata lines alone (the rows are not read)."""
+    path = Path(path)
+    try:
+        with _open_text(path) as fh:
+            return _read_metadata(path, functools.partial(fh.readline, MAX_LINE_CHARS + 1))[2]
+    except FileNotFoundError:
+        raise InputFileError(path, "does not exist; give a capture CSV or capture file") from None
+    except OSError as exc:
+        raise InputFileError(path, f"cannot be opened: {exc.strerror}") from None
+
+
 def read_csv(path: str | Path) -> Capture:
     """The whole capture CSV in memory (see :func:`iter_csv_chunks` for bounded memory)."""
     chunks = list(iter_csv_chunks(path))
@@ -205,14 +268,18 @@ def read_csv(path: str | Path) -> Capture:
 
     return Capture(t=cat("t"), acc=cat("acc"), gyro=cat("gyro"), temp=cat_optional("temp"),
                    dtemp=cat_optional("dtemp"), step=cat_optional("step"), source=str(path),
-                   mag=cat_optional("mag"))
+                   mag=cat_optional("mag"), device=chunks[0].device)
 
 
 class CsvWriter:
-    """Appends sample batches to a capture CSV; the caller owns the file handle."""
+    """Appends sample batches to a capture CSV; the caller owns the file handle.
+
+    With ``header``, the ``metadata`` lines (``# key: value``, see :mod:`capture_metadata`) come first.
+    """
 
     def __init__(self, fh: IO[str], with_temp: bool = True, with_dtemp: bool = False,
-                 with_step: bool = False, with_mag: bool = False, header: bool = True):
+                 with_step: bool = False, with_mag: bool = False, header: bool = True,
+                 metadata: Mapping[str, str] | None = None):
         self.fh = fh
         self.columns = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
         if with_temp:
@@ -224,7 +291,7 @@ class CsvWriter:
         if with_step:
             self.columns.append("step")
         if header:
-            fh.write(",".join(self.columns) + "\n")
+            fh.write(capture_metadata.metadata_text(metadata or {}) + ",".join(self.columns) + "\n")
 
     def write(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, temp: np.ndarray | None = None,
               dtemp: np.ndarray | None = None, step: np.ndarray | list[str] | None = None,
@@ -250,12 +317,13 @@ class CsvWriter:
 
 
 def write_csv(path: str | Path, capture: Capture) -> None:
-    """Write a whole capture atomically."""
+    """Write a whole capture atomically, with the metadata of the unit ``capture.device`` describes."""
     from station.common.files import atomic_open
 
     with atomic_open(path, "w") as fh:
         w = CsvWriter(fh, with_temp=capture.temp is not None, with_dtemp=capture.dtemp is not None,
-                      with_step=capture.step is not None, with_mag=capture.mag is not None)
+                      with_step=capture.step is not None, with_mag=capture.mag is not None,
+                      metadata=capture_metadata.csv_metadata(capture.device))
         w.write(capture.t, capture.acc, capture.gyro, capture.temp, capture.dtemp, capture.step, capture.mag)
 
 
@@ -263,6 +331,7 @@ class CsvCaptureWriter:
     """Streams sample batches (``protocols.base.SAMPLE_DTYPE``) into a capture CSV at ``path``.
 
     Written in place, not atomically, so a capture cut short keeps everything written so far.
+    The metadata lines name the unit ``device`` describes (its DEVICE_INFO) and the ``protocol``.
     The header waits for the first batch: a batch of ``MAG_SAMPLE_DTYPE`` (a unit with a
     magnetometer) adds mx, my, mz; later batches without a field write NaN there. A field that first
     comes after the header (a unit whose first packets carry none) widens the file once: the rows so
@@ -274,11 +343,13 @@ class CsvCaptureWriter:
     much was kept. ``t`` is the device clock in seconds (``t_us`` / 1e6, microsecond resolution).
     """
 
-    def __init__(self, path: str | Path, with_step: bool = False):
+    def __init__(self, path: str | Path, with_step: bool = False, device: Mapping[str, Any] | None = None,
+                 protocol: str = ""):
         self.path = Path(path)
         self.rows = 0
         self._text = io.StringIO()
         self._with_step = with_step
+        self._metadata = capture_metadata.csv_metadata(device, protocol)
         self._csv: CsvWriter | None = None
         try:
             self._fh = open(self.path, "wb", buffering=0)
@@ -292,7 +363,8 @@ class CsvCaptureWriter:
     def _writer(self, with_mag: bool) -> CsvWriter:
         """The row writer, its header written when first asked for; widened for a field that comes late."""
         if self._csv is None:
-            self._csv = CsvWriter(self._text, with_temp=True, with_step=self._with_step, with_mag=with_mag)
+            self._csv = CsvWriter(self._text, with_temp=True, with_step=self._with_step, with_mag=with_mag,
+                                  metadata=self._metadata)
         elif with_mag and "mx" not in self._csv.columns and not self._widen_failed:
             self._widen()
         return self._csv
@@ -306,7 +378,10 @@ class CsvCaptureWriter:
         try:
             with open(self.path, encoding="utf-8", newline="") as src, open(tmp, "w", encoding="utf-8",
                                                                              newline="") as dst:
-                src.readline()
+                line = src.readline()
+                while line.startswith("#"):  # the metadata lines stay as they are
+                    dst.write(line)
+                    line = src.readline()
                 dst.write(",".join(wider.columns) + "\n")
                 for line in src:
                     if self._with_step:

@@ -72,7 +72,7 @@ def open_capture_writer(path: str | Path, device: dict[str, Any] | None = None, 
     """A streaming writer for ``path``: the HDF5 capture file for .h5/.hdf5, else capture CSV."""
     if is_h5_path(path):
         return H5CaptureWriter(path, device=device, with_step=with_step, port=port, protocol=protocol)
-    return _CsvWriterAdapter(CsvCaptureWriter(path, with_step=with_step))
+    return _CsvWriterAdapter(CsvCaptureWriter(path, with_step=with_step, device=device, protocol=protocol))
 
 
 class _CsvWriterAdapter:

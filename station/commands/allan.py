@@ -189,11 +189,12 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     from station.engines.allan.fit import identify_noise
     from station.export.estimators import kalibr
     from station.export.params import noise as noise_file
-    from station.export.params.file import merge_sections, open_for_unit, to_plain
+    from station.export.params.file import merge_sections, name_unit, open_for_unit, to_plain
 
     if args.per_decade < 10:
         raise EngineInputError(f"--per-decade {args.per_decade}: use at least 10 points per decade")
     chunks, device, size = capture_chunks(args.input, args.topic)
+    device = name_unit(device, args.serial)
     if args.output:
         open_for_unit(args.output, device, replace=args.replace)  # refuse before hours of computing
     with _progress(err) as progress:

@@ -177,7 +177,7 @@ def run_mag(args: argparse.Namespace) -> int:
     from station.console.markup import markup_safe
     from station.engines.magnetometer.calibration import MagCapture, MagSettings, calibrate_mag
     from station.errors import InputFileError
-    from station.export.params.file import merge_sections, open_for_unit
+    from station.export.params.file import merge_sections, name_unit, open_for_unit
     from station.export.params.magnetometer import mag_section
     from station.export.params.sections import MAG
 
@@ -189,7 +189,8 @@ def run_mag(args: argparse.Namespace) -> int:
             raise InputFileError(args.input, "has no magnetometer columns (mx, my, mz): capture from a "
                                  "unit that reports its magnetometer, or calibrate the accelerometer and "
                                  "gyroscope with --method free or turntable")
-        params = open_for_unit(args.output, capture.device, replace=args.replace) if args.output else None
+        device = name_unit(capture.device, args.serial)
+        params = open_for_unit(args.output, device, replace=args.replace) if args.output else None
         accel = params.accel if params is not None else None
         # the down direction in the calibrated accelerometer's axes; without an accel section the
         # engine estimates the accelerometer from the still poses
@@ -200,7 +201,7 @@ def run_mag(args: argparse.Namespace) -> int:
     outputs = {}
     with output_set():  # the section and its plot together, or neither
         if args.output:
-            merge_sections(args.output, capture.device, {MAG: mag_section(cal, field_source)},
+            merge_sections(args.output, device, {MAG: mag_section(cal, field_source)},
                            capture=args.input, replace=args.replace)
             outputs[str(args.output)] = "mag section written" + (
                 " (accelerometer corrected with its accel section)" if accel is not None
@@ -416,7 +417,7 @@ def run(args: argparse.Namespace) -> int:
     from station.acquisition.capture import read_capture
     from station.common.files import output_set
     from station.common.text import PATH_CHARS, printable
-    from station.export.params.file import merge_sections, open_for_unit
+    from station.export.params.file import merge_sections, name_unit, open_for_unit
 
     if args.method == "mag":
         return run_mag(args)
@@ -424,14 +425,15 @@ def run(args: argparse.Namespace) -> int:
     with PhaseLine(sys.stderr) as phase:
         phase.show(f"reading {args.input}")
         capture = read_capture(args.input)
+        device = name_unit(capture.device, args.serial)
         if args.output:
-            open_for_unit(args.output, capture.device, replace=args.replace)  # refuse before the fit
+            open_for_unit(args.output, device, replace=args.replace)  # refuse before the fit
         phase.show("calibrating")
         report = calibrate_capture(capture, args)
     outputs = {}
     with output_set():  # the sections and their plot together, or neither
         if args.output:
-            merge_sections(args.output, capture.device, {"accel": report.accel, "gyro": report.gyro},
+            merge_sections(args.output, device, {"accel": report.accel, "gyro": report.gyro},
                            capture=args.input, replace=args.replace)
             written = "accel and gyro sections" if report.gyro is not None else "accel section"
             outputs[str(args.output)] = f"{written} written"

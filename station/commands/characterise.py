@@ -223,14 +223,15 @@ def run(args: argparse.Namespace) -> int:
     """Record or read the captures, compute the figures, merge them, print them (and the datasheet)."""
     from station.common.text import PATH_CHARS, printable
     from station.export.params.characterisation import merged
-    from station.export.params.file import ParamsFile, merge_sections, open_for_unit
+    from station.export.params.file import ParamsFile, merge_sections, name_unit, open_for_unit
 
     _check_options(args)
     result: dict[str, Any] = {}
     paths = list(args.inputs)
     if args.port is not None:
         if args.output:
-            open_for_unit(args.output, None, replace=args.replace)  # refuse before minutes of recording
+            # refuse before minutes of recording; the unit says who it is once it is opened
+            open_for_unit(args.output, name_unit(None, args.serial), replace=args.replace, unit_pending=True)
         if args.keep is not None:
             paths += _record(args, args.keep)
             keys, device = _analyse(paths, args.level)
@@ -245,6 +246,7 @@ def run(args: argparse.Namespace) -> int:
     if keys:
         result["characterisation"] = keys
         if args.output:
+            device = name_unit(device, args.serial)
             held = open_for_unit(args.output, device, replace=args.replace)
             section = merged(held.other.get("characterisation"), keys)
             merge_sections(args.output, device, {"characterisation": section},

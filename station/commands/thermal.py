@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     from station.console.markup import markup_safe
     from station.console.thermal_report import format_report
     from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
-    from station.export.params.file import merge_sections, open_for_unit, to_plain
+    from station.export.params.file import merge_sections, name_unit, open_for_unit, to_plain
 
     err = Console(stderr=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
@@ -143,7 +143,8 @@ def run(args: argparse.Namespace) -> int:
         require_finite(capture, args.input, ("temp",), "a thermal fit needs the temperature of every sample; "
                        "cut the rows without one, or fill them from their neighbours")
         # its accel and gyro sections calibrate the sweep: only the same unit's
-        params = open_for_unit(args.output, capture.device, replace=args.replace)
+        device = name_unit(capture.device, args.serial)
+        params = open_for_unit(args.output, device, replace=args.replace)
         progress.update(task, description="fitting the thermal model", completed=0.0)
         settings = ThermalSettings(
             gravity=args.gravity, segments=args.joins if args.joins else args.segments, terms=args.terms,
@@ -160,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
 
                 plot_thermal(fit, args.plot)
             progress.update(task, description=f"writing {markup_safe(args.output, PATH_CHARS)}")
-            merge_sections(args.output, capture.device, {"thermal": fit.model}, capture=args.input,
+            merge_sections(args.output, device, {"thermal": fit.model}, capture=args.input,
                            replace=args.replace)
     calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
     for message in fit.warnings:

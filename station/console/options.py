@@ -330,11 +330,25 @@ def add_output_option(parser: argparse.ArgumentParser, *, required: bool = False
                         **kwargs)
 
 
-def add_replace_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--replace``: start the parameter file afresh instead of merging into it.
+def serial_number(text: str) -> str:
+    """Validate ``--serial``: a unit's serial as it would report it, one line of visible text."""
+    serial = text.strip()
+    if not serial or len(serial) > MAX_SERIAL_CHARS or not serial.isprintable():
+        raise argparse.ArgumentTypeError(f"give the unit's serial, 1 to {MAX_SERIAL_CHARS} visible "
+                                         "characters")
+    return serial
 
-    Without it a command merges its section into an existing file of the same unit and refuses
-    (exit 4) a file holding another unit's results (``station.export.params.file.open_for_unit``).
+
+MAX_SERIAL_CHARS = 64
+"""The longest ``--serial``: room for any serial a label carries."""
+
+
+def add_replace_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--replace`` (start the parameter file afresh) and ``--serial`` (name the capture's unit).
+
+    Without them a command merges its section into an existing file of the same unit and refuses
+    (exit 4) a file holding another unit's results, and a file naming a unit when the capture names
+    none (``station.export.params.file.open_for_unit``).
 
     Parameters
     ----------
@@ -344,6 +358,10 @@ def add_replace_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--replace", action="store_true",
                         help="start the parameter file afresh, dropping its sections (needed to write "
                              "over a file that holds another unit's results)")
+    parser.add_argument("--serial", type=serial_number, metavar="SN",
+                        help="the serial of the unit the capture came from, for a capture that names none "
+                             "(a capture CSV without '# serial:' metadata); needed to merge its results "
+                             "into a parameter file that names a unit; refused if the capture names another")
 
 
 def add_db_arguments(parser: argparse.ArgumentParser) -> None:

@@ -4,8 +4,9 @@ Every engine command writes its own section into the file named by ``-o`` and ke
 sections already there; writes are atomic. Readers refuse a schema they do not know.
 
 A file holds one unit: :func:`merge_sections` (and :func:`open_for_unit`, for a command that checks
-before a long computation) refuse to merge a second unit's results into it, and record in
-``sources`` which capture (path and SHA-256) and unit each section came from.
+before a long computation) refuse to merge a second unit's results into it, or results that name no
+unit into a file that names one, and record in ``sources`` which capture (path and SHA-256) and
+unit each section came from.
 """
 
 from __future__ import annotations
@@ -30,7 +31,10 @@ SENSOR_KEYS = ("matrix", "bias", "scale", "misalignment", "correction", "method"
 SECTIONS = ("accel", "gyro", "thermal", "noise")
 """The sections :class:`ParamsFile` holds typed; any other section name is kept in ``other``."""
 REPLACE_OPTION = "--replace"
-"""The option of ``calibrate``, ``allan`` and ``thermal`` that starts a parameter file afresh."""
+"""The option of the commands that write a parameter file (calibrate, allan, thermal, characterise) that
+starts it afresh."""
+SERIAL_OPTION = "--serial"
+"""Their option that names the unit of a capture that names none (:func:`name_unit`)."""
 # libyaml's emitter with PyYAML's safe representer: 4x faster than yaml.safe_dump, the same values read
 # back, the same text but where a long escaped string wraps (PyYAML built without libyaml: the Python one)
 _SAFE_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
@@ -244,9 +248,44 @@ def unit_conflict(held: dict[str, Any], device: dict[str, Any] | None) -> str | 
     return None
 
 
+def name_unit(device: dict[str, Any] | None, serial: str | None) -> dict[str, Any]:
+    """The unit's info with the serial the operator gave (``--serial``) for a capture that names none.
+
+    Parameters
+    ----------
+    device : dict or None
+        What the capture says of its unit (its metadata, the HDF5 file's ``device``).
+    serial : str or None
+        The operator's ``--serial``; None keeps ``device`` as it is.
+
+    Returns
+    -------
+    dict
+        A copy of ``device``, with ``serial`` when given.
+
+    Raises
+    ------
+    UnitMismatchError
+        The capture names another serial than ``serial`` (exit 4): the operator's word does not
+        overrule the unit's own.
+    """
+    named = dict(device or {})
+    if serial is None:
+        return named
+    if named.get("serial") is not None and str(named["serial"]) != serial:
+        raise UnitMismatchError(f"{SERIAL_OPTION} {serial}, but the capture names unit {_unit_name(named)}: "
+                                f"give the capture of unit {serial}, or leave {SERIAL_OPTION} out")
+    named["serial"] = serial
+    return named
+
+
 def open_for_unit(path: str | Path, device: dict[str, Any] | None, *, replace: bool = False,
-                  option: str = REPLACE_OPTION) -> ParamsFile:
+                  option: str = REPLACE_OPTION, unit_pending: bool = False) -> ParamsFile:
     """The parameter file to merge one unit's results into, refusing a file of another unit.
+
+    A file that names a unit takes the results of that unit only: results of a unit whose serial is
+    unknown (a capture CSV without metadata, a unit that does not report its serial) are refused
+    too, until the operator names it (``--serial``, see :func:`name_unit`) or starts afresh.
 
     Parameters
     ----------
@@ -258,6 +297,9 @@ def open_for_unit(path: str | Path, device: dict[str, Any] | None, *, replace: b
         Start afresh: the existing file is neither read nor kept (the operator asked).
     option : str
         How the operator says ``replace``, for the message (``--replace``, a TUI key).
+    unit_pending : bool
+        The unit is not known yet (it is about to be recorded, and will say who it is): only a
+        serial ``device`` gives is checked, and a file that cannot be read is refused.
 
     Returns
     -------
@@ -267,7 +309,8 @@ def open_for_unit(path: str | Path, device: dict[str, Any] | None, *, replace: b
     Raises
     ------
     UnitMismatchError
-        The file holds another unit's results (exit 4), naming the file and both units.
+        The file holds another unit's results, or names a unit and ``device`` none (exit 4),
+        naming the file and the units.
     InputFileError
         The existing file cannot be read or breaks the schema.
     """
@@ -286,6 +329,13 @@ def open_for_unit(path: str | Path, device: dict[str, Any] | None, *, replace: b
             f"{path} holds the results of unit {_unit_name(held)}, these are of unit "
             f"{_unit_name(device or {})}: one parameter file holds one unit; write to another file, "
             f"or give {option} to start {path} afresh (its sections are dropped)")
+    if not unit_pending and held.get("serial") is not None and (device or {}).get("serial") is None:
+        # the commands say --serial; a TUI names its own key and has its unit's serial to give
+        name = f"{SERIAL_OPTION} {held['serial']} if it is that unit, or " if option == REPLACE_OPTION else ""
+        raise UnitMismatchError(
+            f"{path} holds the results of unit {_unit_name(held)}, and these name no unit (a capture CSV "
+            f"without '# serial:' metadata, a unit that does not report its serial): give {name}{option} "
+            f"to start {path} afresh (its sections are dropped), or write to another file")
     return params
 
 
