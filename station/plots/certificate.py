@@ -23,6 +23,7 @@ from station.engines.thermal.model import ThermalModel
 from station.plots.allan import COLORS
 from station.plots.svg import new_figure, to_svg
 
+PAGE_WIDTH_IN = 7.3  # A4 less the certificate's margins: drawn at this width, 7 pt text prints at 7 pt
 MIN_ALLAN_SAMPLES = 1000  # below this a measured curve says nothing the model does not
 THERMAL_BLOCK_S = 30.0  # block means of the sweep drawn against the model: the bias moves slowly
 
@@ -104,25 +105,32 @@ def pose_residuals(capture: Samples, params: Calibrated) -> list[dict[str, Any]]
 
 
 def residuals_svg(residuals: list[dict[str, Any]]) -> str:
-    """Bars per pose and axis: accelerometer residual (mg) and, where calibrated, gyroscope mean (deg/h)."""
+    """Bars per pose and axis: accelerometer residual (mg) and, where calibrated, gyroscope mean (deg/h).
+
+    Drawn at the page's width; with more than six poses the labels (``+x+y``) are turned 45 degrees
+    so that neighbours never run together.
+    """
     has_gyro = residuals[0]["gyro_dph"] is not None
-    fig, axes = new_figure(10.0, 3.4, 1, 2 if has_gyro else 1)
+    fig, axes = new_figure(PAGE_WIDTH_IN, 2.0, 1, 2 if has_gyro else 1)
     x = np.arange(len(residuals))
     width = 0.26
     panels = [("accel_mg", "accelerometer: corrected mean - g (mg)")]
     if has_gyro:
-        panels.append(("gyro_dph", "gyroscope: corrected mean (deg/h, Earth rate included)"))
+        panels.append(("gyro_dph", "gyroscope: corrected mean (deg/h, Earth rate in it)"))
+    turned = len(residuals) > 6
     for ax, (key, title) in zip(axes[0], panels, strict=True):
         values = np.array([r[key] for r in residuals])
         for j, colour in enumerate(COLORS):
             ax.bar(x + (j - 1) * width, values[:, j], width, color=colour, label="xyz"[j])
         ax.axhline(0.0, color="0.3", lw=0.8)
-        ax.set_xticks(x, [r["pose"] for r in residuals])
-        ax.set_title(title, fontsize=9)
-        ax.set_xlabel("pose (axis up)")
+        ax.set_xticks(x, [r["pose"] for r in residuals], fontsize=7, rotation=45 if turned else 0,
+                      ha="right" if turned else "center", rotation_mode="anchor")
+        ax.tick_params(axis="y", labelsize=7)
+        ax.set_title(title, fontsize=8)
+        ax.set_xlabel("pose (axis up)", fontsize=7)
         ax.grid(True, axis="y", alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
+        ax.legend(fontsize=7, ncol=3, handlelength=1.0, columnspacing=0.8, loc="best")
+    fig.tight_layout(pad=0.4)
     return to_svg(fig)
 
 
@@ -146,7 +154,7 @@ def allan_svg(noise: dict[str, Any], curve: Any = None) -> str:
     record = noise.get("record") or {}
     lo, hi = (record.get("tau_range_s") or [0.01, 1e3])[:2]
     tau = np.geomspace(float(lo), float(hi), 200)
-    fig, axes = new_figure(6.0 * len(sensors), 4.4, 1, len(sensors))
+    fig, axes = new_figure(PAGE_WIDTH_IN, 2.5, 1, len(sensors))
     for ax, sensor in zip(axes[0], sensors, strict=True):
         terms = noise[sensor]
         sd = terms.get("stddev") or {}
@@ -170,13 +178,15 @@ def allan_svg(noise: dict[str, Any], curve: Any = None) -> str:
                 ax.loglog(curve.tau, curve.adev[:, k], ".-", color=colour, lw=1.0, ms=3,
                           label=f"{axis} measured")
         unit = "rad/s" if sensor == "gyro" else "m/s$^2$"
-        ax.set_title(f"{'gyroscope' if sensor == 'gyro' else 'accelerometer'}: dashed the model with its "
-                     "1-sigma band, dotted each term", fontsize=9)
-        ax.set_xlabel("averaging time tau [s]")
-        ax.set_ylabel(f"Allan deviation [{unit}]")
+        ax.set_title("gyroscope" if sensor == "gyro" else "accelerometer", fontsize=8)
+        ax.set_xlabel("averaging time tau [s]", fontsize=7)
+        ax.set_ylabel(f"Allan deviation [{unit}]", fontsize=7)
+        ax.tick_params(labelsize=7)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
+        # below the axes, never over the curves: six entries at a size that prints legibly
+        ax.legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False,
+                  handlelength=1.6, columnspacing=1.0)
+    fig.tight_layout(pad=0.4)
     return to_svg(fig)
 
 
@@ -242,8 +252,8 @@ def thermal_svg(params: Calibrated, points: dict[str, tuple[np.ndarray, np.ndarr
     model = params.thermal
     assert model is not None  # the caller draws this only for a file with a thermal section
     triads = [(name, bias) for name in ("accel", "gyro") if (bias := getattr(model, name)) is not None]
-    fig, axes = new_figure(10.0, 3.2 * len(triads), len(triads), 1)
-    for ax, (name, bias) in zip(axes[:, 0], triads, strict=True):
+    fig, axes = new_figure(PAGE_WIDTH_IN, 2.1, 1, len(triads))
+    for ax, (name, bias) in zip(axes[0], triads, strict=True):
         unit = "mg" if name == "accel" else "deg/h"
         pad = 0.1 * max(bias.t_max - bias.t_min, 1.0)
         grid = np.linspace(bias.t_min - pad, bias.t_max + pad, 300)
@@ -260,13 +270,13 @@ def thermal_svg(params: Calibrated, points: dict[str, tuple[np.ndarray, np.ndarr
         for seg in bias.segments[1:]:
             ax.axvline(seg.t_min, color="grey", ls=":", lw=1)
         ax.axvline(model.reference_temp, color="0.3", lw=0.8)
-        ax.set_title(f"{'accelerometer' if name == 'accel' else 'gyroscope'} thermal bias at dT = 0 "
-                     f"(T_ref {model.reference_temp:g} degC; dashed: clamped)", fontsize=9)
-        ax.set_xlabel("temperature (degC)")
-        ax.set_ylabel(f"bias ({unit})")
+        ax.set_title(f"{'accelerometer' if name == 'accel' else 'gyroscope'} bias at dT = 0", fontsize=8)
+        ax.set_xlabel("temperature (degC)", fontsize=7)
+        ax.set_ylabel(f"bias ({unit})", fontsize=7)
+        ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
+        ax.legend(fontsize=7, ncol=3, handlelength=1.2, columnspacing=0.8)
+    fig.tight_layout(pad=0.4)
     return to_svg(fig)
 
 
@@ -285,7 +295,7 @@ def mag_svg(section: dict[str, Any], mag: np.ndarray) -> str:
     unit = corrected / np.linalg.norm(corrected, axis=1, keepdims=True)
     if len(unit) > 4000:  # a picture of the coverage, not of every sample
         unit = unit[:: math.ceil(len(unit) / 4000)]
-    fig, axes = new_figure(10.0, 3.6, 1, 3)
+    fig, axes = new_figure(PAGE_WIDTH_IN, 2.0, 1, 3)
     circle = np.linspace(0.0, 2.0 * math.pi, 200)
     for ax, (a, b) in zip(axes[0], ((0, 1), (0, 2), (1, 2)), strict=True):
         ax.plot(np.cos(circle), np.sin(circle), color="0.5", lw=0.8)
@@ -293,11 +303,12 @@ def mag_svg(section: dict[str, Any], mag: np.ndarray) -> str:
         ax.set_aspect("equal")
         ax.set_xlim(-1.1, 1.1)
         ax.set_ylim(-1.1, 1.1)
-        ax.set_xlabel(f"{'xyz'[a]} (unit field)")
-        ax.set_ylabel(f"{'xyz'[b]}")
+        ax.set_xlabel(f"{'xyz'[a]} (unit field)", fontsize=7)
+        ax.set_ylabel(f"{'xyz'[b]}", fontsize=7)
+        ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
     coverage = section.get("coverage")
     shown = f"{coverage * 100:.0f} %" if isinstance(coverage, int | float) else "not stated"
-    fig.suptitle(f"corrected field directions; coverage of the sphere {shown}", fontsize=9)
-    fig.tight_layout()
+    fig.suptitle(f"corrected field directions; coverage of the sphere {shown}", fontsize=8)
+    fig.tight_layout(pad=0.4)
     return to_svg(fig)

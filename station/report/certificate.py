@@ -9,6 +9,7 @@ parameter file has. What the file or the record lacks is said on the page, not s
 from __future__ import annotations
 
 import datetime as _dt
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,7 @@ from typing import Any
 
 import station
 from station.common.files import atomic_write_text, sha256_file
+from station.engines.magnetometer.calibration import WARN_COVERAGE
 from station.errors import StationError
 from station.export.params.file import SECTIONS, ParamsFile
 from station.factory.records import Measurement, RunRecord
@@ -24,7 +26,10 @@ from station.plots.certificate import Samples
 from station.report import parameters
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT
 from station.report.datasheet import datasheet_rows
-from station.report.html import number, render
+from station.report.equipment import ambient, equipment
+from station.report.html import number, render, with_sigma
+from station.report.layout import grouped, sequence_of
+from station.report.thermal_table import coefficient_tables, thermal_rows
 
 REPORTED_SECTIONS = (*SECTIONS, "mag", "characterisation")
 """The parameter file's sections a certificate shows; one absent is named as absent."""
@@ -120,7 +125,8 @@ def _data_files(cert: Certificate) -> list[dict[str, str]]:
 
 
 def _sections(cert: Certificate) -> list[dict[str, Any]]:
-    """The parameter tables, section by section, in the order of the spec."""
+    """The parameter tables, section by section, in the order of the spec: each row a quantity with its
+    x, y, z cells (value \u00b1 1-sigma), the notes gathered below the table."""
     params = cert.params
     if params is None:
         return []
@@ -130,38 +136,65 @@ def _sections(cert: Certificate) -> list[dict[str, Any]]:
         if cal is not None:
             section = ParamsFile(accel=cal).to_dict()["accel"]
             out.append({"name": name, "title": f"{parameters.SENSOR_NAMES[name]} ({name})",
-                        "method": cal.method, "rows": parameters.sensor_rows(name, section)})
+                        "method": cal.method, **grouped(parameters.sensor_rows(name, section))})
     mag = params.other.get("mag")
     if isinstance(mag, dict):
-        out.append({"name": "mag", "title": "magnetometer (mag)", "method": str(mag.get("frame") or ""),
-                    "rows": parameters.mag_rows(mag)})
+        out.append({"name": "mag", "title": "magnetometer (mag)",
+                    "method": " \u00b7 ".join(str(v) for v in (mag.get("method"), f"frame {mag.get('frame')}")
+                                               if v and v != "frame None"),
+                    **grouped(parameters.mag_rows(mag))})
     if params.noise:
         out.append({"name": "noise", "title": "noise terms (noise, Allan deviation)",
                     "method": str(params.noise.get("method") or ""),
-                    "rows": parameters.noise_rows(params.noise)})
+                    **grouped(parameters.noise_rows(params.noise))})
+        kalibr = parameters.kalibr_rows(params.noise)
+        if kalibr:
+            out.append({"name": "kalibr",
+                        "title": "filter noise parameters (Kalibr imu.yaml, VINS-Fusion, ORB-SLAM3)",
+                        "method": "continuous-time densities in the units those tools read",
+                        **grouped(kalibr)})
     if params.thermal is not None:
-        out.append({"name": "thermal", "title": "temperature compensation (thermal)", "method": "",
-                    "rows": parameters.thermal_rows(params)})
+        out.append({"name": "thermal", "title": "temperature compensation (thermal)",
+                    "method": str(params.thermal.extra.get("method") or ""),
+                    **grouped(thermal_rows(params.thermal))})
     return out
 
 
-def _datasheet(params: ParamsFile | None) -> list[dict[str, Any]]:
-    """The unit's datasheet figures (``station.report.datasheet``): per axis value and 1-sigma or interval."""
+def _datasheet(params: ParamsFile | None) -> tuple[list[dict[str, Any]], list[str]]:
+    """The unit's datasheet figures (``station.report.datasheet``): per axis value and 1-sigma or interval,
+    and what measured them as numbered notes (a long source in a cell wrapped it over many lines)."""
     if params is None:
-        return []
-    rows = []
+        return [], []
+    rows: list[dict[str, Any]] = []
+    sources: list[str] = []
     for row in datasheet_rows(params.to_dict()):
         cells = []
         for value, unc in zip(row.values, row.uncertainty, strict=True):
             if value is None:
                 cells.append(number(None))
             elif isinstance(unc, list | tuple):
-                cells.append(f"{number(value)} [{number(unc[0], 3)}, {number(unc[1], 3)}]")
+                cells.append(f"{number(value)} [{number(unc[0])}, {number(unc[1])}]")
             else:
-                cells.append(number(value) + (f" \u00b1 {number(unc, 2)}" if unc is not None else ""))
+                cells.append(with_sigma(value, unc))
+        source = row.measured_by + (f" [{row.interval}]" if row.interval else "")
+        if source not in sources:
+            sources.append(source)
         rows.append({"figure": row.figure, "unit": row.unit, "cells": cells,
-                     "measured_by": row.measured_by + (f" [{row.interval}]" if row.interval else "")})
-    return rows
+                     "source": sources.index(source) + 1})
+    return rows, sources
+
+
+def _mag_warnings(mag: Any) -> list[str]:
+    """What ``calibrate --method mag`` warned of that the section still shows: a coverage below the
+    engine's warning level (the missing directions need the capture; the CLI printed them)."""
+    if not isinstance(mag, dict) or not isinstance(mag.get("coverage"), int | float):
+        return []
+    if mag["coverage"] >= WARN_COVERAGE:
+        return []
+    leans = ("the fit leans on the dip constraint" if mag.get("frame") == "accel"
+             else "the soft iron is poorly determined without a gravity reference")
+    return [f"magnetometer: the field directions cover {mag['coverage']:.0%} of the sphere "
+            f"(below {WARN_COVERAGE:.0%}): {leans}"]
 
 
 def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
@@ -227,6 +260,29 @@ def _unit(cert: Certificate) -> dict[str, str]:
     return {k: str(device.get(k) or "not known") for k in ("serial", "model", "firmware")}
 
 
+def revision(cert: Certificate) -> str:
+    """The certificate's revision: the first 12 hex digits of the SHA-256 of what it certifies (the
+    parameter file's bytes, else the factory record's run id), so the same calibration always gives
+    the same revision and any change to it a new one."""
+    if cert.params_sha256:
+        return cert.params_sha256[:12]
+    if cert.record is not None:
+        return cert.record.run_id[:12]
+    return "none"
+
+
+def _roles(cert: Certificate) -> dict[str, str]:
+    """Each given capture's path to the sections computed from it (``accel and gyro``)."""
+    roles: dict[str, list[str]] = {}
+    if cert.params is not None:
+        for section, source in cert.params.sources.items():
+            wanted = source.get("sha256")
+            match = next((c for c in cert.captures if wanted and c.sha256 == wanted), None)
+            if match is not None:
+                roles.setdefault(match.path, []).append(section)
+    return {path: " and ".join(sections) for path, sections in roles.items()}
+
+
 def certificate_context(cert: Certificate) -> dict[str, Any]:
     """The template's variables: unit, run, files, results, parameter tables, plots and what is absent.
 
@@ -245,6 +301,7 @@ def certificate_context(cert: Certificate) -> dict[str, Any]:
         absent = [s for s in REPORTED_SECTIONS if s not in present]
         if absent:
             notes.append("the parameter file has no section " + ", ".join(absent))
+    warnings = _mag_warnings(params.other.get("mag") if params is not None else None)
     plots, plot_notes = _plots(cert)
     notes += plot_notes
     judged = [m for m in cert.measurements if m.outcome in ("PASS", "FAIL")]
@@ -261,24 +318,36 @@ def certificate_context(cert: Certificate) -> dict[str, Any]:
         verdict = "FAIL" if any(m.outcome == "FAIL" for m in judged) else "PASS"
     else:
         verdict = "NOT JUDGED"
+    plan = cert.plan or (record.plan if record is not None else {})
+    labelled = _section_capture(cert, "accel") or _section_capture(cert, "gyro")
+    sequence = plan.get("sequence") or (sequence_of(labelled.samples) if labelled is not None else "")
+    station_id = cert.station or (record.station if record is not None else "")
+    datasheet, datasheet_sources = _datasheet(params)
+    unit = _unit(cert)
     return {
-        "unit": _unit(cert),
-        "station": cert.station or (record.station if record is not None else "") or "not given",
-        "operator": cert.operator or "not given",
+        "unit": unit,
+        "station": station_id or f"{socket.gethostname()} (host name; --station names the station)",
+        "operator": cert.operator or "",
         "version": station.__version__,
+        "revision": revision(cert),
         "calibrated": _when(calibrated),
         "issued": _utc_now(),
         "run_id": record.run_id if record is not None else "",
         "reason": record.reason if record is not None else "",
-        "plan": cert.plan or (record.plan if record is not None else {}),
+        "plan": plan,
         "methods": methods,
-        "sequence": (cert.plan or (record.plan if record is not None else {})).get("sequence", ""),
+        "sequence": sequence,
         "files": _data_files(cert),
         "measurements": judged,
         "other_measurements": [m for m in cert.measurements if m.outcome not in ("PASS", "FAIL")],
         "verdict": verdict,
         "sections": _sections(cert),
-        "datasheet": _datasheet(params),
+        "thermal_tables": coefficient_tables(params.thermal if params is not None else None),
+        "datasheet": datasheet,
+        "datasheet_sources": datasheet_sources,
+        "equipment": equipment(record, plan, params.other.get("mag") if params is not None else None),
+        "ambient": ambient(record, cert.captures, _roles(cert)),
+        "warnings": warnings,
         "plots": plots,
         "notes": notes,
     }
@@ -316,7 +385,7 @@ def write_certificate(cert: Certificate, path: str | Path) -> list[str]:
         raise StationError("a certificate needs a parameter file or a factory record")
     context = certificate_context(cert)
     atomic_write_text(path, render("certificate.html.j2", **context))
-    return list(context["notes"])
+    return list(context["warnings"]) + list(context["notes"])
 
 
 def capture_file(path: str | Path, samples: Samples) -> CaptureFile:
