@@ -67,6 +67,13 @@ class PortFlooding(DriverError):
     that the other units go on. Every sample decoded before is still delivered."""
 
 
+class FramesRefused(DriverError):
+    """Most of the unit's frames fail the checksum its frame description names: the description is
+    wrong, not the link (exit 4). The message names the checksum that fits, when one does."""
+
+    exit_code = ExitCode.USAGE
+
+
 class NoSamples(DriverError):
     """The port is open but no sample frame arrives (unit stopped, wrong baud rate or protocol)."""
 

@@ -201,6 +201,12 @@ class SerialDevice(Device):
             return LinkStats(**vars(self._monitor.stats))
 
     @property
+    def decoder_problem(self) -> str | None:
+        """What the decoder found wrong with the stream as a whole, or None: a frame description whose
+        checksum most frames fail (``protocols.frame.FrameDecoder.problem``; other decoders find none)."""
+        return getattr(self._decoder, "problem", None)
+
+    @property
     def info(self) -> dict[str, Any]:
         """The last DEVICE_INFO the unit sent (empty until it sent one)."""
         with self._cond:

@@ -10,6 +10,11 @@ counted (``truncated`` when a sync starts inside it, ``crc_errors`` otherwise), 
 at the next sync candidate after the one it tried, and garbage is counted and skipped, so no good
 frame after it is lost.
 
+When most frames fail their checksum (``CHECKSUM_FAILING_MIN`` failures and more than good frames),
+the description is wrong rather than the link: :attr:`FrameDecoder.problem` then holds a one-line
+diagnosis naming the checksum that fits the frames refused last (``protocols.frame_checksum_fit``),
+for a capture to stop on and ``frame check`` to show; decoding goes on as before.
+
 Sequence counters and integer clocks narrower than 64 bits are unwrapped (a step back of up to half
 their range is a step back, not a wrap). A board without a clock is timed by ``rate_hz``: by its
 counter when it has one, else by the count of samples. Without a counter, the counter is made from
@@ -31,12 +36,14 @@ itself and the checksums already have their own modules (``frame_description``, 
 from __future__ import annotations
 
 import contextlib
+from collections import deque
 from collections.abc import Callable
 
 import numpy as np
 
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, StreamDecoderBase
 from protocols.errors import StationError
+from protocols.frame_checksum_fit import diagnosis
 from protocols.frame_checksums import RowChecksum, checksum_rows
 from protocols.frame_description import FieldSpec, FrameDescription
 
@@ -45,6 +52,10 @@ from protocols.frame_description import FieldSpec, FrameDescription
 _WINDOW = 1024
 # Samples whose clock steps give the period of a board with neither counter nor stated rate.
 _PERIOD_SAMPLES = 8
+CHECKSUM_FAILING_MIN = 50
+"""Checksum failures before most frames failing (more failures than good frames) is a wrong description."""
+REFUSED_KEPT = 64
+"""Frames refused for their checksum kept (the latest), for the diagnosis to try other checksums on."""
 
 DescriptionReader = Callable[[str], FrameDescription]
 _reader: DescriptionReader | None = None
@@ -318,6 +329,8 @@ class FrameDecoder(StreamDecoderBase):
         self._period_s = 1.0 / desc.rate_hz if desc.rate_hz else None
         self._last_t: float | None = None
         self._synth_seq = -1
+        self._refused: deque[bytes] = deque(maxlen=REFUSED_KEPT)
+        self.problem: str | None = None  # set once most frames failed their checksum (see the module)
 
     # -- framing -------------------------------------------------------------------------------
 
@@ -378,6 +391,7 @@ class FrameDecoder(StreamDecoderBase):
             self.stats.truncated += 1  # the next frame started inside this one
         else:
             self.stats.crc_errors += 1
+            self._refused.append(bytes(buf[pos : pos + self._len]))
         if nxt < 0:
             nxt = self._partial_sync_start(pos + 1)
         self.stats.resyncs += 1
@@ -403,6 +417,8 @@ class FrameDecoder(StreamDecoderBase):
                 pos = self._reject(pos)
         if pos:
             del buf[:pos]
+        if self.problem is None and self.stats.crc_errors >= CHECKSUM_FAILING_MIN:
+            self._check_failing(sum(len(r) for r in runs))
         if not runs:
             self._last_records = self._last_records[:0]
             return Decoded(np.zeros(0, self._out_dtype))
@@ -413,6 +429,20 @@ class FrameDecoder(StreamDecoderBase):
         self.stats.frames += len(samples)
         self.stats.samples += len(samples)
         return Decoded(samples)
+
+    def _check_failing(self, new_frames: int) -> None:
+        """Set :attr:`problem` when most frames so far failed their checksum (``new_frames`` are not counted
+        yet)."""
+        failed = self.stats.crc_errors
+        total = failed + self.stats.frames + new_frames
+        if failed > total - failed:
+            found = diagnosis(self.description, self.refused_frames(), failed, total)
+            self.problem = f"{self.label}: {found}"
+
+    def refused_frames(self) -> np.ndarray:
+        """The latest frames refused for their checksum (up to ``REFUSED_KEPT``), ``(n, length)`` of uint8."""
+        kept = list(self._refused)
+        return np.frombuffer(b"".join(kept), dtype=np.uint8).reshape(len(kept), self._len)
 
     def flush(self) -> Decoded:
         """End of stream: every sync candidate left is a truncated frame, the rest garbage."""

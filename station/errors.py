@@ -30,6 +30,7 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
           ├── PortLost                    the port went away while open
           ├── PortFlooding                a port sent more than it could be decoded: dropped
           ├── NoSamples                   the port is open but no sample arrives
+          ├── FramesRefused               exit 4: most frames fail their description's checksum
           ├── TableFault                  the turntable reports a fault
           ├── InstrumentError             a lab instrument failed (drivers.instruments.errors)
           │    ├── InstrumentTimeout      no reply in time, after the retries

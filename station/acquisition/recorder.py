@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from drivers.errors import DriverError, NoSamples
+from drivers.errors import DriverError, FramesRefused, NoSamples
 from drivers.interface import Device
 from drivers.link_stats import LinkStats
 from station.acquisition.capture_csv import CsvCaptureWriter
@@ -255,7 +255,8 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
     those the clock guard left out (see :class:`Recorder`); the duration counts continuous device
     time, so a jump of the unit's clock neither ends the capture nor counts.
 
-    No sample in the first ``no_samples_timeout_s`` ends it with ``NoSamples``. A capture that
+    No sample in the first ``no_samples_timeout_s`` ends it with ``NoSamples``; most frames failing the
+    checksum a frame description names ends it with ``FramesRefused`` (returned in ``error``). A capture that
     ends without a single row, however it ends, leaves no file and returns ``NoSamples`` in
     ``error``, which says so. A link error (``PortLost``, ...) does not raise: it ends the
     capture and is returned in ``error``. A write error (disk full) raises ``OutputFileError``
@@ -292,6 +293,12 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
                 ), "link error"
                 break
             recorder.write(batch, _link(device, recorder))
+            # a frame description most frames fail: what is kept is a few frames that matched by chance
+            problem = getattr(device, "decoder_problem", None)
+            if problem:
+                error = FramesRefused(f"{device.port}: {problem}; the capture stopped", device.port)
+                ended_by = "link error"
+                break
             if on_status is not None and now - last_status >= status_interval_s:
                 on_status(device.stats, recorder.rows, recorder.device_time_s)
                 last_status = now

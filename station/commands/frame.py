@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.console.options import BAUD, DURATION_S, port
+from station.console.options import BAUD, DEFAULT_BAUDRATE, DURATION_S, port
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
@@ -54,8 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = check.add_mutually_exclusive_group(required=True)
     source.add_argument("--port", type=port, metavar="PORT", help="serial device path or pyserial URL")
     source.add_argument("--file", type=Path, metavar="RAW", help="raw bytes as the unit sent them")
-    check.add_argument("--baud", type=BAUD, default=115_200, metavar="BIT/S",
-                       help="line speed (default: 115200)")
+    # the same default as capture's: a description checked at one speed is captured at the same
+    check.add_argument("--baud", type=BAUD, default=DEFAULT_BAUDRATE, metavar="BIT/S",
+                       help=f"line speed (default: {DEFAULT_BAUDRATE}, as for capture)")
     check.add_argument("--duration", type=DURATION_S, default=None, metavar="S",
                        help="with --port: seconds to watch (default: until Ctrl-C)")
     guessing = sub.add_parser("guess", help="propose a description from a raw byte capture",
@@ -84,7 +85,9 @@ def render(report: CheckReport, title: str) -> Group:
     from rich.table import Table
     from rich.text import Text
 
-    head = Text(f"{title}\n{report.frames} frames, {report.frame_rate:.1f}/s; {report.errors} damaged "
+    lost = (f", {report.lost} lost by the counter (the unit sent {report.sent_rate:.1f}/s)" if report.lost
+            else "")
+    head = Text(f"{title}\n{report.frames} frames, {report.frame_rate:.1f}/s{lost}; {report.errors} damaged "
                 f"({report.error_rate:.2f}/s); {report.garbage_bytes} garbage bytes; {report.seconds:.1f} s")
     table = Table("value", "last", "mean", "std", "min", "max")
     for row in report.rows:
