@@ -3,13 +3,17 @@
 The screen draws the two halves of the sphere of field directions (in the sensor's axes) with the
 cells already visited, marks where the field points now, and says which way to turn next (the
 largest missing group of directions, :meth:`station.engines.magnetometer.coverage.MagCoverage.advice`).
-Directions are taken from the hard-iron centre estimated so far (the least-squares sphere through
-the readings, :func:`station.engines.magnetometer.fit.sphere_fit`, once they spread enough; raw before).
-The step finishes by itself at :data:`TARGET_SHARE` of the sphere; Enter finishes it earlier once
-the calibration can use the share (``MIN_COVERAGE``; below ``WARN_COVERAGE`` it warns, and says
-so). Everything read is recorded to the magnetometer capture (``TuiConfig.mag_capture_path``), for
-``imu-station calibrate FILE --method mag``. A unit without a magnetometer is told apart within
-seconds and the screen says so.
+Directions are taken from the hard-iron centre estimated so far: the least-squares sphere through
+the readings, once it is determined beyond the readings' noise
+(:func:`station.engines.magnetometer.determined.sphere_centre`: its radius at least ten times the
+noise and its centre known to 5 % of it). Before that nothing counts: a sphere through the noise of
+a still unit sees every direction, and raw readings are not field directions. The step starts from
+fresh samples (those queued while no screen read the unit, a results screen or a question, are
+dropped) and never replaces an earlier session's capture without asking. It finishes by itself at
+:data:`TARGET_SHARE` of the sphere; Enter finishes it earlier once the calibration can use the share
+(``MIN_COVERAGE``; below ``WARN_COVERAGE`` it warns, and says so). Everything read is recorded to the
+magnetometer capture (``TuiConfig.mag_capture_path``), for ``imu-station calibrate FILE --method
+mag``. A unit without a magnetometer is told apart within seconds and the screen says so.
 """
 
 from __future__ import annotations
@@ -29,12 +33,18 @@ from protocols.base import has_mag
 from station.acquisition.recorder import Recorder
 from station.engines.magnetometer.calibration import MIN_COVERAGE, WARN_COVERAGE
 from station.engines.magnetometer.coverage import CELLS, MagCoverage, direction_label, field_coverage
-from station.engines.magnetometer.fit import sphere_fit
+from station.engines.magnetometer.determined import (
+    MIN_RADIUS_NOISE,
+    NOISE_WINDOW,
+    reading_noise,
+    sphere_centre,
+)
 from station.errors import StationError
 from station.tui.art import bar
 from station.tui.mag_art import hemispheres
 from station.tui.messages import LinkFailed, Snapshot
 from station.tui.pump import pump
+from station.tui.screens.ask import AskScreen
 from station.tui.screens.station_screen import StationScreen
 
 # The share of the sphere at which the step finishes by itself: a hand-turned unit reaches it in a
@@ -44,13 +54,16 @@ TARGET_SHARE = 0.8
 KEEP_HZ = 25.0
 # Seconds of samples without a field before the unit is taken for one without a magnetometer.
 NO_MAG_AFTER_S = 2.0
-# The hard-iron centre is trusted once the readings spread over this share of their magnitude.
-CENTRE_SPREAD = 0.5
+# Directions kept before the sphere through them is tried, and full-rate readings per noise chunk.
 MIN_CENTRE_SAMPLES = 30
+NOISE_CHUNK = NOISE_WINDOW + 2
+# Reads that drain what waited before the step (a read returns what arrived since the last).
+DRAIN_READS = 100
 
 
 class MagProgress:
-    """The field directions of a session so far, thinned to :data:`KEEP_HZ`, and their coverage."""
+    """The field directions of a session so far, thinned to :data:`KEEP_HZ`, the readings' noise
+    (``determined`` eq. (1), from full-rate chunks), and their coverage."""
 
     def __init__(self) -> None:
         self.readings: list[np.ndarray] = []
@@ -58,7 +71,10 @@ class MagProgress:
         self.with_field = 0
         self.first_t_us: int | None = None
         self.last_t_us = 0
+        self.waiting: str | None = None  # why no direction counts yet (the centre not determined)
         self._last_bin = -1  # the last 1/KEEP_HZ s bin of device time a reading was kept from
+        self._chunk: list[np.ndarray] = []  # full-rate readings not yet in a noise chunk
+        self._noise: list[float] = []  # each full chunk's noise
 
     def add(self, batch: np.ndarray) -> None:
         """Take a batch of samples: those with a finite field, the first of each 1/KEEP_HZ s, are kept."""
@@ -77,11 +93,27 @@ class MagProgress:
         index = np.flatnonzero(ok)
         if not len(index):
             return
+        self._add_noise(mag[index])
         bins = t[index] // int(1e6 / KEEP_HZ)
         first = np.concatenate([[bins[0] != self._last_bin], bins[1:] != bins[:-1]])
         self._last_bin = int(bins[-1])
         if first.any():
             self.readings.append(mag[index[first]])
+
+    def _add_noise(self, mag: np.ndarray) -> None:
+        """Full-rate readings into chunks of :data:`NOISE_CHUNK`, each giving its noise (eq. (1))."""
+        self._chunk.append(mag)
+        pending = np.concatenate(self._chunk)
+        while len(pending) >= NOISE_CHUNK:
+            self._noise.append(reading_noise(pending[:NOISE_CHUNK]))
+            pending = pending[NOISE_CHUNK:]
+        self._chunk = [pending]
+
+    @property
+    def noise(self) -> float | None:
+        """The readings' noise, microtesla: the low percentile of the chunks' (the unit paused in them);
+        None before a chunk is full."""
+        return float(np.percentile(self._noise, 20.0)) if self._noise else None
 
     @property
     def seconds(self) -> float:
@@ -93,27 +125,33 @@ class MagProgress:
         """Samples came for :data:`NO_MAG_AFTER_S` and not one carried a field."""
         return self.with_field == 0 and self.seconds >= NO_MAG_AFTER_S
 
-    def centre(self, m: np.ndarray) -> np.ndarray:
-        """The hard iron as far as the readings tell: the sphere through them once they spread."""
-        if len(m) < MIN_CENTRE_SAMPLES:
-            return np.zeros(3)
-        norm = float(np.median(np.linalg.norm(m - np.median(m, axis=0), axis=1)))
-        spread = float(np.linalg.norm(m.max(axis=0) - m.min(axis=0)))
-        if not norm or spread < CENTRE_SPREAD * norm:
-            return np.zeros(3)
-        start = sphere_fit(m)
-        radius = 1.0 / float(start.correction[0, 0])
-        # A sphere fit on a thin arc can run off; then the raw directions say more.
-        return start.bias if np.linalg.norm(start.bias - m.mean(axis=0)) < 3.0 * radius else np.zeros(3)
+    def centre(self, m: np.ndarray) -> np.ndarray | None:
+        """The hard iron as far as the readings tell: the sphere through them once it is determined
+        beyond the noise (``determined`` eqs. (2)-(3)), else None, :attr:`waiting` saying why."""
+        noise = self.noise
+        if len(m) < MIN_CENTRE_SAMPLES or noise is None:
+            self.waiting = "turn the unit: its field's centre is found once it has turned a little"
+            return None
+        found = sphere_centre(m, noise)
+        self.waiting = None if found.determined else (
+            "keep turning, through larger angles: the field has not moved enough beyond the noise "
+            f"({noise:.2g} uT) to place its centre")
+        return found.start.bias if found.determined else None
 
     def coverage(self) -> tuple[MagCoverage, np.ndarray | None]:
-        """The coverage of the directions so far, and the field's direction now (None before any)."""
+        """The coverage of the directions so far, and the field's direction now (None before any, or
+        while the centre is not determined: then nothing counts)."""
         if not self.readings:
             return field_coverage(np.zeros((0, 3))), None
         m = np.concatenate(self.readings)
         self.readings = [m]
-        centred = m - self.centre(m)
-        return field_coverage(centred), centred[-1]
+        centre = self.centre(m)
+        if centre is None:
+            return field_coverage(np.zeros((0, 3))), None
+        centred = m - centre
+        # a reading within a few noise of the centre has no direction to speak of
+        centred = centred[np.linalg.norm(centred, axis=1) >= MIN_RADIUS_NOISE * (self.noise or 0.0)]
+        return field_coverage(centred), (centred[-1] if len(centred) else None)
 
 
 class MagScreen(StationScreen):
@@ -151,17 +189,35 @@ class MagScreen(StationScreen):
         yield Footer()
 
     def on_mount(self) -> None:
-        """Open the capture, move a simulated unit, and start reading."""
+        """Ask before replacing an earlier session's capture; then open it, move a simulated unit, and
+        start reading."""
         self.title = "imu-station · magnetometer"
-        session = self.session
         path = self.station.config.mag_capture_path()
+        if path is None or not path.exists():
+            self._start(path)
+            return
+        other = free_name(path)
+        answers = [("r", f"replace {path.name}"), ("k", f"keep it: record to {other.name}")]
+
+        def answered(reply: tuple[str, str] | None) -> None:
+            key = reply[0] if reply is not None else "back"
+            if key in ("r", "k"):
+                self._start(path if key == "r" else other)
+            else:
+                self.station.show("live")
+
+        question = f"A magnetometer session is already saved in {path}."
+        self.app.push_screen(AskScreen(question, answers), answered)
+
+    def _start(self, path: Path | None) -> None:
+        """Open the capture at ``path`` (None: none kept), move a simulated unit, and start reading."""
+        session = self.session
         try:
             if path is not None:
                 self.recorder = Recorder(path, device=session.info, port=session.name,
                                          protocol=session.device.protocol)
         except (StationError, OSError) as exc:
             self.post_message(LinkFailed(exc))
-        self._turn_simulated_unit()
         self.query_one("#status", Static).update(Text(
             "Turn the unit slowly in every direction, pausing now and then; keep it away from steel and "
             "magnets. Enter: finish · Escape: back", style="dim"))
@@ -179,6 +235,12 @@ class MagScreen(StationScreen):
     @work(thread=True, exclusive=True, group="reader")
     def _read(self) -> None:
         device = self.session.device
+        # Samples that waited while no screen read the unit (the results screen, a question) are of
+        # before the step: a still unit's, which the coverage and the capture must not take.
+        for _ in range(DRAIN_READS):
+            if not len(device.read(0.0)):
+                break
+        self.app.call_from_thread(self._turn_simulated_unit)
 
         def on_batch(batch: np.ndarray) -> None:
             with self._lock:
@@ -195,8 +257,9 @@ class MagScreen(StationScreen):
                     return
                 coverage, now = self.progress.coverage()
                 seconds, samples = self.progress.seconds, self.progress.with_field
+                waiting = self.progress.waiting
             self.post_message(Snapshot({"coverage": coverage, "now": now, "seconds": seconds,
-                                        "samples": samples}))
+                                        "samples": samples, "waiting": waiting}))
 
         pump(device, on_batch, on_tick, lambda exc: self.post_message(LinkFailed(exc)), ui_rate_hz=4.0)
 
@@ -217,15 +280,19 @@ class MagScreen(StationScreen):
         now = message.data["now"]
         self.share = coverage.share
         self.query_one("#sphere", Static).update(hemispheres(coverage.hit, now))
-        self.query_one("#coverage", ProgressBar).update(progress=min(1.0, coverage.share / TARGET_SHARE))
+        # the bar shows the share of the sphere, as the words beside it (not the share of the target)
+        self.query_one("#coverage", ProgressBar).update(progress=coverage.share)
         guide = Text()
         guide.append(f"covered {coverage.share:4.0%} of the sphere", style="bold")
         guide.append(f" (target {TARGET_SHARE:.0%})\n")
         width = max(10, self.query_one("#guide", Static).content_size.width - 2)
         guide.append(bar(coverage.share, width) + "\n", style="green")
+        waiting = message.data.get("waiting")
         if now is not None:
             guide.append(f"field now along {direction_label(now)}, {np.linalg.norm(now):.1f} uT\n")
-        if coverage.missing:
+        if waiting:
+            guide.append(waiting + "\n", style="yellow")
+        elif coverage.missing:
             guide.append("turn next: ", style="bold cyan")
             guide.append(coverage.advice(1)[0] + "\n")
             guide.append(f"missing: {' '.join(coverage.missing[:6])}\n", style="dim")
@@ -289,3 +356,13 @@ class MagScreen(StationScreen):
     def on_unmount(self) -> None:
         """Leaving the screen closes the capture (what was recorded is kept)."""
         self._close_capture(remove=False)
+
+
+def free_name(path: Path) -> Path:
+    """``path`` with the first of ``-2``, ``-3``, ... before its suffix that names no file yet."""
+    suffix = "".join(path.suffixes) if path.name.endswith(".csv.gz") else path.suffix
+    stem = path.name[:len(path.name) - len(suffix)] if suffix else path.name
+    number = 2
+    while (candidate := path.with_name(f"{stem}-{number}{suffix}")).exists():
+        number += 1
+    return candidate
