@@ -39,7 +39,7 @@ DEFAULT_BAUDRATE = 921_600  # 1 kHz of 47-byte frames needs 470 kbit/s
 DEFAULT_MAX_BUFFERED = 200_000  # samples (8 MB): minutes of data at 1 kHz before anything drops
 READ_CHUNK = 65_536
 READ_TIMEOUT_S = 0.05
-LIST_PORTS_HINT = "list the ports with `python -m serial.tools.list_ports -v`"
+LIST_PORTS_HINT = "list the ports with `imu-station ports`"
 
 
 def open_serial(port: str, baudrate: int = DEFAULT_BAUDRATE, exclusive: bool = True) -> serial.SerialBase:

@@ -143,7 +143,7 @@ def test_missing_port_is_a_clear_error_with_exit_code_3(tmp_path: Path) -> None:
     assert proc.returncode == 3
     assert err.strip().splitlines()[-1] == (
         "imu-station capture: error: /dev/imu-missing: no such port; check the cable and the name "
-        "(list the ports with `python -m serial.tools.list_ports -v`)")
+        "(list the ports with `imu-station ports`)")
     assert not (tmp_path / "x.csv").exists()
 
 

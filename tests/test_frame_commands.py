@@ -112,3 +112,13 @@ def test_guess_on_noise_has_nothing_to_propose(tmp_path: Path, capsys) -> None:
     assert main(["frame", "guess", str(raw)]) == 4
     err = capsys.readouterr().err
     assert "nothing to propose" in err and str(raw) in err
+
+
+def test_check_reads_a_port_at_the_speed_capture_does(tmp_path: Path) -> None:
+    """Before: frame check read at 115200 by default while capture reads at 921600 (issue 31)."""
+    from station.cli import build_parser
+
+    check = build_parser("frame").parse_args(["frame", "check", "witmotion", "--port", "/dev/null"])
+    capture = build_parser("capture").parse_args(["capture", "--port", "/dev/null", "-o",
+                                                  str(tmp_path / "c.csv")])
+    assert check.baud == capture.baud == 921_600
