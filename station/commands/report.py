@@ -95,7 +95,8 @@ def _from_params(args: argparse.Namespace) -> Certificate:
         report = CalibrationReport(params.accel, params.gyro, method="", gravity=float("nan"))
         measurements = measure(loaded, CALIBRATION_QUANTITIES, report, {})
         plan = {"name": loaded.name, "path": str(loaded.path), "sha256": loaded.sha256,
-                "sequence": loaded.sequence.name}
+                "sequence": loaded.sequence.name,
+                "instruments": loaded.instruments.urls() if loaded.instruments is not None else {}}
     return Certificate(params, str(args.params), sha256_file(args.params), measurements=measurements,
                        captures=captures, plan=plan)
 

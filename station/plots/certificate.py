@@ -105,11 +105,13 @@ def pose_residuals(capture: Samples, params: Calibrated) -> list[dict[str, Any]]
 
 
 def residuals_svg(residuals: list[dict[str, Any]]) -> str:
-    """Bars per pose and axis: accelerometer residual (mg) and, where calibrated, gyroscope mean (deg/h).
+    """Bars per pose and axis: accelerometer residual (mg) and, where calibrated, gyroscope mean (deg/h)."""
+    return to_svg(residuals_figure(residuals))
 
-    Drawn at the page's width; with more than six poses the labels (``+x+y``) are turned 45 degrees
-    so that neighbours never run together.
-    """
+
+def residuals_figure(residuals: list[dict[str, Any]]) -> Any:
+    """The figure of :func:`residuals_svg`, drawn at the page's width; with more than six poses the
+    labels (``+x+y``) are turned 45 degrees so that neighbours never run together."""
     has_gyro = residuals[0]["gyro_dph"] is not None
     fig, axes = new_figure(PAGE_WIDTH_IN, 2.0, 1, 2 if has_gyro else 1)
     x = np.arange(len(residuals))
@@ -131,7 +133,7 @@ def residuals_svg(residuals: list[dict[str, Any]]) -> str:
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=7, ncol=3, handlelength=1.0, columnspacing=0.8, loc="best")
     fig.tight_layout(pad=0.4)
-    return to_svg(fig)
+    return fig
 
 
 def measured_allan(capture: Samples) -> Any:
@@ -144,7 +146,13 @@ def measured_allan(capture: Samples) -> Any:
 
 
 def allan_svg(noise: dict[str, Any], curve: Any = None) -> str:
-    """Allan deviation per sensor: the fitted model, its 1-sigma band, each term's line, the curve if given.
+    """Allan deviation per sensor: the fitted model, its 1-sigma band, each term's line, the curve if given
+    (:func:`allan_figure`)."""
+    return to_svg(allan_figure(noise, curve))
+
+
+def allan_figure(noise: dict[str, Any], curve: Any = None) -> Any:
+    """The figure of :func:`allan_svg`, its legends below the panels at 7 pt.
 
     The band is the model evaluated with every term at its value -/+ its 1-sigma (eq. C.1 of
     IEEE 952 through :func:`~station.engines.allan.fit.model_avar`); the measured curve, when a
@@ -187,7 +195,7 @@ def allan_svg(noise: dict[str, Any], curve: Any = None) -> str:
         ax.legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False,
                   handlelength=1.6, columnspacing=1.0)
     fig.tight_layout(pad=0.4)
-    return to_svg(fig)
+    return fig
 
 
 def _axis_value(values: Any, j: int) -> float | None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -131,5 +132,5 @@ def ambient(record: RunRecord | None, captures: Sequence[Captured],
         role = roles.get(capture.path, "capture")
         out.append({"what": f"unit temperature during the {role} capture",
                     "value": f"{temp.min():.1f} to {temp.max():.1f} degC (mean {temp.mean():.1f})",
-                    "source": capture.path})
+                    "source": Path(capture.path).name})  # the whole path is in the data table
     return out
