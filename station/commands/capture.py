@@ -32,7 +32,8 @@ second file SERIAL-2). One status line per unit. A unit that fails (vanishes, is
 no frames) is reported and the others go on.
 
 exit codes: 0 done, 3 device or link error (after saving what was received; with several ports,
-any unit's), 4 usage, 130 interrupted by Ctrl-C (after saving)."""
+any unit's), 4 usage, or a frame description whose checksum most frames fail (after saving; the
+message names the checksum that fits), 130 interrupted by Ctrl-C (after saving)."""
 EPILOG = """\
 examples:
   imu-station capture --port /dev/ttyUSB0 --duration 60 -o still.csv
