@@ -49,6 +49,8 @@ if TYPE_CHECKING:
     from station.engines.allan.shapes import gauss_markov_avar as gauss_markov_avar
     from station.engines.allan.shapes import model_avar as model_avar
     from station.engines.allan.shapes import sinusoid_avar as sinusoid_avar
+    from station.engines.allan.solver import prepare_solver as prepare_solver
+    from station.engines.allan.solver import solver_ready as solver_ready
     from station.engines.allan.terms import NAMES as NAMES
     from station.engines.allan.terms import SENSOR_AXES as SENSOR_AXES
     from station.engines.allan.terms import TERMS as TERMS
@@ -72,6 +74,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "model": ("ieee_model", "preferred", "select_model"),
     "shapes": ("B_FACTOR", "basis", "filtered_white_avar", "gauss_markov_avar", "model_avar",
                "sinusoid_avar"),
+    "solver": ("prepare_solver", "solver_ready"),
     "terms": ("NAMES", "SENSOR_AXES", "TERMS", "UNITS"),
     "uncertainty": ("alpha_from_slope", "confidence_interval", "edf_table", "greenhall_edf",
                     "log_chi2_moments", "ONE_SIGMA"),

@@ -15,6 +15,9 @@ The arithmetic is scipy's and the candidate's, operation for operation, but the 
 log, expm1, sin) are the C library's here where numpy has its own vectorised ones, and short sums run in a
 different order: iterates differ in the last bits, and a fit ends where scipy's does to about 1e-9 of
 each parameter (``benchmarks/allan_model.py`` compares the chosen models with those scipy gave).
+
+Why this module is long: it is one solver, scipy's ``trf_bounds`` and the helpers it calls, ported step
+for step so that it can be read beside scipy's two files; split, the port would no longer follow them.
 """
 
 from __future__ import annotations
@@ -479,3 +482,23 @@ def solve(x0: np.ndarray, lb: np.ndarray, ub: np.ndarray, tau: np.ndarray, fixed
     if status == NONE:
         status = 0
     return x, f, jac, status
+
+
+def cached() -> bool:
+    """Whether numba's cache holds :func:`solve` (its index file beside this module or in
+    ``NUMBA_CACHE_DIR``): a process that finds it loads the machine code instead of compiling."""
+    import os
+
+    cache = getattr(solve, "_cache", None)
+    index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    return index is not None and os.path.exists(index)
+
+
+def compile_now() -> None:
+    """Compile :func:`solve` (and everything it calls) for the one signature the model selection uses, by
+    solving a two-parameter problem; numba caches the result on disk."""
+    tau = np.geomspace(0.01, 100.0, 12)
+    fixed = np.ascontiguousarray(np.stack([1.0 / tau, tau], axis=1))
+    log_avar = np.log(2e-6 / tau + 1e-9 * tau)
+    solve(np.zeros(2), np.full(2, -np.inf), np.full(2, np.inf), tau, fixed, 2, 0, False, 0.01,
+          np.ones(len(tau)), log_avar, 100)
