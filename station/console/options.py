@@ -331,16 +331,11 @@ def add_output_option(parser: argparse.ArgumentParser, *, required: bool = False
 
 
 def serial_number(text: str) -> str:
-    """Validate ``--serial``: a unit's serial as it would report it, one line of visible text."""
+    """Validate ``--serial``: a unit's serial as it would report it, 1 to 64 visible characters."""
     serial = text.strip()
-    if not serial or len(serial) > MAX_SERIAL_CHARS or not serial.isprintable():
-        raise argparse.ArgumentTypeError(f"give the unit's serial, 1 to {MAX_SERIAL_CHARS} visible "
-                                         "characters")
+    if not serial or len(serial) > 64 or not serial.isprintable():
+        raise argparse.ArgumentTypeError("give the unit's serial, 1 to 64 visible characters")
     return serial
-
-
-MAX_SERIAL_CHARS = 64
-"""The longest ``--serial``: room for any serial a label carries."""
 
 
 def add_replace_option(parser: argparse.ArgumentParser) -> None:
