@@ -129,8 +129,10 @@ def test_the_tours_unit_prints_on_few_pages_each_naming_serial_page_and_revision
 
 def test_no_page_is_near_empty(printed: dict) -> None:
     fills = [_fill(p) for p in printed["png"]]
-    for n, fill in enumerate(fills[:-1], 1):  # the old page 5 was 80 % blank: its content stopped at 0.2
-        assert fill > 0.75, f"page {n} of {len(fills)}: content ends {fill:.0%} down the page"
+    # A figure or a table row never splits, so a page may end early by the height of the next figure
+    # (about a quarter page); the old page 5 was 80 % blank: its content stopped 20 % down.
+    for n, fill in enumerate(fills[:-1], 1):
+        assert fill > 0.6, f"page {n} of {len(fills)}: content ends {fill:.0%} down the page"
     assert fills[-1] > 0.2, f"the last page holds almost nothing ({fills[-1]:.0%})"
 
 
