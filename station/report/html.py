@@ -8,7 +8,6 @@ from functools import cache
 from typing import Any
 
 import jinja2
-import markupsafe
 
 SCIENTIFIC_BELOW = 1e-3
 SCIENTIFIC_FROM = 1e7
@@ -64,14 +63,14 @@ def with_sigma(value: Any, sigma: Any) -> str:
     return shown if sd == number(None) else f"{shown} \u00b1 {sd}"
 
 
-def css_string(text: Any) -> markupsafe.Markup:
+def css_string(text: Any) -> str:
     """``text`` as a quoted CSS string (``@page`` margin boxes): every character but letters, digits,
     space and a few safe marks is written as a hex escape (six digits and the space that ends it, which
     CSS consumes: a space after it in the text stays), so a hostile serial cannot close the string,
-    the rule or the ``<style>`` element (the result is marked safe: HTML escaping would corrupt it
-    inside ``<style>``, where entities are not decoded)."""
+    the rule or the ``<style>`` element. The template marks it ``safe``: HTML escaping would corrupt
+    it inside ``<style>``, where entities are not decoded."""
     safe = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789 .,:-_+/()")
-    return markupsafe.Markup('"' + "".join(c if c in safe else f"\\{ord(c):06x} " for c in str(text)) + '"')
+    return '"' + "".join(c if c in safe else f"\\{ord(c):06x} " for c in str(text)) + '"'
 
 
 def limits_text(low: float | None, high: float | None) -> str:
