@@ -40,6 +40,7 @@ benchmarks use are one protocol; split, each part would import the others' inter
 
 from __future__ import annotations
 
+import binascii
 import math
 import re
 from bisect import bisect_left
@@ -230,15 +231,18 @@ class MavlinkDecoder(StreamDecoderBase):
                 pos = after
                 continue
             frame = bytearray(buf[pos : pos + length])
-            try:
-                if self._win is not None and self._win.crc_failed(pos):
-                    raise self._dialect.MAVError("bad CRC")  # what decode would find
-                msg = self._mav.decode(frame)  # checks the CRC too
-            except self._dialect.MAVError:
-                if not (self._win is not None and self._win.crc_failed(pos)) and self._crc_ok(pos, length):
+            # The CRC first, in C (pymavlink's decode would check it too, in Python): a damaged frame
+            # is known without decoding it.
+            crc_good = not (self._win is not None and self._win.crc_failed(pos)) and self._crc_ok(pos, length)
+            msg = None
+            if crc_good:
+                try:
+                    msg = self._mav.decode(frame)
+                except self._dialect.MAVError:
                     stats.bad_payloads += 1
                     pos += length
                     continue
+            if msg is None:
                 inside = self._valid_frame_inside(pos + 1, pos + length, final)
                 if inside is None:
                     break
@@ -313,7 +317,7 @@ class MavlinkDecoder(StreamDecoderBase):
             if found is None:  # no run here (a false start): the window stays for the slots after
                 return _EMPTY_MAG, 0
             win = self._win = found
-        spec, size = win.spec, win.size
+        size = win.size
         i = (pos - win.base) // size
         j = win.checked
         if win.bad:
@@ -323,9 +327,17 @@ class MavlinkDecoder(StreamDecoderBase):
         n = j - i
         if n < 1:
             return _EMPTY_MAG, 0
-        payload, msg = win.payload[i:j], win.msg[i:j]
-        out = np.empty(n, dtype=MAG_SAMPLE_DTYPE)
-        if name == "SCALED_IMU" or name == "SCALED_IMU2" or name == "SCALED_IMU3":
+        if name == "HIGHRES_IMU" or name == "RAW_IMU":
+            # Every slot's values once per window: a damaged frame splits it into runs, each a slice.
+            if win.out is None:
+                win.out, field = self._values(win.msg, win.payload, name)
+                win.out["t_us"] = win.msg["time_usec"]
+                win.fields = np.concatenate(([0], np.cumsum(field))).tolist()
+            out = win.out[i:j]
+            has_field = win.fields[j] > win.fields[i]
+        else:
+            msg = win.msg[i:j]
+            out, field = self._values(msg, win.payload[i:j], name)
             ms = msg["time_boot_ms"].astype(np.int64)
             prev = ms[0] if self._boot_ms is None else self._boot_ms
             steps = ((np.diff(ms, prepend=prev) + 2**31) & 0xFFFFFFFF) - 2**31
@@ -337,13 +349,28 @@ class MavlinkDecoder(StreamDecoderBase):
                 n = int(np.argmax(boot < 0))
                 if n < 1:
                     return _EMPTY_MAG, 0
-                msg, boot, out = msg[:n], boot[:n], out[:n]
+                field, boot, out = field[:n], boot[:n], out[:n]
             self._boot_ms = int(boot[-1])
             out["t_us"] = boot * 1000
-        else:
-            out["t_us"] = msg["time_usec"]
+            has_field = bool(field.any())
         out["seq"] = np.arange(self._count, self._count + n, dtype=np.uint64) & 0xFFFFFFFF
         self._count += n
+        if has_field:
+            self._mag = True
+        self.messages_seen[name] = self.messages_seen.get(name, 0) + n
+        label = f"{name} {system}/{component} id {imu_id}"
+        self.sources_seen[label] = self.sources_seen.get(label, 0) + n
+        self.stats.frames += n
+        return out, n * size
+
+    def _values(self, msg: np.ndarray, payload: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Samples of IMU messages (``msg``, their ``payload`` bytes) but ``seq`` and ``t_us``, and which
+        carry a field."""
+        spec = _fast_spec(self._dialect, name)
+        n = len(msg)
+        out = np.empty(n, dtype=MAG_SAMPLE_DTYPE)
+        acc_scale: float | None
+        gyro_scale: float | None
         if name == "HIGHRES_IMU":
             acc_scale = gyro_scale = None
             out["temp"] = msg["temperature"]
@@ -361,8 +388,9 @@ class MavlinkDecoder(StreamDecoderBase):
             mag_scale = UT_PER_MILLIGAUSS
         # xacc .. zmag are nine consecutive values of one type in every IMU message: one block.
         # In double, then rounded to float32: as the per-frame path's Python floats.
-        block = payload[: len(out), spec.block_at : spec.block_at + 9 * spec.block_type.itemsize]
-        values = block.view(spec.block_type).astype(np.float64)
+        block = payload[:, spec.block_at : spec.block_at + 9 * spec.block_type.itemsize]
+        with np.errstate(invalid="ignore"):  # a damaged slot's bytes may be a signalling NaN: never used
+            values = block.view(spec.block_type).astype(np.float64)
         if acc_scale is not None and gyro_scale is not None:
             values *= np.array([acc_scale] * 3 + [gyro_scale] * 3 + [mag_scale] * 3)
         else:
@@ -370,13 +398,7 @@ class MavlinkDecoder(StreamDecoderBase):
         out["acc"] = values[:, 0:3]
         out["gyro"] = values[:, 3:6]
         out["mag"] = np.where(field[:, None], values[:, 6:9], np.nan)
-        if field.any():
-            self._mag = True
-        self.messages_seen[name] = self.messages_seen.get(name, 0) + n
-        label = f"{name} {system}/{component} id {imu_id}"
-        self.sources_seen[label] = self.sources_seen.get(label, 0) + n
-        self.stats.frames += n
-        return out, n * size
+        return out, field
 
     def _check_window(self, pos: int) -> _FastWindow | None:
         """Frame slots of the length announced at ``pos`` checked at once (header, CRC, IMU id): the
@@ -488,12 +510,16 @@ class _FastWindow:
     ``checked``) that are not good frames of the source. Runs from any slot are then slices, so a
     damaged frame costs the next run no second check. Copies of the payloads: no buffer view."""
 
-    __slots__ = ("base", "size", "checked", "bad", "crc_bad", "spec", "payload", "msg")
+    __slots__ = ("base", "size", "checked", "bad", "crc_bad", "spec", "payload", "msg", "out", "fields")
 
     def __init__(self, base: int, size: int, checked: int, bad: list[int], crc_bad: list[int],
                  spec: _FastSpec, payload: np.ndarray, msg: np.ndarray) -> None:
         self.base, self.size, self.checked, self.bad, self.crc_bad = base, size, checked, bad, crc_bad
         self.spec, self.payload, self.msg = spec, payload, msg
+        # Samples of every slot (HIGHRES_IMU, RAW_IMU: no state but seq), made at the first run, and
+        # the running count of slots with a field (runs of a window are slices of these).
+        self.out: np.ndarray | None = None
+        self.fields: list[int] = []
 
     def crc_failed(self, pos: int) -> bool:
         """Whether ``pos`` is a checked slot whose frame's CRC is wrong (known without a second look)."""
@@ -579,10 +605,22 @@ def _x25_rows(rows: np.ndarray) -> np.ndarray:
 
 
 _X25_LIST = [int(v) for v in _X25_TABLE]
+_REVERSED_BITS = bytes(int(f"{b:08b}"[::-1], 2) for b in range(256))  # each byte's bits reversed
 
 
 def _x25(data: bytes | bytearray) -> int:
-    """The X.25 CRC of ``data`` (as pymavlink's ``x25crc``, a table look-up a byte)."""
+    """The X.25 CRC of ``data`` (as pymavlink's ``x25crc``), in C.
+
+    X.25 (CRC-16/MCRF4XX) is CRC-16/CCITT reflected, with an init (0xFFFF) that reads the same
+    reversed: so it is the CCITT CRC of the bytes with their bits reversed, itself reversed, and the
+    standard library's ``binascii.crc_hqx`` computes that in C (checked against :func:`_x25_bytewise`).
+    """
+    crc = binascii.crc_hqx(bytes(data).translate(_REVERSED_BITS), 0xFFFF)
+    return (_REVERSED_BITS[crc & 0xFF] << 8) | _REVERSED_BITS[crc >> 8]
+
+
+def _x25_bytewise(data: bytes | bytearray) -> int:
+    """The X.25 CRC a table look-up a byte: the reference of :func:`_x25`."""
     crc = 0xFFFF
     table = _X25_LIST
     for byte in data:

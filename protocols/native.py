@@ -252,7 +252,9 @@ class _Window:
     def check(cls, buf: bytearray, pos: int, layout: _Layout) -> _Window:
         size = layout.frame.itemsize
         count = min((len(buf) - pos) // size, _SAMPLE_WINDOW)
-        if count == 0:
+        # No sample frame's header at pos (a false start, another message): no window, without numpy.
+        length = buf[pos + 3] | buf[pos + 4] << 8 if count else 0
+        if count == 0 or buf[pos + 2] != layout.msg_id or length != layout.payload_size:
             return cls(pos, layout, None, 0, _NO_BAD)
         frames = np.frombuffer(buf, dtype=layout.frame, count=count, offset=pos)
         ok = (frames["sync"] == _SYNC_U16) & (frames["msg_id"] == layout.msg_id)

@@ -1,0 +1,120 @@
+"""The decoders' array and C kernels (issue 30) give what the one-at-a-time references give: the CRCs
+in C against the byte loops, the text table's numbers against ``float()`` / ``int()`` on fuzzed
+fields, and the text line forms against the decoder's regular expression on damaged lines."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from protocols import ascii_lines
+from protocols._text_table import form_mask, number_table
+from protocols.crc import crc16_bytewise, crc16_ccitt_false
+from protocols.mavlink import _x25, _x25_bytewise
+
+FIELD_BYTES = b"0123456789" * 4 + b"-+.eE \t"
+
+
+def test_crcs_in_c_equal_the_byte_loops() -> None:
+    rng = np.random.default_rng(1)
+    for n in [*range(0, 40), 255, 1024, 4096]:
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        for init in (0, 0xFFFF, int(rng.integers(0, 65536))):
+            assert crc16_ccitt_false(data, init) == crc16_bytewise(data, init)
+        assert _x25(data) == _x25_bytewise(data)
+        assert _x25(bytearray(data)) == _x25_bytewise(data)
+
+
+def _fuzzed_field(rng: np.random.Generator) -> bytes:
+    """A number as devices write it (fixed, signed, leading zeros, exponent, long), or bytes near one."""
+    kind = int(rng.integers(0, 6))
+    value = float(rng.normal(0, 10 ** int(rng.integers(-6, 7))))
+    if kind == 0:
+        return f"{value:.9g}".encode()
+    if kind == 1:
+        return f"{value:+0{int(rng.integers(1, 12))}.{int(rng.integers(0, 9))}f}".encode()
+    if kind == 2:
+        return str(int(rng.integers(-(2**40), 2**40))).encode()
+    if kind == 3:
+        frac = "." + "1" * int(rng.integers(0, 5)) if rng.random() < 0.5 else ""
+        return ("9" * int(rng.integers(14, 20)) + frac).encode()  # around the 15 digits of the fast path
+    if kind == 4:
+        return f"{value:.17g}".encode()
+    return bytes(rng.choice(np.frombuffer(FIELD_BYTES, np.uint8), int(rng.integers(0, 6))).tolist())
+
+
+def _reference(lines: list[bytes], width: int, integers: bool) -> tuple[np.ndarray, np.ndarray]:
+    table, good = np.full((len(lines), width), np.nan), np.ones(len(lines), dtype=bool)
+    for i, line in enumerate(lines):
+        try:
+            table[i] = [float(int(f)) if integers else float(f) for f in line.split(b",")]
+        except (ValueError, OverflowError):
+            good[i] = False
+            table[i] = np.nan
+    return table, good
+
+
+@pytest.mark.parametrize("integers", [False, True])
+@pytest.mark.parametrize("seed", range(6))
+def test_number_table_equals_float_on_fuzzed_fields(seed: int, integers: bool) -> None:
+    rng = np.random.default_rng(seed)
+    width = int(rng.integers(1, 13))
+    lines = []
+    for _ in range(400):
+        fields = [_fuzzed_field(rng) for _ in range(width)]
+        if integers:
+            fields = [f.split(b".")[0] if rng.random() < 0.9 else f for f in fields]
+        lines.append(b",".join(fields))
+    got = number_table(lines, b",", width, integers)
+    assert got is not None
+    want = _reference(lines, width, integers)
+    np.testing.assert_array_equal(got[1], want[1])
+    # Bit for bit: the same doubles, -0.0 included.
+    assert got[0].tobytes() == want[0].tobytes()
+
+
+def test_number_table_refuses_lines_of_other_field_counts() -> None:
+    assert number_table([b"1,2,3", b"4,5"], b",", 3) is None
+    assert number_table([b"1,2,3,4", b"5,6"], b",", 3) is None
+    assert number_table([b"1,2", b"3,4"], b";", 2) is None
+    table, good = number_table([b"1;2", b"-3.5;+.25", b"7;x"], b";", 2) or (None, None)
+    assert table is not None and good is not None
+    assert good.tolist() == [True, True, False]
+    assert table[:2].tolist() == [[1.0, 2.0], [-3.5, 0.25]]
+
+
+def _damaged_lines(data: bytes, seed: int) -> list[bytes]:
+    rng = np.random.default_rng(seed)
+    raw = bytearray(data)
+    for at in rng.integers(0, len(raw), len(raw) // 40):
+        raw[int(at)] = int(rng.integers(0, 256)) if rng.random() < 0.5 else raw[int(at)] ^ 0x5A
+    return [line for line in bytes(raw).replace(b"\r", b"\n").split(b"\n") if line]
+
+
+@pytest.mark.parametrize("columns", [ascii_lines.DEFAULT_COLUMNS, "t,ax,ay,az,gx,gy,gz,temp,mx,my,mz"])
+@pytest.mark.parametrize("seed", range(3))
+def test_form_mask_equals_the_regex_on_damaged_lines(seed: int, columns: str) -> None:
+    rng = np.random.default_rng(seed)
+    samples = np.zeros(300, dtype=ascii_lines.MAG_SAMPLE_DTYPE)
+    samples["acc"] = rng.normal(0, 5, (300, 3))
+    samples["gyro"] = rng.normal(0, 1, (300, 3))
+    samples["temp"] = 25.0
+    samples["mag"] = rng.normal(0, 40, (300, 3))
+    decoder = ascii_lines.AsciiDecoder(columns)
+    streams = b"".join((ascii_lines.encode_csv(samples, columns), ascii_lines.encode_motioncal(samples),
+                        ascii_lines.encode_vectornav(samples, "VNYMR"),
+                        ascii_lines.encode_vectornav(samples, "VNIMU")))
+    lines = _damaged_lines(streams, seed)
+    match = ascii_lines._line_forms(",", len(decoder.columns.names)).fullmatch
+    want = [m.lastindex or 0 if (m := match(line)) else 0 for line in lines]
+    kinds = (ascii_lines._CSV, ascii_lines._RAW, ascii_lines._UNI, ascii_lines._VNYMR, ascii_lines._VNIMU)
+    for kind in kinds:
+        got = form_mask(lines, *decoder._form(kind))
+        assert got.tolist() == [k == kind for k in want], kind
+
+
+def test_form_mask_takes_lines_shorter_than_the_head() -> None:
+    lines = [b"\x00", b"R", b"$VN", b"Raw:1,2,3,4,5,6,7,8,9", b"$VNYMR"]
+    assert form_mask(lines, b"Raw:", b"-+0123456789 \t", b",", 9, False).tolist() == [False, False, False,
+                                                                                      True, False]
+    assert not form_mask(lines, b"$VNYMR,", b"-+.0123456789eE \t", b",", 12, True).any()
