@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -31,8 +32,21 @@ async def _wait(pilot, condition: Callable[[], object], timeout_s: float, what: 
     return value
 
 
+def local_fonts(svg: str) -> str:
+    """A textual screenshot drawn with the reader's own monospace font instead of Fira Code from a CDN
+    (the manual loads nothing from the network). Each text run keeps its ``textLength``, so columns
+    stay put whatever the font's width; the font is set a little larger than textual's 20 px so that a
+    box-drawing glyph (DejaVu Sans Mono: 1.164 em from descent to ascent) fills the 24.4 px row and
+    the lines of a box join instead of showing a gap at every row."""
+    svg = re.sub(r"\s*@font-face \{[^}]*\}", "", svg)
+    svg = svg.replace("font-family: Fira Code, monospace;",
+                      'font-family: "DejaVu Sans Mono", Menlo, Consolas, "Liberation Mono", monospace;')
+    return svg.replace("font-size: 20px;\n        line-height: 24.4px;",
+                       "font-size: 21px;\n        line-height: 24.4px;")
+
+
 def _save(svg: str, name: str) -> None:
-    (ASSETS / name).write_text(svg, encoding="utf-8")
+    (ASSETS / name).write_text(local_fonts(svg), encoding="utf-8")
     print(f"wrote docs/assets/{name}")
 
 

@@ -67,6 +67,12 @@ window.addEventListener('load', () => {
     images: [...document.querySelectorAll('article img')].map(i => ({src: i.getAttribute('src'),
       complete: i.complete, width: i.naturalWidth, height: i.naturalHeight})),
     stylesheets: document.styleSheets.length,
+    // a command broken across lines in a heading or a table cell ("-" then "-method")
+    brokenCode: [...document.querySelectorAll('article h1 code, article h2 code, article td code')]
+      .filter(c => c.getClientRects().length > 1).map(c => c.textContent),
+    // a code block whose lines run past its box (hidden behind a scroll bar)
+    clippedBlocks: [...document.querySelectorAll('article pre > code')]
+      .filter(c => c.scrollWidth > c.clientWidth + 1).map(c => c.textContent.slice(0, 60)),
   });
   document.body.appendChild(probe);
 });
@@ -74,7 +80,8 @@ window.addEventListener('load', () => {
     copy = page.with_name("docs-probe.html")
     copy.write_text(page.read_text(encoding="utf-8").replace("</body>", script + "</body>"), encoding="utf-8")
     done = subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
-                           "--virtual-time-budget=10000", "--dump-dom", copy.as_uri()],
+                           "--window-size=1280,1600", "--virtual-time-budget=10000", "--dump-dom",
+                           copy.as_uri()],
                           capture_output=True, text=True, timeout=120)
     copy.unlink()
     match = re.search(r'<pre id="docs-probe">(.*?)</pre>', done.stdout, re.S)
@@ -122,6 +129,22 @@ def test_pages_render_in_chromium_with_their_headings_and_images(site, tmp_path,
     assert colours is not None and len(colours) > 200, "the page looks blank"
     dark = sum(n for n, rgb in colours if sum(rgb) < 200)
     assert dark > 2000, "no text drawn on the page"
+
+
+@pytest.mark.parametrize("page", ["workflows/calibration-turntable/index.html",
+                                  "workflows/calibration-handheld/index.html", "workflows/protocols/index.html",
+                                  "reference/commands/index.html"])
+def test_commands_are_not_broken_or_clipped_at_1280_px(site, tmp_path, page):
+    report = _probe(site / page, tmp_path / "profile")
+    assert report["brokenCode"] == [], f"code broken across lines: {report['brokenCode']}"
+    assert report["clippedBlocks"] == [], f"code blocks clipped: {report['clippedBlocks']}"
+
+
+def test_tui_pictures_load_no_font_from_the_network():
+    for svg in sorted((ROOT / "docs" / "assets").glob("tui-*.svg")):
+        text = svg.read_text(encoding="utf-8")
+        assert "url(" not in text and "@font-face" not in text, svg.name
+        assert "DejaVu Sans Mono" in text and "font-size: 21px" in text, svg.name
 
 
 def test_readme_is_short_and_names_only_files_that_exist():
