@@ -6,12 +6,14 @@ With ``--table`` the rate table places and turns the unit for each step
 
 from __future__ import annotations
 
-from rich.table import Table
+import time
+
 from rich.text import Text
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.timer import Timer
 from textual.widgets import Footer, Header, ProgressBar, Static
 
 from station.acquisition.operator import Action, Operator, Prompt, SimulatedOperator
@@ -40,6 +42,12 @@ KEYS = {Action.ACCEPT: "k", Action.REDO: "r", Action.SKIP: "s", Action.ABORT: "x
 IDLE_HINT = "r: redo this step · s: skip it · x: abort (what was captured is kept)"
 STEP_NOTICE_S = 3600.0  # a step's notice stays until the step ends (cleared then), not on a timer
 NAMES = {Action.ACCEPT: "go on", Action.REDO: "redo", Action.SKIP: "skip", Action.ABORT: "abort"}
+# The live checks' frame rate, whatever the unit's: the runner sends at most this many statuses a second
+# (and forced ones at a step's events), the screen draws the newest at most this often, without a layout
+# pass while the checks keep their lines. 20 a second through a rich Table and a layout pass each was
+# most of the wizard's CPU during a capture (issue 30).
+UI_RATE_HZ = 10.0
+LABEL_WIDTH = 6
 
 
 def build_sequence(config: TuiConfig) -> Sequence:
@@ -86,6 +94,10 @@ class WizardScreen(StationScreen):
         self.step_head = Text()
         self.step_foot = ""
         self.table_line: Text | None = None
+        self.status: LiveStatus | None = None  # the newest live status, drawn at most UI_RATE_HZ a second
+        self._status_drawn = 0.0  # time.monotonic() of the last drawing
+        self._status_timer: Timer | None = None
+        self._checks_shape: tuple[int, str] | None = None
 
     def compose(self) -> ComposeResult:
         """The step panel, the checks with the progress bar, the steps, the prompt, the keys."""
@@ -145,7 +157,8 @@ class WizardScreen(StationScreen):
             if path is not None:
                 recorder = Recorder(path, device=session.info, with_step=True, port=session.name,
                                     protocol=session.device.protocol)
-            runner = SequenceRunner(session.device, self.sequence, operator, RunOptions(),
+            options = RunOptions(status_rate_hz=UI_RATE_HZ)
+            runner = SequenceRunner(session.device, self.sequence, operator, options,
                                     sink=RecorderSink(recorder, session.device) if recorder else None)
             try:
                 runner.run()
@@ -222,25 +235,49 @@ class WizardScreen(StationScreen):
             self.step_notices = False
 
     def _on_status(self, event: RunnerEvent) -> None:
-        s: LiveStatus = event.payload
-        table = Table.grid(padding=(0, 1))
-        table.add_column(style="bold", width=6)
-        table.add_column()
-        width = max(10, self.query_one("#checks", Static).content_size.width - 10)
-        table.add_row("state", f"{s.state.value}" + (f" (attempt {s.attempt})" if s.attempt > 1 else ""))
+        self.status = event.payload
+        wait = self._status_drawn + 1.0 / UI_RATE_HZ - time.monotonic()
+        if wait <= 0:
+            self.show_status()
+        elif self._status_timer is None:  # the newest status, when its turn comes
+            self._status_timer = self.set_timer(wait, self.show_status)
+
+    def show_status(self) -> None:
+        """The newest live status: state, pose, stillness, angle, link, message; the capture's bar."""
+        if self._status_timer is not None:
+            self._status_timer.stop()
+            self._status_timer = None
+        s = self.status
+        if s is None:
+            return
+        self._status_drawn = time.monotonic()
+        checks = self.query_one("#checks", Static)
+        width = max(10, checks.content_size.width - 10)
+        rows: list[tuple[str, str | Text]] = [
+            ("state", f"{s.state.value}" + (f" (attempt {s.attempt})" if s.attempt > 1 else ""))]
         if s.pose is not None:
             ok = "[green]✓[/green]" if s.pose.ok else "[red]✗[/red]"
-            table.add_row("pose", f"{ok} {s.pose.angle_deg:5.1f} deg off, {s.pose.nearest or '?'} up")
+            rows.append(("pose", f"{ok} {s.pose.angle_deg:5.1f} deg off, {s.pose.nearest or '?'} up"))
         if s.stillness is not None:
             ok = "[green]✓[/green]" if s.stillness.still else "[yellow]…[/yellow]"
-            table.add_row("still", f"{ok} {bar(s.stillness.score, width)}")
+            rows.append(("still", f"{ok} {bar(s.stillness.score, width)}"))
         turned = 0.0
         if s.angle_deg is not None and s.target_deg:
             turned = max(0.0, s.angle_deg / s.target_deg)
-            table.add_row("angle", f"{s.angle_deg:+7.1f} of {s.target_deg:+.0f} deg")
-        table.add_row("link", f"{s.rate_hz:.0f} Hz, {s.lost} lost, {s.link_errors} err")
-        table.add_row("", Text(s.message, style="italic"))
-        self.query_one("#checks", Static).update(table)
+            rows.append(("angle", f"{s.angle_deg:+7.1f} of {s.target_deg:+.0f} deg"))
+        rows.append(("link", f"{s.rate_hz:.0f} Hz, {s.lost} lost, {s.link_errors} err"))
+        rows.append(("", Text(s.message, style="italic")))
+        # The rows as a grid of a bold label column and a value column would show them, as one Text: a
+        # rich Table measured its columns on every frame.
+        text = Text()
+        for k, (label, value) in enumerate(rows):
+            if k:
+                text.append("\n")
+            text.append(label.ljust(LABEL_WIDTH) + " ", style="bold")
+            text.append_text(value if isinstance(value, Text) else Text.from_markup(value))
+        shape = (len(rows), s.message)
+        checks.update(text, layout=shape != self._checks_shape)
+        self._checks_shape = shape
         # The bar follows the capture of a hold, and the turn itself during a rotation.
         if s.state is State.ROTATING:
             progress = min(1.0, turned)
@@ -267,6 +304,9 @@ class WizardScreen(StationScreen):
 
     def _on_end(self, event: RunnerEvent) -> None:
         self.end_step_notices()
+        if self._status_timer is not None:  # no status after the end: the bar stays empty
+            self._status_timer.stop()
+            self._status_timer = None
         result: RunResult = event.payload
         self.result = result
         self.station.last_run = result
