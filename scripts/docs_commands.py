@@ -39,18 +39,32 @@ def _help(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
     return _cell(formatter._expand_help(action))  # noqa: SLF001
 
 
-def _command_section(name: str, parser: argparse.ArgumentParser, summary: str) -> list[str]:
-    lines = [f"## `imu-station {name}`", "", _cell(summary[:1].upper() + summary[1:]) + ".", "",
-             "```text", parser.format_usage().strip(), "```", ""]
+def _command_section(name: str, parser: argparse.ArgumentParser, summary: str, level: int = 2) -> list[str]:
+    """The section of ``imu-station NAME``: usage, description, options, epilog, then a sub-section per
+    action of a command that has actions (``frame check``, ``frame guess``)."""
+    lines = [f"{'#' * level} `imu-station {name}`", ""]
+    if summary:
+        lines += [_cell(summary[:1].upper() + summary[1:]).rstrip(".") + ".", ""]
+    lines += ["```text", parser.format_usage().strip(), "```", ""]
     if parser.description and parser.description.strip() != summary.strip():
         lines += ["```text", parser.description.strip(), "```", ""]
     rows = [a for a in parser._actions if not isinstance(a, argparse._HelpAction)]  # noqa: SLF001
+    actions = [a for a in rows if isinstance(a, argparse._SubParsersAction)]  # noqa: SLF001
     if rows:
         lines += ["| option | meaning |", "|---|---|"]
-        lines += [f"| {_option_names(a)} | {_help(parser, a)} |" for a in rows]
+        for a in rows:
+            if a in actions:
+                choices = ", ".join(f"`{c}`" for c in a.choices)  # type: ignore[union-attr]
+                lines.append(f"| {_option_names(a)} | one of {choices} (below) |")
+            else:
+                lines.append(f"| {_option_names(a)} | {_help(parser, a)} |")
         lines.append("")
     if parser.epilog:
         lines += ["```text", parser.epilog.strip(), "```", ""]
+    for group in actions:
+        helps = {choice.dest: choice.help or "" for choice in group._choices_actions}  # noqa: SLF001
+        for action, subparser in group.choices.items():  # type: ignore[union-attr]
+            lines += _command_section(f"{name} {action}", subparser, helps.get(action, ""), level + 1)
     return lines
 
 

@@ -173,6 +173,13 @@ def _commands_script():
     return module
 
 
+def test_every_option_row_says_what_it_means_and_actions_have_their_options():
+    page = (ROOT / "docs" / "reference" / "commands.md").read_text(encoding="utf-8")
+    empty = [line for line in page.splitlines() if re.fullmatch(r"\| `[^`]+` \|\s*\|", line)]
+    assert not empty, f"option rows without a meaning: {empty}"
+    assert "### `imu-station frame check`" in page and "| `--file RAW` |" in page
+
+
 def test_command_reference_is_in_step_with_the_parsers(monkeypatch):
     monkeypatch.setenv("COLUMNS", "100")
     module = _commands_script()
