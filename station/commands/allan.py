@@ -117,22 +117,27 @@ def _length(seconds: float) -> str:
 DEFAULT_TERMS = ("N", "K")
 
 
-def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: float, source: str) -> None:
+def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: float, source: str,
+                        horizon_s: float | None = None) -> None:
     """Refuse a record too short for the terms asked for, with the length it needs.
 
     ``terms`` (``--terms``) must be resolved on every axis; without it N and K on at least one axis
     of each sensor (the filters' files take the largest axis; a correlated bias often hides K on
-    one axis for far longer than a bench records).
+    one axis for far longer than a bench records). The length asked for K is one that does not move
+    as the record grows: 20 times the horizon (``--horizon``, default ``K_HORIZON_S``), the record that
+    resolves every random walk adding as much as the white noise within it
+    (:func:`station.engines.allan.fit.k_record_length`).
 
     Raises
     ------
     EngineInputError
         Naming the terms, the axes, the record's length and the length needed (exit 4).
     """
-    from station.engines.allan.fit import missing_terms
+    from station.engines.allan.fit import K_HORIZON_S, missing_terms
     from station.export.params import noise as noise_file
 
-    missing = missing_terms(noise, terms or DEFAULT_TERMS, duration_s)
+    horizon = K_HORIZON_S if horizon_s is None else horizon_s
+    missing = missing_terms(noise, terms or DEFAULT_TERMS, duration_s, horizon)
     if terms is None:
         axes_of = Counter(a.axis[0] for a in noise)  # the sensor is the axis name's first letter: g.., a..
         missing_of = Counter((m.axis[0], m.term) for m in missing)
@@ -142,12 +147,26 @@ def refuse_short_record(noise: list, terms: tuple[str, ...] | None, duration_s: 
     parts = []
     for term in dict.fromkeys(m.term for m in missing):
         of_term = [m for m in missing if m.term == term]
-        needed = [m.needed_s for m in of_term if m.needed_s is not None]
-        length = (f"a still record of at least {_length(max(needed))}" if needed
-                  else "a longer record (this one shows no sign of it)")
+        first = of_term[0]
+        # the level of the first axis's sensor, in its unit (a gyroscope's and an accelerometer's differ)
+        sensor = "gyro" if first.axis.startswith("g") else "accel"
+        matters = [m.matters_above for m in of_term
+                   if m.matters_above is not None and m.axis[0] == first.axis[0]]
+        unit = noise_file.UNITS[sensor][term][0]
+        level = f"a {sensor} K of {max(matters):.2g} {unit} or more" if matters else "a random walk"
+        if term != "K":
+            length = "it needs a longer record (this one shows no sign of it)"
+        elif first.needed_s is not None:
+            length = (f"it needs a still record of at least {_length(first.needed_s)}: 20 times the "
+                      f"{horizon:g} s horizon, which resolves {level}, as much as the white noise within "
+                      "the horizon")
+        else:
+            length = (f"the record is 20 times the {horizon:g} s horizon or longer, so K is below what "
+                      f"matters within it ({level} would show); take N alone (--terms N) or a longer "
+                      "--horizon")
         axes = ", ".join(m.axis for m in of_term)
         parts.append(f"{term} ({noise_file.NAMES[term]}) is not resolved on {axes} "
-                     f"({of_term[0].axis}: {of_term[0].reason}); it needs {length}")
+                     f"({first.axis}: {first.reason}); {length}")
     raise EngineInputError(
         f"{source}: the record ({_length(duration_s)}) is too short for the terms asked for "
         f"({','.join(terms or DEFAULT_TERMS)}): {'; '.join(parts)}. Record longer, ask for fewer terms "
@@ -214,8 +233,19 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
                                 on_progress=lambda done, total: progress.update(computing, completed=done,
                                                                                 total=total))
             curve, noise = identify_noise(curve, record.phase)  # the likelihood of K reads the sums again
-            if not args.force:
-                refuse_short_record(noise, args.terms, curve.duration_s, str(args.input))
+    if not args.force:
+        try:
+            refuse_short_record(noise, args.terms, curve.duration_s, str(args.input), args.horizon)
+        except EngineInputError as refused:
+            if not args.plot:
+                raise
+            # the curve of a refused record still shows what it resolves and how far it falls short:
+            # its plot is written alone (no other file of the set: they would hold the refused terms)
+            from station.plots.allan import write_png
+
+            title = f"imu-station allan {args.input.name} (refused: too short)"
+            write_png(args.plot, curve, noise, title=title)
+            raise EngineInputError(f"{refused} (the plot is written to {args.plot})") from None
     source = {"source": str(args.input), "input_bytes": size, "timing": timing.as_dict(),
               "timing_problems": timing.problems()}
     section = to_plain(noise_file.noise_section(noise, curve, source, horizon_s=args.horizon))

@@ -51,7 +51,6 @@ class AxisNoise:
     gauss_markov: tuple[float, float] | None = None  # (sigma, correlation time s) where a hump was fitted
     gauss_markov_stddev: tuple[float | None, float | None] = (None, None)  # their 1-sigma
     fitted_from_tau: float | None = None  # first tau fitted after a sensor filter
-    k_needed_s: float | None = None  # record length that could show K, where K is not shown (a lower bound)
     noise_model: NoiseModel | None = None  # the model reported and drawn (model.choose_model)
 
     def value(self, term: str) -> float | None:
@@ -135,10 +134,15 @@ class NoiseModel:
     describes: bool = False
     method: str = ""
     dt_s: float = 0.0  # sample period (the filter's discrete form)
+    # terms the model carries that are not reported (an IEEE fit's K that is not significant): named as
+    # such, so that a model "with K" never stands beside a K reported as not resolved
+    unresolved: tuple[str, ...] = ()
 
     def describe(self) -> str:
-        """The model's terms in words, e.g. ``N (filtered) + K + 2 Gauss-Markov + 1 sinusoid``."""
-        parts = [f"{name} (filtered)" if name == "N" and self.filter_s is not None else name
+        """The model's terms in words, e.g. ``N (filtered) + K + 2 Gauss-Markov + 1 sinusoid``; a term
+        in ``unresolved`` reads ``K (modelled, not resolved)``."""
+        parts = [f"{name} (filtered)" if name == "N" and self.filter_s is not None
+                 else f"{name} (modelled, not resolved)" if name in self.unresolved else name
                  for name in self.terms]
         if self.gauss_markov:
             parts.append(f"{len(self.gauss_markov)} Gauss-Markov")

@@ -58,6 +58,10 @@ OPTIONAL = ("Q", "B", "R")
 MODELLED_UNSHOWN = ("Q",)  # kept in the fit where significant and material, reported only where shown
 MODELLED_SHARE = 0.2  # material: this share of the Allan variance at the shortest tau or more
 K_CROSSING_FRACTION = 20.0  # K needs the N and K lines to cross before T / 20
+# The horizon (s) over which a random walk must be resolved unless --horizon says: a K whose line
+# crosses the white noise's beyond it adds less than the white noise within it. A minute and a half
+# covers what visual-inertial filters propagate on the IMU alone (frames, outages of tens of seconds).
+K_HORIZON_S = 100.0
 FILTER_SLOPE = -0.45  # a curve starting above this slope starts with a sensor's filter, not a noise term
 FILTER_MARGIN = 3.0  # the fit starts this factor in tau after the filtered start reaches FILTER_SLOPE
 ML_AGREEMENT = 1.15  # the likelihood's K replaces the curve fit's only within this factor of it
@@ -231,32 +235,57 @@ def fit_axis(tau: np.ndarray, adev: np.ndarray, edf: np.ndarray, duration_s: flo
     if k_est.value is not None and result.crossing_tau_nk is not None:
         limit = duration_s / K_CROSSING_FRACTION
         if result.crossing_tau_nk > limit:
+            # no record length here: the one length asked for is missing_terms' (it does not move with T)
             k_est.reason = (f"record too short: the white-noise and random-walk lines cross at tau = "
-                            f"{result.crossing_tau_nk:.3g} s, beyond T/20 = {limit:.3g} s; record at least "
-                            f"{K_CROSSING_FRACTION * result.crossing_tau_nk / 3600:.2g} h still")
+                            f"{result.crossing_tau_nk:.3g} s, beyond T/20 = {limit:.3g} s")
             k_est.value = None
             k_est.stddev = None
-    if k_est.value is None and n_val > 0 and np.isfinite(var["K"]):
-        # the largest K this record allows (its estimate where significant, else 2-sigma above it) puts
-        # the crossing with N, hence the length that would show K, no earlier than this
-        c_k, sd_k = values.get("K", 0.0), math.sqrt(var["K"])
-        bound = c_k if c_k >= SIGNIFICANCE * sd_k else max(c_k, 0.0) + 2.0 * sd_k
-        if bound > 0:
-            result.k_needed_s = K_CROSSING_FRACTION * math.sqrt(3.0 * n_val / bound)
     return result
 
 
 @dataclass(frozen=True)
 class MissingTerm:
-    """A noise term asked for that an axis's record does not resolve."""
+    """A noise term asked for that an axis's record does not resolve.
+
+    ``needed_s`` is the record length that resolves it where one can be told (K: :func:`k_record_length`),
+    None where this record is already that long or no length can be told; ``matters_above`` (K only) is
+    the smallest K that adds as much as the white noise within the horizon, sqrt(3) N / H.
+    """
 
     axis: str
     term: str
     reason: str
-    needed_s: float | None  # record length that could resolve it, where one can be told
+    needed_s: float | None
+    matters_above: float | None = None
 
 
-def missing_terms(noise: Sequence[AxisNoise], terms: Sequence[str], duration_s: float) -> list[MissingTerm]:
+def k_record_length(horizon_s: float = K_HORIZON_S) -> float:
+    """The still record that resolves every random walk K that matters within ``horizon_s``.
+
+    K matters within a horizon H when its Allan variance reaches the white noise's there:
+    K^2 H / 3 >= N^2 / H, i.e. the two lines cross at tau_c = sqrt(3) N / K <= H. The fit resolves K
+    when tau_c <= T / 20 (``K_CROSSING_FRACTION``: 20 clusters at tau_c, where the overlapping Allan
+    deviation of a random walk has about 17 equivalent degrees of freedom, a 17 % 1-sigma). So
+    T = 20 H resolves every K that matters within H, and a K such a record does not resolve does not
+    matter there. The length depends on H alone: not on this record, whose bound on an unseen K only
+    tightens as it grows (the length it implied moved from 5.9 to 19.5 to 39.7 min over records of
+    101 s, 5 min and 20 min of one unit).
+
+    Parameters
+    ----------
+    horizon_s : float
+        H, s.
+
+    Returns
+    -------
+    float
+        T, s.
+    """
+    return K_CROSSING_FRACTION * horizon_s
+
+
+def missing_terms(noise: Sequence[AxisNoise], terms: Sequence[str], duration_s: float,
+                  horizon_s: float | None = None) -> list[MissingTerm]:
     """The terms of ``terms`` that some axis leaves null, with why and the record length they need.
 
     Parameters
@@ -267,23 +296,29 @@ def missing_terms(noise: Sequence[AxisNoise], terms: Sequence[str], duration_s: 
         The terms asked for (keys of ``TERMS``).
     duration_s : float
         Length of the record, s.
+    horizon_s : float, optional
+        The horizon over which K must be resolved (default ``K_HORIZON_S``).
 
     Returns
     -------
     list of MissingTerm
-        Empty when every axis resolves every term asked for. K's length is the one at which its
-        line would cross the white noise's before T/20; the other terms give none but "longer".
+        Empty when every axis resolves every term asked for. K's length is :func:`k_record_length`'s;
+        the other terms give none but "longer".
     """
+    horizon = K_HORIZON_S if horizon_s is None else horizon_s
     out = []
     for axis in noise:
         for term in terms:
             est = axis.terms[term]
             if est.value is not None:
                 continue
-            needed = axis.k_needed_s if term == "K" else None
-            if needed is not None and needed <= duration_s:
-                needed = None  # the bound says nothing this record did not
-            out.append(MissingTerm(axis.axis, term, est.reason or "not resolved", needed))
+            needed, matters = None, None
+            if term == "K":
+                needed = k_record_length(horizon)
+                needed = needed if needed > duration_s else None
+                n_val = axis.terms["N"].value or axis.coeffs.get("N")
+                matters = math.sqrt(3.0) * n_val / horizon if n_val else None
+            out.append(MissingTerm(axis.axis, term, est.reason or "not resolved", needed, matters))
     return out
 
 

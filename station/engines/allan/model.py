@@ -273,6 +273,7 @@ def ieee_model(axis: AxisNoise, tau: np.ndarray, adev: np.ndarray, edf: np.ndarr
     for term, value in axis.coeffs.items():
         est = axis.terms[term]
         model.terms[term] = Estimate(value, est.stddev if est.value == value else None)
+    model.unresolved = tuple(term for term in model.terms if axis.terms[term].value is None)
     if axis.gauss_markov is not None:
         (sigma, tau_c), (sd_sigma, sd_tau_c) = axis.gauss_markov, axis.gauss_markov_stddev
         model.gauss_markov = [GaussMarkov(Estimate(sigma, sd_sigma), Estimate(tau_c, sd_tau_c))]
@@ -353,4 +354,3 @@ def _report(axis: AxisNoise, model: NoiseModel) -> None:
     axis.reduced_chi2 = model.chi2 / max(model.points - model.parameters, 1)
     n_val, k_val = axis.coeffs.get("N"), axis.coeffs.get("K")
     axis.crossing_tau_nk = math.sqrt(3.0) * n_val / k_val if n_val and k_val else None
-    axis.k_needed_s = None

@@ -152,14 +152,14 @@ def summary_lines(section: dict[str, Any]) -> list[str]:
             sds = s["stddev"][t] or [None, None, None]
             cells = []
             for axis, v, sd in zip(SENSOR_AXES[sensor], vals, sds, strict=True):
-                if v is None:
-                    cells.append(f"{axis} null")
+                if v is None:  # the file's null, in words (the reasons of N and K follow)
+                    cells.append(f"{axis} not resolved")
                 else:
                     cells.append(f"{axis} {v:.4g}" + (f" +/- {sd:.2g}" if sd is not None else "")
                                  + f" ({v * factor:.4g} {alt})")
             lines.append(f"  {t} {NAMES[t]} [{si}]: " + " | ".join(cells))
         for t, fit in s.get("adev_fit", {}).items():
-            cells = [f"{axis} " + ("null" if v is None else f"{v:.4g}")
+            cells = [f"{axis} " + ("not resolved" if v is None else f"{v:.4g}")
                      for axis, v in zip(SENSOR_AXES[sensor], fit["value"], strict=True)]
             lines.append(f"  {t} by the IEEE 952 fit of the curve, for comparison: " + " | ".join(cells))
         for axis, procs, valid, what in zip(SENSOR_AXES[sensor], s.get("GM") or [[]] * 3,
