@@ -9,9 +9,14 @@ threads' shares are given too (``/proc/self/task``), named by Python thread (the
 worker, the event loop).
 
     .venv/bin/python benchmarks/tui_live.py [--seconds 20] [--repeat 3] [--rate 1000] [--only live|wizard]
+                                            [--against REV|none]
     .venv/bin/python benchmarks/tui_live.py --only live --profile live.prof   (cProfile of the event loop)
 
 Targets (issue 30): at most 0.15 of a core on the live view at idle, 0.25 during the wizard's capture.
+Each run is followed by the same run on the code of ``--against`` (default: the TUI before issue 30's
+work), extracted with ``git archive`` into a temporary folder, so one run prints both figures and their
+ratio under the same load. The figure without the pty server's thread is what the TUI itself costs on a
+real unit, where the simulator is not in its process.
 """
 
 from __future__ import annotations
@@ -24,11 +29,13 @@ import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
 
 TARGETS = {"live": 0.15, "wizard": 0.25}
+BEFORE = "40fe9cc"  # the TUI as landed before issue 30's live-view work (plotext traces, 20 Hz checks)
 CLOCK_TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
 WARM_S = 3.0  # after the screen is up: first drawings, caches, the reader's first batches
 
@@ -118,6 +125,31 @@ def _child(args: argparse.Namespace) -> None:
     print(json.dumps(result), flush=True)
 
 
+def _run_child(kind: str, args: argparse.Namespace, tree: Path, i: int) -> dict:
+    """One measurement in a process of its own, on the code in ``tree``."""
+    cmd = [sys.executable, __file__, "--child", kind, "--seconds", str(args.seconds),
+           "--rate", str(args.rate)]
+    if args.profile:
+        cmd += ["--profile", args.profile]
+    env = dict(os.environ, PYTHONPATH=str(tree))  # before the editable install's finder: that tree's code
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tree, env=env, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"{kind} run {i} in {tree} failed:\n{proc.stderr[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _line(label: str, r: dict) -> str:
+    top = sorted(r["threads"].items(), key=lambda kv: -kv[1])[:3]
+    threads = ", ".join(f"{k} {v:.3f}" for k, v in top)
+    return f"  {label}: {r['core']:.3f} core ({threads}), lost {r['lost']}"
+
+
+def _tui_alone(r: dict) -> float:
+    """The process's share without the simulated unit's pty server (a thread of it here, not with a real
+    unit)."""
+    return r["core"] - r["threads"].get("pty-server", 0.0)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -125,6 +157,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="processes per case; the median is kept")
     parser.add_argument("--rate", type=float, default=1000.0, help="the simulated unit's rate, Hz")
     parser.add_argument("--only", choices=sorted(TARGETS), help="one case only")
+    parser.add_argument("--against", default=BEFORE, metavar="REV",
+                        help=f"also measure the code of this commit, run for run, and give the ratio "
+                             f"(default {BEFORE}, the TUI before issue 30's work; 'none' to skip)")
     parser.add_argument("--profile", metavar="FILE", help="cProfile the event loop's thread into FILE "
                         "(one run; the reader and server threads are not in it)")
     parser.add_argument("--child", choices=sorted(TARGETS), help=argparse.SUPPRESS)
@@ -138,25 +173,34 @@ def main() -> None:
     print(f"load average {' '.join(load)} on {os.cpu_count()} cores; rate {args.rate:g} Hz, "
           f"{args.seconds:g} s measured, median of {args.repeat}")
     root = Path(__file__).resolve().parent.parent
-    for kind in kinds:
-        runs = []
-        for i in range(1 if args.profile else args.repeat):
-            cmd = [sys.executable, __file__, "--child", kind, "--seconds", str(args.seconds),
-                   "--rate", str(args.rate)]
-            if args.profile:
-                cmd += ["--profile", args.profile]
-            proc = subprocess.run(cmd, capture_output=True, text=True, cwd=root, check=False)
-            if proc.returncode != 0:
-                raise SystemExit(f"{kind} run {i} failed:\n{proc.stderr[-3000:]}")
-            runs.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-            r = runs[-1]
-            top = sorted(r["threads"].items(), key=lambda kv: -kv[1])[:4]
-            threads = ", ".join(f"{k} {v:.3f}" for k, v in top)
-            print(f"  {kind} run {i + 1}: {r['core']:.3f} core ({threads}), lost {r['lost']}", flush=True)
-        median = statistics.median(r["core"] for r in runs)
-        target = TARGETS[kind]
-        print(f"{kind:6s}: {median:.3f} of a core (median), target {target:.2f}: ratio {median / target:.2f} "
-              f"{'OK' if median <= target else 'OVER'}", flush=True)
+    against = None if args.profile or args.against == "none" else args.against
+    with tempfile.TemporaryDirectory(prefix="tui-live-before-") as tmp:
+        before_tree = Path(tmp)
+        if against is not None:
+            # The commit's files alone (git archive): no worktree, nothing in the repository changes.
+            archive = subprocess.run(["git", "-C", str(root), "archive", against], capture_output=True,
+                                     check=True).stdout
+            subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        for kind in kinds:
+            runs, befores = [], []
+            for i in range(1 if args.profile else args.repeat):
+                # Run for run, so both see the same load.
+                runs.append(_run_child(kind, args, root, i))
+                print(_line(f"{kind} run {i + 1}", runs[-1]), flush=True)
+                if against is not None:
+                    befores.append(_run_child(kind, args, before_tree, i))
+                    print(_line(f"{kind} run {i + 1}, {against}", befores[-1]), flush=True)
+            median = statistics.median(r["core"] for r in runs)
+            alone = statistics.median(_tui_alone(r) for r in runs)
+            target = TARGETS[kind]
+            print(f"{kind:6s}: {median:.3f} of a core (median; {alone:.3f} without the simulated unit's "
+                  f"thread), target {target:.2f}: ratio {median / target:.2f} "
+                  f"{'OK' if median <= target else 'OVER'}", flush=True)
+            if befores:
+                old = statistics.median(r["core"] for r in befores)
+                old_alone = statistics.median(_tui_alone(r) for r in befores)
+                print(f"{'':6s}  {against}: {old:.3f} ({old_alone:.3f} without it): now {median / old:.2f} "
+                      f"of it ({alone / old_alone:.2f} without it)", flush=True)
     with open("/proc/loadavg", encoding="ascii") as fh:
         print(f"load average after: {' '.join(fh.read().split()[:3])}")
 
