@@ -61,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--orbslam3", type=Path, metavar="FILE.yaml", help="write the ORB-SLAM3 IMU lines")
     parser.add_argument("--horizon", type=number(float, 0.0, 1e9, low_open=True, unit="s"), metavar="S",
                         help="time scale (s) over which the Kalibr/VINS/ORB-SLAM3 N and K cover the whole "
-                             "noise model, from the sample period (default: each axis's valid_tau end)")
+                             "noise model, from the sample period (default: each axis's valid_tau end); a "
+                             "record that does not resolve K is asked for 20 horizons (default 100 s)")
     parser.add_argument("--gm", type=Path, metavar="FILE.yaml",
                         help="write N, K and the Gauss-Markov terms for EKF-style process noise, continuous "
                              "and discrete-time")
