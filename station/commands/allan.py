@@ -207,6 +207,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     from station.common.files import atomic_write_text, output_set
     from station.engines.allan.deviation import allan_curve, cluster_sizes
     from station.engines.allan.fit import identify_noise
+    from station.engines.allan.solver import solver_ready
     from station.export.estimators import kalibr
     from station.export.params import noise as noise_file
     from station.export.params.file import merge_sections, name_unit, open_for_unit, to_plain
@@ -233,6 +234,9 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
             curve = allan_curve(record.phase, record.rate_hz, AXES, m,
                                 on_progress=lambda done, total: progress.update(computing, completed=done,
                                                                                 total=total))
+            if not solver_ready():  # say why this run waits: numba compiles the solver, once
+                progress.console.print("compiling the noise model's solver, once per installation (about "
+                                       "half a minute; ./scripts/setup does it ahead)")
             curve, noise = identify_noise(curve, record.phase)  # the likelihood of K reads the sums again
     if not args.force:
         try:
