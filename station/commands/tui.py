@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from station.console.options import (
@@ -65,7 +66,8 @@ if the terminal closes first, it is saved to PARAMS-unsaved-TIME.yaml beside --o
 imu-station-unsaved-TIME.yaml here).
 
 exit codes: 0 done, every result within its limits; 1 a result is outside its limits; 2 the run
-was aborted or cut short, or its data gave no calibration; 4 usage."""
+was aborted or cut short, or its data gave no calibration; 3 the port never opened (quitting after
+it failed); 4 usage; 130 Ctrl-C during the sequence wizard (what was captured is kept)."""
 EPILOG = """\
 examples:
   imu-station tui --port /dev/ttyUSB0 --out unit42.yaml --export c
@@ -177,13 +179,17 @@ def config_from_args(args: argparse.Namespace) -> TuiConfig:
 
 def run(args: argparse.Namespace) -> int:
     """Run the TUI; print what it saved; exit 0, 1 when a result is out of its limits, 2 when the run
-    was aborted (:meth:`StationApp.exit_code_for_run`)."""
+    was aborted, 3 (or the error's code) when the port never opened, 130 when Ctrl-C cut a run short
+    (:meth:`StationApp.exit_code_for_run`)."""
     from station.tui.app import StationApp
 
     app = StationApp(config_from_args(args))
     code = app.run()
-    from station.common.text import PATH_CHARS, printable
+    from station.common.text import PATH_CHARS, printable, printable_message
 
     for path in app.saved:
         print(f"saved {printable(path, PATH_CHARS)}")
+    note = app.exit_note()
+    if note is not None:  # an interrupted run, or a port that never opened: one line, as other commands
+        print(f"imu-station {NAME}: {printable_message(note)}", file=sys.stderr)
     return int(code or ExitCode.OK)

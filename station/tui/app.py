@@ -41,7 +41,7 @@ class StationApp(App[int]):
     BINDINGS = [
         Binding("question_mark", "help", "help", key_display="?"),
         Binding("q", "quit_app", "quit"),
-        Binding("ctrl+c", "quit_app", "quit", show=False, priority=True),
+        Binding("ctrl+c", "interrupt", "quit", show=False, priority=True),
         Binding("l", "show('live')", "live", show=False),
         Binding("w", "show('wizard')", "wizard", show=False),
         Binding("a", "show('allan')", "Allan", show=False),
@@ -60,6 +60,10 @@ class StationApp(App[int]):
         self.calibration_failed = False
         self.pending: UnsavedResults | None = None  # results computed and not yet saved
         self.recovered: Path | None = None
+        # Why the last port could not be opened, until one opens: quitting then exits with its code (a
+        # missing --port exited 0).
+        self.connect_error: Exception | None = None
+        self.interrupted = False  # Ctrl-C cut a wizard run short: exit 130, saying so
 
     def on_mount(self) -> None:
         """Start on the connect screen; a hang-up saves what would be lost."""
@@ -137,6 +141,36 @@ class StationApp(App[int]):
         are saved or discarded."""
         self.leave(lambda: self.exit(self.exit_code_for_run()))
 
+    def action_interrupt(self) -> None:
+        """Ctrl-C: during a wizard run, stop it (what was captured is kept) and exit 130 (the command says
+        it was interrupted); else as ``q``."""
+        if self.pending is None and self._run_in_progress():
+            self.interrupted = True
+            self.exit(ExitCode.INTERRUPTED)
+            return
+        self.action_quit_app()
+
+    def _run_in_progress(self) -> bool:
+        from station.tui.screens.wizard import WizardScreen
+
+        screen = self.screen
+        return isinstance(screen, WizardScreen) and screen.result is None and screen.current >= 0
+
+    def exit_note(self) -> str | None:
+        """The line the command prints on leaving, if any: the interrupted run and where its capture
+        is, or why the port could not be opened (nothing else was done)."""
+        if self.interrupted:
+            path = self.config.capture_path()
+            where = f"what was captured is in {path}" if path is not None else \
+                "no --capture or --out was given, so the samples were not written"
+            return f"interrupted during the sequence wizard; {where}"
+        if self._connect_failed():
+            return f"error: {self.connect_error}"
+        return None
+
+    def _connect_failed(self) -> bool:
+        return self.connect_error is not None and self.session is None and self.last_run is None
+
     def leave(self, then: Callable[[], object]) -> None:
         """Run ``then`` now, or, with unsaved results, once the operator saved or discarded them.
 
@@ -198,12 +232,14 @@ class StationApp(App[int]):
 
     def exit_code_for_run(self) -> int:
         """2 (aborted) when the last run did not complete, is cut short by quitting or its data
-        gave no calibration; 1 when a result is outside its limits; else 0."""
-        from station.tui.screens.wizard import WizardScreen
-
+        gave no calibration; 1 when a result is outside its limits; the error's code (3 for a port,
+        :class:`~station.errors.ExitCode`) when no port was ever opened because the last one failed;
+        else 0."""
+        if self._connect_failed():
+            error = self.connect_error
+            return error.exit_code if isinstance(error, StationError) else ExitCode.DEVICE
         run = self.last_run
-        screen = self.screen
-        cut_short = isinstance(screen, WizardScreen) and screen.result is None and screen.current >= 0
+        cut_short = self._run_in_progress()
         if cut_short or (run is not None and run.outcome != "completed") or self.calibration_failed:
             return ExitCode.ABORTED
         return ExitCode.OUT_OF_LIMITS if self.results_failed else ExitCode.OK

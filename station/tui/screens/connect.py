@@ -89,11 +89,14 @@ class ConnectScreen(StationScreen):
         """The port opened: keep its session and show the unit."""
         session: Session = message.data["session"]
         self.station.session = session
+        self.station.connect_error = None
         self.show_hint()
         self.show_link()
 
     def on_link_failed(self, message: LinkFailed) -> None:
-        """The port could not be opened: say why, and let another be chosen."""
+        """The port could not be opened: say why, and let another be chosen (quitting now exits with
+        the error's code)."""
+        self.station.connect_error = message.error
         self.query_one("#info", Static).update(f"[red]{message.error}[/red]\nChoose a port and press Enter.")
         ports = self.query_one("#ports", OptionList)
         ports.disabled = False

@@ -148,8 +148,13 @@ class ResultsScreen(StationScreen):
         The sequence run whose capture is calibrated.
     """
 
+    # Enter saves to --out (a second Enter quits); without --out it asks where, then quits. One binding
+    # each, the footer showing the one that applies (check_action): "save and quit" was shown on the
+    # key that only saves.
     BINDINGS = [
-        Binding("enter", "save", "save and quit", show=True),
+        Binding("enter", "save", "save", show=True),
+        Binding("enter", "save_and_quit", "save and quit", show=True),
+        Binding("enter", "quit_saved", "quit", show=True),
         Binding("e", "export", "exports"),
     ]
     DEFAULT_CSS = """
@@ -288,10 +293,27 @@ class ResultsScreen(StationScreen):
             text.append("Enter: quit")
         elif out is not None:
             text.append(f"Enter: save to {out}" + (f" and export {', '.join(self.station.config.export)}"
-                                                    if self.station.config.export else "") + ", then quit")
+                                                    if self.station.config.export else ""))
         else:
             text.append("Enter: choose a file to save to (no --out given), or discard, then quit")
         self.query_one("#status", Static).update(text)
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """Enter's binding that says what it does now: save (--out), save and quit (no --out: the app
+        asks where), quit (saved)."""
+        if action in ("save", "save_and_quit", "quit_saved"):
+            wanted = "quit_saved" if self.saved else "save" if self.station.config.out is not None \
+                else "save_and_quit"
+            return action == wanted
+        return True
+
+    def action_save_and_quit(self) -> None:
+        """Enter without --out: ask where to save (or discard), then quit."""
+        self.action_save()
+
+    def action_quit_saved(self) -> None:
+        """Enter once saved: quit."""
+        self.action_save()
 
     def action_save(self) -> None:
         """Save the sections to --out and write the exports (or quit once saved, or without --out:
@@ -343,6 +365,7 @@ class ResultsScreen(StationScreen):
         self.station.saved = written
         self.station.pending = None
         self.show_status("saved " + ", ".join(written))
+        self.refresh_bindings()  # Enter now quits
         return written
 
     def action_export(self) -> None:

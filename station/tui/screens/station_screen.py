@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol, cast
 
+from textual.events import Resize
 from textual.screen import Screen
 
 from station.acquisition.runner import RunResult
@@ -38,6 +39,7 @@ class StationHost(Protocol):
     results_failed: bool
     calibration_failed: bool
     pending: UnsavedResults | None
+    connect_error: Exception | None
 
     def show(self, name: str) -> None:
         """Switch to the screen ``name``."""
@@ -62,7 +64,28 @@ class StationHost(Protocol):
 
 
 class StationScreen(Screen[None]):
-    """A screen of :class:`~station.tui.app.StationApp`."""
+    """A screen of :class:`~station.tui.app.StationApp`.
+
+    ``TOASTS_ABOVE`` names the widget whose top the screen's notices (toasts) stay above: textual puts
+    them above the footer alone, where at 80x24 they covered the wizard's line of keys.
+    """
+
+    TOASTS_ABOVE: str | None = None
+
+    def on_resize(self, event: Resize) -> None:
+        """Keep the notices above ``TOASTS_ABOVE`` at the new size, once laid out."""
+        self.call_after_refresh(self.place_toasts)
+
+    def place_toasts(self) -> None:
+        """Raise the screen's notices above the top of ``TOASTS_ABOVE`` (as laid out now)."""
+        if self.TOASTS_ABOVE is None:
+            return
+        racks = self.query("#textual-toastrack")  # the rack textual gives every screen
+        anchors = self.query(self.TOASTS_ABOVE)
+        if not racks or not anchors:
+            return
+        below = self.size.height - anchors.first().region.y  # rows from the anchor's top down
+        racks.first().styles.margin = (0, 0, max(1, below), 0)
 
     @property
     def station(self) -> StationHost:

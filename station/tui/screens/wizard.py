@@ -83,6 +83,8 @@ class WizardScreen(StationScreen):
     WizardScreen.-short #prompt { min-height: 2; border: none; border-top: heavy $warning; }
     """
 
+    TOASTS_ABOVE = "#steps"  # the steps, the prompt and its keys stay readable under a notice
+
     def __init__(self, sequence: Sequence) -> None:
         super().__init__()
         self.sequence = sequence
@@ -225,6 +227,7 @@ class WizardScreen(StationScreen):
         self.action_answer("abort")
 
     def _on_rotate(self, event: RunnerEvent) -> None:
+        self.place_toasts()
         self.notify(f"Turn now: {event.payload.label}", timeout=STEP_NOTICE_S)
         self.step_notices = True
 
@@ -368,6 +371,7 @@ class WizardScreen(StationScreen):
         if action is Action.ABORT and self.table_operator is not None:
             self.table_operator.stop_soon()  # at once, not at the runner's next poll
         if not self.operator.answer(action) and prompt is None:
+            self.place_toasts()
             self.notify(f"{NAMES[action]} requested", timeout=STEP_NOTICE_S)
             self.step_notices = True
 
