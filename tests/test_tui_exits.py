@@ -35,14 +35,20 @@ def test_quitting_after_a_missing_port_exits_with_the_device_error_code(tmp_path
     assert str(seen["note"]).startswith("error: ") and missing.name in str(seen["note"])
 
 
-def test_a_port_that_opens_after_a_failed_one_clears_the_error():
-    app = StationApp(TuiConfig(simulate=True, seed=1))
+def test_a_port_that_opens_after_a_failed_one_clears_the_error(tmp_path):
+    from station.tui.screens.connect import ConnectScreen
+    from station.tui.session import SIMULATED
+
+    app = StationApp(TuiConfig(port=str(tmp_path / "ttyUSB-nothing-here")))
 
     async def run() -> None:
         async with app.run_test(size=(100, 30)) as pilot:
-            app.connect_error = OSError("an earlier port failed")
+            await wait_for(pilot, lambda: app.connect_error is not None, 30, "the port's error")
+            screen = app.screen
+            assert isinstance(screen, ConnectScreen)
+            screen.connect(SIMULATED)  # the operator picks another port, which opens
             await wait_for(pilot, lambda: app.session is not None, 30, "the simulated unit")
-            await wait_for(pilot, lambda: app.connect_error is None, 10, "the error cleared")
+            assert app.connect_error is None
             await pilot.press("q")
             await wait_for(pilot, lambda: app.return_value is not None, 10, "the app to exit")
 
