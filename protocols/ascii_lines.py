@@ -45,6 +45,7 @@ from typing import TypedDict
 
 import numpy as np
 
+from protocols._fixed_lines import FixedForm, fixed_form, read_fixed
 from protocols._text_table import form_mask, number_table
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase, has_mag
 from protocols.crc import crc16_ccitt_false
@@ -217,6 +218,7 @@ class AsciiDecoder(StreamDecoderBase):
         self._first_line = True  # the stream may start in the middle of a line
         self._discarding = False  # inside an over-long line, until its end
         self._field = self.columns.has_mag  # the stream has carried a magnetic field
+        self._fixed_form: tuple[int, FixedForm] | None = None  # the layout of lines of one width, by kind
 
     @classmethod
     def from_option(cls, option: str) -> AsciiDecoder:
@@ -297,7 +299,15 @@ class AsciiDecoder(StreamDecoderBase):
         end = max(buf.rfind(b"\n"), buf.rfind(b"\r")) + 1
         if end == 0 or self._first_line or self._discarding:
             return 0, [], False
-        text = bytes(buf[:end]).replace(b"\r", b"\n")
+        raw = bytes(buf[:end])
+        fixed = self._read_fixed(raw)
+        if fixed is not None:  # lines of one width, read as a byte matrix: the lines only for damaged ones
+            first, got = fixed
+            n = len(got.good)
+            kind = np.full(n, first, dtype=np.int8)
+            lines = [] if got.good.all() else [ln for ln in raw.replace(b"\r", b"\n").split(b"\n") if ln]
+            return (end, *self._assemble(first, True, kind, got, lines, rows, messages))
+        text = raw.replace(b"\r", b"\n")
         lines = [line for line in text.split(b"\n") if line]
         if not lines:
             return end, [], False
@@ -321,7 +331,8 @@ class AsciiDecoder(StreamDecoderBase):
             if long:
                 kinds = [0 if len(line) > self.max_line else k for line, k in zip(lines, kinds, strict=True)]
             first = kinds[0]
-        if first and kinds.count(first) == n:  # one dialect throughout: its arrays as they are
+        uniform = bool(first) and kinds.count(first) == n
+        if uniform:  # one dialect throughout: its arrays as they are
             got = self._parse_kind(first, lines)
             kind = np.full(n, first, dtype=np.int8)
         else:
@@ -330,10 +341,19 @@ class AsciiDecoder(StreamDecoderBase):
             for k in set(kinds) - {0}:
                 at = np.flatnonzero(kind == k)
                 got.put(at, self._parse_kind(k, [lines[i] for i in at.tolist()]))
+        if n >= 4 and len(set(map(len, lines))) == 1 and (i := int(np.argmax(got.good))) < n and got.good[i]:
+            self._learn_form(int(kind[i]), lines[i], raw)
+        return (end, *self._assemble(first, uniform, kind, got, lines, rows, messages))
+
+    def _assemble(self, first: int, uniform: bool, kind: np.ndarray, got: _Parsed, lines: list[bytes],
+                  rows: list[tuple], messages: list[Message]) -> tuple[list[np.ndarray], bool]:
+        """The batches of parsed lines (``kind`` of each, ``got`` their numbers): runs of sample lines as
+        arrays, the other lines through :meth:`_line` in order (their rows appended to ``rows``)."""
+        n = len(kind)
         ok = got.good
-        clean = first == _CSV and bool(ok.all()) and kinds.count(_CSV) == n
+        clean = first == _CSV and uniform and bool(ok.all())
         if clean:
-            return end, [self._batch(0, n, kind, got, self._csv_dtype)], True
+            return [self._batch(0, n, kind, got, self._csv_dtype)], True
         field = self._field or bool((ok & (kind != _CSV)).any())
         dtype = MAG_SAMPLE_DTYPE if field else SAMPLE_DTYPE
         pieces: list[np.ndarray] = []
@@ -351,7 +371,32 @@ class AsciiDecoder(StreamDecoderBase):
                 pieces.append(rows_to_batch(rows, self._field))
                 rows.clear()
             pieces.append(self._batch(a, b, kind, got, dtype))
-        return end, pieces, False
+        return pieces, False
+
+    def _learn_form(self, kind: int, line: bytes, raw: bytes) -> None:
+        """Keep the fixed layout of ``line`` (a sample of ``kind``, the first of a batch of lines of one
+        width in ``raw``) for :meth:`_read_fixed`, when its numbers have one."""
+        ending = b"\r\n" if b"\r" in raw else b"\n"  # read_fixed refuses text this does not fit
+        if kind == _CSV and not self._fast_forms:
+            return
+        head, _, delim, _, checksum = self._form(kind)
+        form = fixed_form(line, ending, len(head), checksum, delim)
+        self._fixed_form = None if form is None else (kind, form)
+
+    def _read_fixed(self, raw: bytes) -> tuple[int, _Parsed] | None:
+        """The lines of ``raw`` read by the layout :meth:`_learn_form` kept, when they are lines of its
+        width and most of them have it (else None: the general way, which may learn another)."""
+        if self._fixed_form is None or self._first_line or self._discarding:
+            return None
+        kind, form = self._fixed_form
+        found = read_fixed(form, raw)
+        if found is None:
+            return None
+        table, good = found
+        if 4 * int(np.count_nonzero(good)) < 3 * len(good):  # not this layout any more: lines one by one
+            self._fixed_form = None
+            return None
+        return kind, self._parse_kind(kind, [], (table, good))
 
     def _uniform(self, kind: int, text: bytes, lines: list[bytes]) -> bool:
         """Whether every line of ``text`` (its ends all ``\\n``) has the form of ``kind`` (as
@@ -425,21 +470,28 @@ class AsciiDecoder(StreamDecoderBase):
                     self._field = True
         return out
 
-    def _parse_kind(self, k: int, lines: list[bytes]) -> _Parsed:
-        """The numbers of the lines of one dialect, and which of them are samples."""
+    def _parse_kind(self, k: int, lines: list[bytes],
+                    fixed: tuple[np.ndarray, np.ndarray] | None = None) -> _Parsed:
+        """The numbers of the lines of one dialect, and which of them are samples; ``fixed``: their table
+        and the lines of its form (checksums checked), read by :func:`read_fixed`."""
         key = (k, self.columns, self.max_acc, self.max_gyro, self.max_mag, tuple(self.temp_range))
         lay = self._layouts.get(key) or self._layouts.setdefault(key, self._layout(k))
-        if k == _CSV:
+        if fixed is not None:
+            table, good = fixed
+            if k == _RAW:
+                table += 0.0  # int("-0") is 0: no negative zero (-0.0 + 0.0 is 0.0)
+                good &= (np.abs(table) <= _MAX_COUNTS).all(axis=1)
+        elif k == _CSV:
             delim = self.columns.delimiter
             found = number_table(lines, delim.encode("ascii"), len(lay.lo)) \
                 if self._fast_forms and len(lines) >= _ARRAY_PARSE else None
-            table, good = found or _table(lines, delim)
+            table, good = found or _table(lines, delim, len(lay.lo))
         else:
             head = len(_HEADS[k])
             bodies = [line[head:-3] if k >= _VNYMR else line[head:] for line in lines]
             found = number_table(bodies, b",", len(lay.lo), integers=k == _RAW) \
                 if len(lines) >= _ARRAY_PARSE else None
-            table, good = found or _table(bodies, ",")
+            table, good = found or _table(bodies, ",", len(lay.lo))
             if k >= _VNYMR:
                 good &= _checksums_match(lines)
             elif k == _RAW:
@@ -452,7 +504,7 @@ class AsciiDecoder(StreamDecoderBase):
         if lay.nan_ok is not None:
             inside |= np.isnan(v) & lay.nan_ok
         good &= inside.all(axis=1)
-        n = len(lines)
+        n = len(good)
         seq = None
         if lay.seq is not None:
             seq = np.zeros(n, dtype=np.int64)
@@ -784,19 +836,20 @@ def _line_forms(delimiter: str, fields: int) -> re.Pattern[bytes]:
     return re.compile("|".join(f"({form})" for form in forms).encode("ascii"))
 
 
-def _table(lines: list[bytes], delimiter: str) -> tuple[np.ndarray, np.ndarray]:
-    """The numbers of lines of one field count as a table, and which lines parsed (a line that does not
-    holds NaN, found by halving the lines where ``np.loadtxt`` refuses)."""
+def _table(lines: list[bytes], delimiter: str, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The numbers of lines of ``width`` fields as a table, and which lines parsed (a line that does not, or
+    has another field count, holds NaN; found by halving the lines where ``np.loadtxt`` refuses)."""
     try:
         table = np.loadtxt(lines, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
                            encoding="ascii")
-        return table, np.ones(len(lines), dtype=bool)
+        if table.shape[1] == width:  # a line of another field count alone parses, at its own width
+            return table, np.ones(len(lines), dtype=bool)
     except ValueError:
-        if len(lines) == 1:
-            width = lines[0].count(delimiter.encode("ascii")) + 1
-            return np.full((1, width), np.nan), np.zeros(1, dtype=bool)
+        pass
+    if len(lines) == 1:
+        return np.full((1, width), np.nan), np.zeros(1, dtype=bool)
     half = len(lines) // 2
-    (t1, g1), (t2, g2) = _table(lines[:half], delimiter), _table(lines[half:], delimiter)
+    (t1, g1), (t2, g2) = _table(lines[:half], delimiter, width), _table(lines[half:], delimiter, width)
     return np.concatenate([t1, t2]), np.concatenate([g1, g2])
 
 

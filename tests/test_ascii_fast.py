@@ -201,3 +201,52 @@ def test_previous_decoder_found() -> None:
     if PREVIOUS is None:
         pytest.skip("no git history: compared with the line-by-line reference only")
     assert PREVIOUS.AsciiDecoder is not AsciiDecoder
+
+
+def _fixed_width(kind: str, n: int, seed: int) -> bytes:
+    """Lines of one width (the byte-matrix reader's case): VectorNav's, and CSV and ``Uni:`` in fixed formats,
+    with negative zeros and values beyond the bounds."""
+    nine = _samples(n, seed, True)
+    nine["acc"][::13] = -0.0
+    nine["gyro"][5::17, 1] = 99.0  # beyond max_gyro: a bad payload
+    if kind == "csv":
+        rows = zip(nine["t_us"], nine["acc"], nine["gyro"], nine["temp"], strict=True)
+        return b"".join(f"{t / 1e6:012.6f},{','.join(f'{v:+08.4f}' for v in (*a, *g))},{c:+07.2f}\r\n"
+                        .encode() for t, a, g, c in rows)
+    if kind == "uni":
+        fields = zip(nine["acc"], nine["gyro"], np.nan_to_num(nine["mag"]), strict=True)
+        return b"".join(f"Uni:{','.join(f'{v:+09.4f}' for v in (*a, *g, *m))}\n".encode()
+                        for a, g, m in fields)
+    return _stream(kind, n, seed)
+
+
+def _width_kept(data: bytes, seed: int, every: int) -> bytes:
+    """One line in ``every`` with a byte replaced by another (a digit, sign, dot, delimiter, letter or line
+    end): damage that mostly keeps the lines' width."""
+    rng = np.random.default_rng(seed)
+    out = bytearray(data)
+    starts = [0, *[i + 1 for i, c in enumerate(data) if c == 10][:-1]]
+    for start in starts[::every]:
+        at = start + int(rng.integers(0, 20))
+        out[at] = int(rng.choice(np.frombuffer(b"0123456789+-.,*$Ab\r\n\x00", np.uint8)))
+    return bytes(out)
+
+
+@pytest.mark.parametrize("kind", ["csv", "uni", "vnymr", "vnimu"])
+@pytest.mark.parametrize("size", [61, 4096, 0])
+def test_fixed_width_lines_match_line_by_line(kind: str, size: int) -> None:
+    """The byte-matrix reader of lines of one width (``protocols/_fixed_lines.py``) gives what reading the
+    lines one by one gives, on clean streams and streams damaged in place."""
+    clean = _fixed_width(kind, 400, 5)
+    streams = (clean, _width_kept(clean, 6, 7), _width_kept(clean, 7, 2), _damaged(clean, 8))
+    for seed, data in enumerate(streams):
+        _compare(ascii_lines.DEFAULT_COLUMNS, data, _cuts(size, len(data), seed))
+
+
+def test_fixed_width_reader_is_used() -> None:
+    """The case above does go through the byte-matrix reader (else it would test nothing new)."""
+    decoder = AsciiDecoder()
+    data = _fixed_width("vnymr", 200, 1)
+    for pos in range(0, len(data), 4096):
+        decoder.feed(data[pos : pos + 4096])
+    assert decoder._fixed_form is not None

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from protocols import ascii_lines
+from protocols._fixed_lines import fixed_form, read_fixed
 from protocols._text_table import form_mask, number_table
 from protocols.crc import crc16_bytewise, crc16_ccitt_false
 from protocols.mavlink import _x25, _x25_bytewise
@@ -118,3 +119,69 @@ def test_form_mask_takes_lines_shorter_than_the_head() -> None:
     assert form_mask(lines, b"Raw:", b"-+0123456789 \t", b",", 9, False).tolist() == [False, False, False,
                                                                                       True, False]
     assert not form_mask(lines, b"$VNYMR,", b"-+.0123456789eE \t", b",", 12, True).any()
+
+
+def _fixed_format(rng: np.random.Generator) -> str:
+    """A number format of fixed width as devices print them: sign always, zeros in front, 0 to 9 decimals."""
+    decimals = int(rng.integers(0, 10))
+    whole = int(rng.integers(1, 16 - decimals))
+    return f"{{:+0{whole + decimals + (2 if decimals else 1)}.{decimals}f}}"
+
+
+@pytest.mark.parametrize("checksum", [False, True])
+@pytest.mark.parametrize("seed", range(6))
+def test_fixed_lines_equal_float_bit_for_bit(seed: int, checksum: bool) -> None:
+    """Lines of one width read as a byte matrix: every number of a line of the form is the double
+    ``float()`` gives (negative zeros included), and a line is of the form exactly when its bytes are of
+    the template's classes (and its checksum matches); damaged lines (bytes replaced, any byte) are not."""
+    rng = np.random.default_rng(seed)
+    formats = [_fixed_format(rng) for _ in range(int(rng.integers(1, 13)))]
+    head = b"$VNXYZ," if checksum else b""
+
+    def line(values: list[float]) -> bytes:
+        body = head + ",".join(f.format(v) for f, v in zip(formats, values, strict=True)).encode()
+        if checksum:
+            body += b"*" + f"{ascii_lines.nmea_xor(body[1:]):02X}".encode()
+        return body
+
+    def value(f: str) -> float:
+        whole = int(f.split("0")[1].split(".")[0]) - int(f.split(".")[1][0]) - 2  # digits before the dot
+        return float(rng.choice([-1, 1]) * rng.uniform(0, 10 ** max(whole, 0))) * float(rng.random() < 0.9)
+
+    lines = [line([value(f) for f in formats]) for _ in range(300)]
+    lines = [ln for ln in lines if len(ln) == len(lines[0])]  # a rounding that carried a digit: dropped
+    for ending in (b"\r\n", b"\n"):
+        form = fixed_form(lines[0], ending, len(head), checksum, b",")
+        assert form is not None
+        damaged = [bytearray(ln) for ln in lines]
+        hit = rng.random(len(damaged)) < 0.2
+        for i in np.flatnonzero(hit).tolist():
+            at = int(rng.integers(0, len(damaged[i])))
+            damaged[i][at] = int(rng.choice(np.frombuffer(b"0123456789+-.,*$AbZ \t\x00\xff", np.uint8)))
+        text = b"".join(bytes(d) + ending for d in damaged)
+        if b"\n" in b"".join(bytes(d) for d in damaged) or b"\r" in b"".join(bytes(d) for d in damaged):
+            continue
+        found = read_fixed(form, text)
+        assert found is not None
+        table, good = found
+        for i, d in enumerate(damaged):
+            d = bytes(d)
+            fields = d[len(head) : len(d) - (3 if checksum else 0)].split(b",")
+            same = len(d) == len(lines[0]) and all(
+                (a in b"0123456789" and b in b"0123456789") or (a in b"+-" and b in b"+-") or a == b
+                for a, b in zip(d[: len(d) - (2 if checksum else 0)], lines[0], strict=False))
+            if checksum:
+                hex_sum = all(c in b"0123456789ABCDEFabcdef" for c in d[-2:])
+                same = same and hex_sum and int(d[-2:], 16) == ascii_lines.nmea_xor(d[1:-3])
+            assert bool(good[i]) == same, (d, lines[0])
+            if same:
+                want = np.array([float(f) for f in fields])
+                np.testing.assert_array_equal(table[i].view(np.int64), want.view(np.int64))
+
+
+def test_fixed_form_refuses_lines_that_are_not_simple_numbers() -> None:
+    for line in (b"1e5,2", b"1, 2", b"1,", b"1,-", b"1234567890123456,1", b"1.2.3,4"):
+        assert fixed_form(line, b"\n", 0, False, b",") is None, line
+    assert fixed_form(b"1.,.5,-0", b"\n", 0, False, b",") is not None
+    assert read_fixed(fixed_form(b"1,2", b"\n", 0, False, b","), b"1,2\n1,22\n") is None  # not one width
+    assert read_fixed(fixed_form(b"1,2", b"\n", 0, False, b","), b"1,2\n1\n2\n") is None  # a break inside
