@@ -269,10 +269,14 @@ class MavlinkDecoder(StreamDecoderBase):
         if pos:
             del buf[:pos]
         if batches:
-            batches.append(rows_to_batch(rows, True))
+            if rows:
+                batches.append(rows_to_batch(rows, True))
             # Joined as raw records (numpy's structured concatenate costs more); all MAG_SAMPLE_DTYPE.
-            full = [b.view(_MAG_VOID) for b in batches if len(b)]
-            samples = (full[0] if len(full) == 1 else np.concatenate(full)).view(MAG_SAMPLE_DTYPE)
+            if len(batches) == 1:
+                samples = batches[0]
+            else:
+                full = [b.view(_MAG_VOID) for b in batches if len(b)]
+                samples = (full[0] if len(full) == 1 else np.concatenate(full)).view(MAG_SAMPLE_DTYPE)
             if not self._mag:
                 samples = _without_mag(samples)
         else:
@@ -313,6 +317,10 @@ class MavlinkDecoder(StreamDecoderBase):
         name, system, component, imu_id = key
         win = self._win
         if win is None or not win.covers(pos):
+            buf = self._buf
+            if len(buf) - pos < HEADER_V2 or len(buf) - pos < buf[pos + 1] + (
+                    HEADER_V1 + 2 if buf[pos] == STX_V1 else HEADER_V2 + 2):
+                return _EMPTY_MAG, 0  # not a whole frame yet: the per-frame path waits for it
             found = self._check_window(pos)
             if found is None:  # no run here (a false start): the window stays for the slots after
                 return _EMPTY_MAG, 0
@@ -332,9 +340,9 @@ class MavlinkDecoder(StreamDecoderBase):
             if win.out is None:
                 win.out, field = self._values(win.msg, win.payload, name)
                 win.out["t_us"] = win.msg["time_usec"]
-                win.fields = np.concatenate(([0], np.cumsum(field))).tolist()
+                win.field = field if field.any() else None
             out = win.out[i:j]
-            has_field = win.fields[j] > win.fields[i]
+            has_field = win.field is not None and bool(win.field[i:j].any())
         else:
             msg = win.msg[i:j]
             out, field = self._values(msg, win.payload[i:j], name)
@@ -353,7 +361,7 @@ class MavlinkDecoder(StreamDecoderBase):
             self._boot_ms = int(boot[-1])
             out["t_us"] = boot * 1000
             has_field = bool(field.any())
-        out["seq"] = np.arange(self._count, self._count + n, dtype=np.uint64) & 0xFFFFFFFF
+        out["seq"] = np.arange(self._count, self._count + n, dtype=np.uint64)  # wraps to 32 bits as stored
         self._count += n
         if has_field:
             self._mag = True
@@ -397,7 +405,12 @@ class MavlinkDecoder(StreamDecoderBase):
             values[:, 6:] *= mag_scale
         out["acc"] = values[:, 0:3]
         out["gyro"] = values[:, 3:6]
-        out["mag"] = np.where(field[:, None], values[:, 6:9], np.nan)
+        if field.all():
+            out["mag"] = values[:, 6:9]
+        elif field.any():
+            out["mag"] = np.where(field[:, None], values[:, 6:9], np.nan)
+        else:
+            out["mag"] = np.nan
         return out, field
 
     def _check_window(self, pos: int) -> _FastWindow | None:
@@ -424,23 +437,23 @@ class MavlinkDecoder(StreamDecoderBase):
         if expect is None:
             make = spec.header_v1 if v1 else spec.header_v2
             expect = _HEADERS[(v1, plen, system, component, spec.msg_id)] = make(plen, system, component)
-        ok = (rows[:, cols] == expect).all(axis=1)
-        n = count if ok.all() else int(np.argmin(ok))
+        ok = _ALL(rows[:, cols] == expect, axis=1)
+        n = count if _ALL(ok) else int(np.argmin(ok))
         if n < 1:
             return None
         rows = rows[:n]
         base, flat, offsets = _crc_tables(header, plen, spec.crc_extra)
-        crc = np.bitwise_xor.reduce(flat[rows[:, 1 : header + plen] + offsets], axis=1) ^ base
+        crc = np.bitwise_xor.reduce(flat.take(rows[:, 1 : header + plen] + offsets), axis=1) ^ base
         sent = rows[:, header + plen : header + plen + 2].view("<u2")[:, 0]
         good = crc == sent
-        crc_bad = [] if good.all() else np.flatnonzero(~good).tolist()
+        crc_bad = [] if _ALL(good) else np.flatnonzero(~good).tolist()
         payload = np.zeros((n, spec.size), dtype=np.uint8)
         payload[:, :plen] = rows[:, header : header + plen]
         del rows  # the window keeps no view of the buffer
         msg = payload.view(spec.dtype)[:, 0]
         if spec.has_id:
             good &= msg["id"] == imu_id
-        bad = [] if good.all() else np.flatnonzero(~good).tolist()
+        bad = [] if _ALL(good) else np.flatnonzero(~good).tolist()
         return _FastWindow(pos, size, n, bad, crc_bad, spec, payload, msg)
 
     # -------------------------------------------------------------- IMU messages
@@ -510,16 +523,16 @@ class _FastWindow:
     ``checked``) that are not good frames of the source. Runs from any slot are then slices, so a
     damaged frame costs the next run no second check. Copies of the payloads: no buffer view."""
 
-    __slots__ = ("base", "size", "checked", "bad", "crc_bad", "spec", "payload", "msg", "out", "fields")
+    __slots__ = ("base", "size", "checked", "bad", "crc_bad", "spec", "payload", "msg", "out", "field")
 
     def __init__(self, base: int, size: int, checked: int, bad: list[int], crc_bad: list[int],
                  spec: _FastSpec, payload: np.ndarray, msg: np.ndarray) -> None:
         self.base, self.size, self.checked, self.bad, self.crc_bad = base, size, checked, bad, crc_bad
         self.spec, self.payload, self.msg = spec, payload, msg
         # Samples of every slot (HIGHRES_IMU, RAW_IMU: no state but seq), made at the first run, and
-        # the running count of slots with a field (runs of a window are slices of these).
+        # which slots carry a field (None: none does); runs of a window are slices of these.
         self.out: np.ndarray | None = None
-        self.fields: list[int] = []
+        self.field: np.ndarray | None = None
 
     def crc_failed(self, pos: int) -> bool:
         """Whether ``pos`` is a checked slot whose frame's CRC is wrong (known without a second look)."""
@@ -535,6 +548,7 @@ class _FastWindow:
         return off >= 0 and off % self.size == 0 and off // self.size < self.checked
 
 _FAST_WINDOW = 512  # frames a fast run checks at once
+_ALL = np.logical_and.reduce  # ndarray.all without its Python wrapper: a few microseconds a read
 _EMPTY_MAG = np.zeros(0, MAG_SAMPLE_DTYPE)
 _MAG_VOID = np.dtype((np.void, MAG_SAMPLE_DTYPE.itemsize))
 _STRUCT_TYPES = {"Q": "<u8", "q": "<i8", "I": "<u4", "i": "<i4", "H": "<u2", "h": "<i2", "B": "u1",
