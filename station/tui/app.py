@@ -24,6 +24,11 @@ from station.tui.screens.help import HelpScreen
 from station.tui.screens.station_screen import StationHost, UnsavedResults
 from station.tui.session import Session
 
+# How often the unit's port is read while no screen reads it (results, a question, help): the bytes go
+# into the port's bounded buffer instead of piling up in the link (a simulator's queue, a USB buffer),
+# so the next screen that reads drains that buffer at once and starts from fresh samples.
+KEEP_READ_S = 0.5
+
 
 class StationApp(App[int]):
     """``config`` says what to open; ``session`` is the open device (None until connected).
@@ -69,10 +74,17 @@ class StationApp(App[int]):
         """Start on the connect screen; a hang-up saves what would be lost."""
         self.sub_title = f"limits: {limits_name(self.config.plan)}"
         self.push_screen(ConnectScreen())
+        self.set_interval(KEEP_READ_S, self._keep_port_read)
         try:
             asyncio.get_running_loop().add_signal_handler(signal.SIGHUP, self.on_hangup)
         except (NotImplementedError, RuntimeError, ValueError):
             pass  # no SIGHUP on this platform, or not the main thread: nothing to hang up on
+
+    def _keep_port_read(self) -> None:
+        """Read what the unit's port has (asking for the link statistics does): its samples wait in the
+        port's bounded buffer for the next screen that reads."""
+        if self.session is not None:
+            self.session.device.stats  # noqa: B018  (the read is the point)
 
     def on_hangup(self) -> None:
         """The terminal is gone, so nobody can be asked: save unsaved results beside --out, then exit."""
