@@ -187,7 +187,7 @@ def test_port_vanishing_delivers_everything_received_then_raises_port_lost(pty: 
 
 
 def test_missing_port_and_unknown_url_scheme_are_port_not_found() -> None:
-    with pytest.raises(PortNotFound, match=r"/dev/imu-does-not-exist: no such port.*list_ports"):
+    with pytest.raises(PortNotFound, match=r"/dev/imu-does-not-exist: no such port.*imu-station ports"):
         open_device("/dev/imu-does-not-exist")
     with pytest.raises(PortNotFound, match=r"no handler for URL scheme 'nosuch://'"):
         open_device("nosuch://unit")
