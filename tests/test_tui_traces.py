@@ -86,6 +86,12 @@ def test_the_traces_are_drawn_only_while_the_live_view_is_shown():
             stats = app.session.device.stats
             screen.post_message(Snapshot({"tail": _tail(), "stats": stats}))
             await wait_for(pilot, lambda: plot.drawings, 10, "the traces")
+            # Every line fills the plot's width exactly (a line a cell short shifted the next plot's first
+            # character into its last column on a real terminal).
+            for panel in (plot, screen.query_one("#values")):
+                widths = {sum(seg.cell_length for seg in panel.render_line(y))
+                          for y in range(panel.size.height)}
+                assert widths == {panel.size.width}, (panel, widths)
             app.push_screen(Screen())  # a whole screen over the live view (the help is a modal: seen through)
             await wait_for(pilot, lambda: not screen.shown, 10, "a screen over the live view")
             drawn = plot.drawings

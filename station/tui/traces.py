@@ -164,7 +164,7 @@ class TracePlot(Widget):
         axes = self._values.shape[1] if self._values.ndim == 2 else 0
         if not len(self._t) or axes == 0:
             title += " (waiting for data)"
-        lines = [Strip([Segment(title.center(width)[:width], bold)], width)]
+        lines = [Strip([Segment(title.center(width)[:width], bold)])]
         body = height - 2  # the title above, the time axis below
         if axes == 0 or body < axes or not len(self._t):
             return lines + [Strip.blank(width)] * max(0, height - 1)
@@ -174,7 +174,7 @@ class TracePlot(Widget):
         labels = [scale_labels(*extent) for extent in extents]
         names = [self._names[j] if j < len(self._names) else "" for j in range(axes)]
         gutter = max(GUTTER_MIN, *(len(n) + 1 + len(top) for n, (top, _) in zip(names, labels, strict=True)))
-        plot_width = max(1, width - gutter - 1)
+        plot_width = max(1, width - gutter - 2)  # the tick, and a blank column before the next plot
         heights = [body // axes + (1 if j < body % axes else 0) for j in range(axes)]
         for j in range(axes):
             color = Style(color=self._colors[j % len(self._colors)])
@@ -189,7 +189,7 @@ class TracePlot(Widget):
                     name, label, tick = "", "", "│"
                 pad = gutter - len(name) - len(label)
                 lines.append(Strip([Segment(name, color + bold), Segment(" " * pad + label, dim),
-                                    Segment(tick, dim), Segment(row, color)], width))
+                                    Segment(tick, dim), Segment(row, color)]))
         left, right = f"{t_range[0]:.2f}", f"{t_range[1]:.2f}"
         middle = "time (s)"
         space = plot_width - len(left) - len(right)
@@ -197,5 +197,5 @@ class TracePlot(Widget):
             axis = left + middle.center(space) + right
         else:
             axis = (left + " " * max(1, plot_width - len(left) - len(right)) + right)[:plot_width]
-        lines.append(Strip([Segment(" " * (gutter + 1) + axis, dim)], width))
+        lines.append(Strip([Segment(" " * (gutter + 1) + axis, dim)]))
         return [line.crop_extend(0, width, None) for line in lines]

@@ -66,7 +66,7 @@ class ValuesPanel(Widget):
     def _wrapped(self, text: Text, width: int) -> list[Strip]:
         console = self.app.console
         if text.cell_len <= width:
-            return [Strip(list(text.render(console)), text.cell_len)]
+            return [Strip(list(text.render(console)))]
         return [Strip(list(line.render(console))) for line in text.wrap(console, max(1, width))]
 
     def _draw(self, width: int) -> list[Strip]:
