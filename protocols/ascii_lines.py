@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypedDict
 
@@ -319,6 +320,9 @@ class AsciiDecoder(StreamDecoderBase):
             first = m.lastindex or 0  # the first line damaged: the last one names the dialect
         if first and self._uniform(first, text, lines):
             kinds = [first] * n
+        elif first and not long and (few := self._few_bad(first, text, lines, match)) is not None:
+            kinds = few
+            first = kinds[0]
         elif first and not long and self._fast_forms:
             # The lines of the dialect found in arrays; the others (damage, other dialects) by the regex.
             head, chars, delim, fields, checksum = self._form(first)
@@ -354,24 +358,45 @@ class AsciiDecoder(StreamDecoderBase):
         clean = first == _CSV and uniform and bool(ok.all())
         if clean:
             return [self._batch(0, n, kind, got, self._csv_dtype)], True
-        field = self._field or bool((ok & (kind != _CSV)).any())
-        dtype = MAG_SAMPLE_DTYPE if field else SAMPLE_DTYPE
-        pieces: list[np.ndarray] = []
+        one = first if uniform else kind
+        if ok.all():
+            dtype = MAG_SAMPLE_DTYPE if self._field or first != _CSV or not uniform and (kind != _CSV).any() \
+                else SAMPLE_DTYPE
+            return [self._batch(0, n, one, got, dtype)], False
+        # Runs of samples between lines read one by one: each sample's place in one batch, the numbers
+        # (counts) given in line order as reading every line alone gives them.
         edges = np.flatnonzero(ok[1:] != ok[:-1]) + 1
         bounds = [0, *edges.tolist(), n]
+        places = np.empty(n, dtype=np.intp)  # of the batch lines
+        row_places: list[int] = []  # of the rows of lines read one by one
+        counts = np.empty(n, dtype=np.int64)
+        filled = 0
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             if not ok[a]:
                 for line in lines[a:b]:
                     if len(line) > self.max_line:
                         self._too_long(len(line))
                     else:
+                        before = len(rows)
                         self._line(line, rows, messages)
+                        if len(rows) > before:
+                            row_places.append(filled)
+                            filled += 1
                 continue
-            if rows:
-                pieces.append(rows_to_batch(rows, self._field))
-                rows.clear()
-            pieces.append(self._batch(a, b, kind, got, dtype))
-        return pieces, False
+            places[a:b] = np.arange(filled, filled + b - a)
+            counts[a:b] = np.arange(self._count, self._count + b - a)
+            self._count += b - a
+            filled += b - a
+        sel = np.flatnonzero(ok)
+        if not len(sel):  # no batch: the rows are the caller's, as they were
+            return [], False
+        self._field = self._field or bool((kind[sel] != _CSV).any())
+        out = np.empty(filled, dtype=MAG_SAMPLE_DTYPE if self._field else SAMPLE_DTYPE)
+        self._fill(out, places[sel], sel, one, got, counts[sel])
+        if rows:
+            out[row_places] = rows_to_batch(rows, out.dtype == MAG_SAMPLE_DTYPE)
+            rows.clear()
+        return [out], False
 
     def _learn_form(self, kind: int, line: bytes, raw: bytes) -> None:
         """Keep the fixed layout of ``line`` (a sample of ``kind``, the first of a batch of lines of one
@@ -422,6 +447,59 @@ class AsciiDecoder(StreamDecoderBase):
         return (not body.translate(None, _NUMBER_BYTES + b",\n") and not sums.translate(None, _HEX_BYTES)
                 and body.count(b",") == (fields - 1) * n)
 
+    def _few_bad(self, kind: int, text: bytes, lines: list[bytes],
+                 match: Callable[[bytes], re.Match[bytes] | None]) -> list[int] | None:
+        """The kinds of ``lines`` (as :meth:`_uniform`'s, line for line) when all but a few hold only the
+        bytes of numbers of ``kind`` (CSV, ``Raw:``, ``Uni:``): one regex scan finds the lines with another
+        byte (damage), which the regex classes one by one; the others pass as in :meth:`_uniform` (their
+        field counts add up). None when the lines are not so (then :func:`form_mask` classes them all)."""
+        n = len(lines)
+        if kind == _CSV:
+            if not self._fast_forms:
+                return None
+            body, head, delim = text, b"", self.columns.delimiter.encode("ascii")
+            fields = len(self.columns.names)
+        elif kind in (_RAW, _UNI):
+            head = _HEADS[kind]
+            if text.count(head) != n or (b"\n" + text).count(b"\n" + head) != n:
+                return None
+            body, delim, fields = text.replace(head, b""), b",", 9
+        else:
+            return None
+        # The other bytes by deleting the allowed ones (C speed), then where each is (memchr speed).
+        others = body.translate(None, (_INT_BYTES if kind == _RAW else _NUMBER_BYTES) + delim + b"\n")
+        if len(others) > 4 * _FEW_BAD:
+            return None
+        where = set()
+        for byte in set(others):
+            at = -1
+            for _ in range(others.count(byte)):
+                at = body.find(byte, at + 1)
+                where.add(at)
+        bad: list[int] = []
+        after = lo = 0
+        for at in sorted(where):
+            if at < after:
+                continue  # another byte of a line already found
+            start = body.rfind(b"\n", 0, at) + 1
+            after = body.find(b"\n", at) % (len(body) + 1)  # -1 (never: text ends a line) as the end
+            try:
+                i = lines.index(head + body[start:after], lo)  # in order: the first copy from lo is this one
+            except ValueError:  # pragma: no cover - every line of body is a line without its head
+                return None
+            bad.append(i)
+            lo = i + 1
+            if len(bad) > _FEW_BAD:
+                return None
+        rest = body.count(delim) - sum(lines[i].count(delim) for i in bad)
+        if not bad or rest != (n - len(bad)) * (fields - 1):
+            return None
+        kinds = [kind] * n
+        for i in bad:
+            found = match(lines[i])
+            kinds[i] = 0 if found is None else found.lastindex or 0
+        return kinds
+
     @functools.cached_property
     def _fast_forms(self) -> bool:
         """Whether the CSV delimiter leaves the number characters as they are (a sane one: ``,``, ``;``,
@@ -440,35 +518,55 @@ class AsciiDecoder(StreamDecoderBase):
     def _csv_dtype(self) -> np.dtype:
         return MAG_SAMPLE_DTYPE if self.columns.has_mag else SAMPLE_DTYPE
 
-    def _batch(self, a: int, b: int, kind: np.ndarray, got: _Parsed, dtype: np.dtype) -> np.ndarray:
+    def _batch(self, a: int, b: int, kind: np.ndarray | int, got: _Parsed, dtype: np.dtype) -> np.ndarray:
         """The samples of lines ``a:b`` (all of them samples), numbered from the decoder's count."""
-        m = b - a
-        out = np.zeros(m, dtype=dtype)
-        counts = self._count + np.arange(m)
-        kinds = np.bincount(kind[a:b], minlength=len(_KIND_NAMES) + 1)
-        csv = kind[a:b] == _CSV
-        if got.seq is not None:
-            out["seq"] = np.where(csv, got.seq[a:b], counts) & 0xFFFFFFFF
-        else:
-            out["seq"] = counts & 0xFFFFFFFF
-        if got.t is not None:
-            self.clock_lines += int(kinds[_CSV])
-            out["t_us"] = np.rint(np.where(csv, got.t[a:b] * 1e6, counts * 1e6 / self.rate_hz))
-        else:
-            out["t_us"] = np.rint(counts * 1e6 / self.rate_hz)
-        out["acc"] = got.acc[a:b]
-        out["gyro"] = got.gyro[a:b]
-        out["temp"] = got.temp[a:b]
-        if dtype == MAG_SAMPLE_DTYPE:
-            out["mag"] = np.nan if got.mag is None else got.mag[a:b]
-        self._count += m
-        self.stats.frames += m
-        for k, name in _KIND_NAMES.items():
-            if kinds[k]:
-                self.kinds_seen[name] = self.kinds_seen.get(name, 0) + int(kinds[k])
-                if name != "csv":
-                    self._field = True
+        out = np.empty(b - a, dtype=dtype)  # every field written below
+        self._fill(out, slice(None), slice(a, b), kind, got)
         return out
+
+    def _fill(self, out: np.ndarray, at: slice | np.ndarray, sel: slice | np.ndarray, kind: np.ndarray | int,
+              got: _Parsed, counts: np.ndarray | None = None) -> None:
+        """Write the samples of lines ``sel`` (all of them samples; ``kind`` the kind of every line, or the
+        one kind of them all) to ``out[at]``, numbered ``counts`` (default: on from the decoder's count,
+        which moves past them), and count them."""
+        if counts is None:
+            counts = np.arange(self._count, self._count + len(got.good[sel]))
+            self._count += len(counts)
+        m = len(counts)
+        csv: np.ndarray | bool
+        if isinstance(kind, int):
+            kinds = {kind: m}
+            csv = kind == _CSV
+        else:
+            of = kind[sel]
+            found = np.bincount(of, minlength=len(_KIND_NAMES) + 1).tolist()
+            kinds = {k: found[k] for k in _KIND_NAMES if found[k]}
+            csv = of == _CSV
+            csv = True if len(kinds) == 1 and _CSV in kinds else csv if _CSV in kinds else False
+        if got.seq is not None and csv is not False:
+            seq = got.seq[sel] if csv is True else np.where(csv, got.seq[sel], counts)
+            out["seq"][at] = seq & 0xFFFFFFFF
+        else:
+            out["seq"][at] = counts  # stored modulo 2**32, as & 0xFFFFFFFF
+        if got.t is not None and csv is not False:
+            self.clock_lines += kinds.get(_CSV, 0)
+            t: np.ndarray = got.t[sel] * 1e6
+            if csv is not True:
+                t = np.where(csv, t, counts * 1e6 / self.rate_hz)
+        else:
+            t = counts * 1e6 / self.rate_hz
+        out["t_us"][at] = np.rint(t)
+        out["acc"][at] = got.acc[sel]
+        out["gyro"][at] = got.gyro[sel]
+        out["temp"][at] = got.temp[sel]
+        if out.dtype == MAG_SAMPLE_DTYPE:
+            out["mag"][at] = np.nan if got.mag is None else got.mag[sel]
+        self.stats.frames += m
+        for k, count in kinds.items():
+            name = _KIND_NAMES[k]
+            self.kinds_seen[name] = self.kinds_seen.get(name, 0) + count
+            if name != "csv":
+                self._field = True
 
     def _parse_kind(self, k: int, lines: list[bytes],
                     fixed: tuple[np.ndarray, np.ndarray] | None = None) -> _Parsed:
@@ -815,6 +913,9 @@ _HEX_BYTES = b"0123456789ABCDEFabcdef"
 # number than np.loadtxt (about 1.2-1.9x on 700 lines of a 64 KiB read), which costs less on few lines.
 _ARRAY_PARSE = 256
 _HEADS = {_RAW: b"Raw:", _UNI: b"Uni:", _VNYMR: b"$VNYMR,", _VNIMU: b"$VNIMU,"}
+_FEW_BAD = 8  # damaged lines a batch finds by a regex scan; more: form_mask classes every line
+
+
 
 
 @functools.cache
