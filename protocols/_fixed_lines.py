@@ -112,11 +112,11 @@ def read_fixed(form: FixedForm, text: bytes) -> tuple[np.ndarray, np.ndarray] | 
     if (rows[:, -1] != 10).any() or (form.crlf and (rows[:, -2] != 13).any()):
         return None
     if form.star:
-        good = (_CLASS[rows[:, : len(form.key)]] == form.key).all(axis=1)
+        good = np.logical_and.reduce(_CLASS[rows[:, : len(form.key)]] == form.key, axis=1)
         sums = _HEX[rows[:, form.star + 1 : form.star + 3]]
         good &= np.bitwise_xor.reduce(rows[:, 1 : form.star], axis=1) == sums[:, 0] * 16 + sums[:, 1]
     else:
-        good = (_CLASS[rows] == form.key).all(axis=1)
+        good = np.logical_and.reduce(_CLASS[rows] == form.key, axis=1)
     width = len(form.weights)
     table = rows[:, :width].astype(np.float64) @ form.weights
     table -= form.offset

@@ -306,7 +306,7 @@ class AsciiDecoder(StreamDecoderBase):
             first, got = fixed
             n = len(got.good)
             kind = np.full(n, first, dtype=np.int8)
-            lines = [] if got.good.all() else [ln for ln in raw.replace(b"\r", b"\n").split(b"\n") if ln]
+            lines = [] if _ALL(got.good) else [ln for ln in raw.replace(b"\r", b"\n").split(b"\n") if ln]
             return (end, *self._assemble(first, True, kind, got, lines, rows, messages))
         text = raw.replace(b"\r", b"\n")
         lines = [line for line in text.split(b"\n") if line]
@@ -339,36 +339,49 @@ class AsciiDecoder(StreamDecoderBase):
         if uniform:  # one dialect throughout: its arrays as they are
             got = self._parse_kind(first, lines)
             kind = np.full(n, first, dtype=np.int8)
-        else:
+        rows_of = None
+        if not uniform:
             kind = np.array(kinds, dtype=np.int8)
-            got = _Parsed.empty(n)
-            for k in set(kinds) - {0}:
-                at = np.flatnonzero(kind == k)
-                got.put(at, self._parse_kind(k, [lines[i] for i in at.tolist()]))
-        if n >= 4 and len(set(map(len, lines))) == 1 and (i := int(np.argmax(got.good))) < n and got.good[i]:
-            self._learn_form(int(kind[i]), lines[i], raw)
-        return (end, *self._assemble(first, uniform, kind, got, lines, rows, messages))
+            dialects = set(kinds) - {0}
+            if len(dialects) == 1:  # one dialect and lines of none (damage): its lines alone, no scatter
+                one = dialects.pop()
+                rows_of = np.flatnonzero(kind == one)
+                got = self._parse_kind(one, [lines[i] for i in rows_of.tolist()])
+            else:
+                got = _Parsed.empty(n)
+                for k in dialects:
+                    at = np.flatnonzero(kind == k)
+                    got.put(at, self._parse_kind(k, [lines[i] for i in at.tolist()]))
+        if n >= 4 and len(set(map(len, lines))) == 1 and got.good[i := int(np.argmax(got.good))]:
+            line = i if rows_of is None else int(rows_of[i])
+            self._learn_form(int(kind[line]), lines[line], raw)
+        return (end, *self._assemble(first, uniform, kind, got, lines, rows, messages, rows_of))
 
     def _assemble(self, first: int, uniform: bool, kind: np.ndarray, got: _Parsed, lines: list[bytes],
-                  rows: list[tuple], messages: list[Message]) -> tuple[list[np.ndarray], bool]:
-        """The batches of parsed lines (``kind`` of each, ``got`` their numbers): runs of sample lines as
-        arrays, the other lines through :meth:`_line` in order (their rows appended to ``rows``)."""
+                  rows: list[tuple], messages: list[Message],
+                  rows_of: np.ndarray | None = None) -> tuple[list[np.ndarray], bool]:
+        """The batches of parsed lines (``kind`` of each, ``got`` their numbers, of the lines ``rows_of``
+        when not of every line, all of one kind): runs of sample lines as arrays, the other lines through
+        :meth:`_line` in order (their rows appended to ``rows``)."""
         n = len(kind)
-        ok = got.good
-        clean = first == _CSV and uniform and bool(ok.all())
+        if rows_of is None:
+            ok = got.good
+        else:
+            ok = np.zeros(n, dtype=bool)
+            ok[rows_of] = got.good
+        clean = first == _CSV and uniform and bool(_ALL(ok))
         if clean:
             return [self._batch(0, n, kind, got, self._csv_dtype)], True
-        one = first if uniform else kind
-        if ok.all():
-            dtype = MAG_SAMPLE_DTYPE if self._field or first != _CSV or not uniform and (kind != _CSV).any() \
+        one = first if uniform else kind if rows_of is None else int(kind[rows_of[0]])
+        if _ALL(ok):
+            dtype = MAG_SAMPLE_DTYPE if self._field or first != _CSV or not uniform and _ANY(kind != _CSV) \
                 else SAMPLE_DTYPE
             return [self._batch(0, n, one, got, dtype)], False
         # Runs of samples between lines read one by one: each sample's place in one batch, the numbers
         # (counts) given in line order as reading every line alone gives them.
         edges = np.flatnonzero(ok[1:] != ok[:-1]) + 1
         bounds = [0, *edges.tolist(), n]
-        places = np.empty(n, dtype=np.intp)  # of the batch lines
-        row_places: list[int] = []  # of the rows of lines read one by one
+        row_places: list[int] = []  # places of the rows of lines read one by one
         counts = np.empty(n, dtype=np.int64)
         filled = 0
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
@@ -383,19 +396,27 @@ class AsciiDecoder(StreamDecoderBase):
                             row_places.append(filled)
                             filled += 1
                 continue
-            places[a:b] = np.arange(filled, filled + b - a)
             counts[a:b] = np.arange(self._count, self._count + b - a)
             self._count += b - a
             filled += b - a
         sel = np.flatnonzero(ok)
         if not len(sel):  # no batch: the rows are the caller's, as they were
             return [], False
-        self._field = self._field or bool((kind[sel] != _CSV).any())
-        out = np.empty(filled, dtype=MAG_SAMPLE_DTYPE if self._field else SAMPLE_DTYPE)
-        self._fill(out, places[sel], sel, one, got, counts[sel])
-        if rows:
-            out[row_places] = rows_to_batch(rows, out.dtype == MAG_SAMPLE_DTYPE)
-            rows.clear()
+        self._field = self._field or bool(_ANY(kind[sel] != _CSV))
+        dtype = MAG_SAMPLE_DTYPE if self._field else SAMPLE_DTYPE
+        # The batch's samples together (slices on the output side: cheaper than fancy field writes), then
+        # the rows between them where any.
+        batch = np.empty(len(sel), dtype=dtype)
+        parsed = sel if rows_of is None else np.flatnonzero(got.good)  # the rows of got of those lines
+        self._fill(batch, slice(None), parsed, one, got, counts[sel])
+        if not rows:
+            return [batch], False
+        out = np.empty(filled, dtype=dtype)
+        mine = np.ones(filled, dtype=bool)
+        mine[row_places] = False
+        out[mine] = batch
+        out[row_places] = rows_to_batch(rows, dtype == MAG_SAMPLE_DTYPE)
+        rows.clear()
         return [out], False
 
     def _learn_form(self, kind: int, line: bytes, raw: bytes) -> None:
@@ -578,7 +599,7 @@ class AsciiDecoder(StreamDecoderBase):
             table, good = fixed
             if k == _RAW:
                 table += 0.0  # int("-0") is 0: no negative zero (-0.0 + 0.0 is 0.0)
-                good &= (np.abs(table) <= _MAX_COUNTS).all(axis=1)
+                good &= _ALL(np.abs(table) <= _MAX_COUNTS, axis=1)
         elif k == _CSV:
             delim = self.columns.delimiter
             found = number_table(lines, delim.encode("ascii"), len(lay.lo)) \
@@ -593,7 +614,7 @@ class AsciiDecoder(StreamDecoderBase):
             if k >= _VNYMR:
                 good &= _checksums_match(lines)
             elif k == _RAW:
-                good &= (np.abs(table) <= _MAX_COUNTS).all(axis=1)
+                good &= _ALL(np.abs(table) <= _MAX_COUNTS, axis=1)
         v = table
         for factor, divide in ((lay.m1, False), (lay.div, True), (lay.m2, False)):
             if factor is not None:
@@ -601,7 +622,7 @@ class AsciiDecoder(StreamDecoderBase):
         inside = (v >= lay.lo) & (v <= lay.hi)
         if lay.nan_ok is not None:
             inside |= np.isnan(v) & lay.nan_ok
-        good &= inside.all(axis=1)
+        good &= _ALL(inside, axis=1)
         n = len(good)
         seq = None
         if lay.seq is not None:
@@ -913,7 +934,11 @@ _HEX_BYTES = b"0123456789ABCDEFabcdef"
 # number than np.loadtxt (about 1.2-1.9x on 700 lines of a 64 KiB read), which costs less on few lines.
 _ARRAY_PARSE = 256
 _HEADS = {_RAW: b"Raw:", _UNI: b"Uni:", _VNYMR: b"$VNYMR,", _VNIMU: b"$VNIMU,"}
-_FEW_BAD = 8  # damaged lines a batch finds by a regex scan; more: form_mask classes every line
+# ndarray.all / any without their Python wrappers (a few microseconds each, many times a read).
+_ALL = np.logical_and.reduce
+_ANY = np.logical_or.reduce
+_FEW_BAD = 8
+_FLOATS_AT = SAMPLE_DTYPE.fields["acc"][1]  # type: ignore[index]  # the first float32 of a sample  # damaged lines a batch finds by a regex scan; more: form_mask classes every line
 
 
 
