@@ -431,12 +431,12 @@ class MavlinkDecoder(StreamDecoderBase):
         count = min(avail // size, _FAST_WINDOW)
         if count < 1 or plen > spec.size:
             return None
-        rows = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
         cols = spec.cols_v1 if v1 else spec.cols_v2
         expect = _HEADERS.get((v1, plen, system, component, spec.msg_id))
         if expect is None:
             make = spec.header_v1 if v1 else spec.header_v2
             expect = _HEADERS[(v1, plen, system, component, spec.msg_id)] = make(plen, system, component)
+        rows = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
         ok = _ALL(rows[:, cols] == expect, axis=1)
         n = count if _ALL(ok) else int(np.argmin(ok))
         if n < 1:
@@ -451,9 +451,12 @@ class MavlinkDecoder(StreamDecoderBase):
         payload[:, :plen] = rows[:, header : header + plen]
         del rows  # the window keeps no view of the buffer
         msg = payload.view(spec.dtype)[:, 0]
+        bad = crc_bad
         if spec.has_id:
-            good &= msg["id"] == imu_id
-        bad = [] if _ALL(good) else np.flatnonzero(~good).tolist()
+            ours = msg["id"] == imu_id
+            if not _ALL(ours):
+                good &= ours
+                bad = np.flatnonzero(~good).tolist()
         return _FastWindow(pos, size, n, bad, crc_bad, spec, payload, msg)
 
     # -------------------------------------------------------------- IMU messages
