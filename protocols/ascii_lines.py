@@ -220,6 +220,7 @@ class AsciiDecoder(StreamDecoderBase):
         self._discarding = False  # inside an over-long line, until its end
         self._field = self.columns.has_mag  # the stream has carried a magnetic field
         self._fixed_form: tuple[int, FixedForm] | None = None  # the layout of lines of one width, by kind
+        self._scanned: tuple[bytes, bytes, bytes] | None = None  # _uniform's text, body, other bytes
 
     @classmethod
     def from_option(cls, option: str) -> AsciiDecoder:
@@ -345,7 +346,7 @@ class AsciiDecoder(StreamDecoderBase):
             dialects = set(kinds) - {0}
             if len(dialects) == 1:  # one dialect and lines of none (damage): its lines alone, no scatter
                 one = dialects.pop()
-                rows_of = np.flatnonzero(kind == one)
+                rows_of = (kind == one).nonzero()[0]  # np.flatnonzero without its wrappers
                 got = self._parse_kind(one, [lines[i] for i in rows_of.tolist()])
             else:
                 got = _Parsed.empty(n)
@@ -379,10 +380,10 @@ class AsciiDecoder(StreamDecoderBase):
             return [self._batch(0, n, one, got, dtype)], False
         # Runs of samples between lines read one by one: each sample's place in one batch, the numbers
         # (counts) given in line order as reading every line alone gives them.
-        edges = np.flatnonzero(ok[1:] != ok[:-1]) + 1
+        edges = (ok[1:] != ok[:-1]).nonzero()[0] + 1
         bounds = [0, *edges.tolist(), n]
         row_places: list[int] = []  # places of the rows of lines read one by one
-        counts = np.empty(n, dtype=np.int64)
+        runs: list[tuple[int, int]] = []  # the first count and length of each run of batch lines
         filled = 0
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             if not ok[a]:
@@ -396,10 +397,10 @@ class AsciiDecoder(StreamDecoderBase):
                             row_places.append(filled)
                             filled += 1
                 continue
-            counts[a:b] = np.arange(self._count, self._count + b - a)
+            runs.append((self._count, b - a))
             self._count += b - a
             filled += b - a
-        sel = np.flatnonzero(ok)
+        sel = ok.nonzero()[0]
         if not len(sel):  # no batch: the rows are the caller's, as they were
             return [], False
         self._field = self._field or bool(_ANY(kind[sel] != _CSV))
@@ -407,8 +408,10 @@ class AsciiDecoder(StreamDecoderBase):
         # The batch's samples together (slices on the output side: cheaper than fancy field writes), then
         # the rows between them where any.
         batch = np.empty(len(sel), dtype=dtype)
-        parsed = sel if rows_of is None else np.flatnonzero(got.good)  # the rows of got of those lines
-        self._fill(batch, slice(None), parsed, one, got, counts[sel])
+        parsed = sel if rows_of is None else got.good.nonzero()[0]  # the rows of got of those lines
+        counts = np.concatenate([np.arange(c, c + m) for c, m in runs]) if len(runs) > 1 \
+            else np.arange(runs[0][0], runs[0][0] + runs[0][1])
+        self._fill(batch, slice(None), parsed, one, got, counts)
         if not rows:
             return [batch], False
         out = np.empty(filled, dtype=dtype)
@@ -449,17 +452,20 @@ class AsciiDecoder(StreamDecoderBase):
         :func:`_line_forms`), checked on the whole text at once; a line with a field too many and another
         with one too few pass, and their batch refuses them (:func:`_table`)."""
         n = len(lines)
+        self._scanned = None
         if kind == _CSV:
             delim = self.columns.delimiter.encode("ascii")
-            return (not text.translate(None, _NUMBER_BYTES + delim + b"\n")
-                    and text.count(delim) == n * (len(self.columns.names) - 1))
+            others = text.translate(None, _NUMBER_BYTES + delim + b"\n")
+            self._scanned = (text, text, others)  # for _few_bad when this says no
+            return not others and text.count(delim) == n * (len(self.columns.names) - 1)
         head = _HEADS[kind]
         if text.count(head) != n or (b"\n" + text).count(b"\n" + head) != n:
             return False
         if kind in (_RAW, _UNI):
             body = text.replace(head, b"")
-            chars = _INT_BYTES if kind == _RAW else _NUMBER_BYTES
-            return not body.translate(None, chars + b",\n") and body.count(b",") == 8 * n
+            others = body.translate(None, (_INT_BYTES if kind == _RAW else _NUMBER_BYTES) + b",\n")
+            self._scanned = (text, body, others)
+            return not others and body.count(b",") == 8 * n
         if text.count(b"*") != n or any(line[-3] != 42 for line in lines):  # '*'
             return False
         body = b"\n".join(line[len(head):-3] for line in lines)
@@ -471,24 +477,19 @@ class AsciiDecoder(StreamDecoderBase):
     def _few_bad(self, kind: int, text: bytes, lines: list[bytes],
                  match: Callable[[bytes], re.Match[bytes] | None]) -> list[int] | None:
         """The kinds of ``lines`` (as :meth:`_uniform`'s, line for line) when all but a few hold only the
-        bytes of numbers of ``kind`` (CSV, ``Raw:``, ``Uni:``): one regex scan finds the lines with another
-        byte (damage), which the regex classes one by one; the others pass as in :meth:`_uniform` (their
-        field counts add up). None when the lines are not so (then :func:`form_mask` classes them all)."""
+        bytes of numbers of ``kind`` (CSV, ``Raw:``, ``Uni:``): the other bytes :meth:`_uniform` found (by
+        deleting those of numbers from the text) are looked up to find their lines (damage), which the
+        regex classes one by one; the others pass as in :meth:`_uniform` (their field counts add up).
+        None when the lines are not so (then :func:`form_mask` classes them all)."""
         n = len(lines)
-        if kind == _CSV:
-            if not self._fast_forms:
-                return None
-            body, head, delim = text, b"", self.columns.delimiter.encode("ascii")
-            fields = len(self.columns.names)
-        elif kind in (_RAW, _UNI):
-            head = _HEADS[kind]
-            if text.count(head) != n or (b"\n" + text).count(b"\n" + head) != n:
-                return None
-            body, delim, fields = text.replace(head, b""), b",", 9
-        else:
-            return None
-        # The other bytes by deleting the allowed ones (C speed), then where each is (memchr speed).
-        others = body.translate(None, (_INT_BYTES if kind == _RAW else _NUMBER_BYTES) + delim + b"\n")
+        scanned = self._scanned
+        if kind not in (_CSV, _RAW, _UNI) or (kind == _CSV and not self._fast_forms) or scanned is None \
+                or scanned[0] is not text:
+            return None  # _uniform found no line of the form (a head count off): form_mask
+        # The other bytes, found by _uniform by deleting the allowed ones (C speed); where each is by find.
+        _, body, others = scanned
+        head, delim, fields = (b"", self.columns.delimiter.encode("ascii"), len(self.columns.names)) \
+            if kind == _CSV else (_HEADS[kind], b",", 9)
         if len(others) > 4 * _FEW_BAD:
             return None
         where = set()
