@@ -230,12 +230,12 @@ class MavlinkDecoder(StreamDecoderBase):
                 messages.append(Message(self._msg_id(pos), bytes(buf[pos:after])))
                 pos = after
                 continue
-            frame = bytearray(buf[pos : pos + length])
             # The CRC first, in C (pymavlink's decode would check it too, in Python): a damaged frame
-            # is known without decoding it.
+            # is known without decoding it (nor copying it).
             crc_good = not (self._win is not None and self._win.crc_failed(pos)) and self._crc_ok(pos, length)
             msg = None
             if crc_good:
+                frame = bytearray(buf[pos : pos + length])
                 try:
                     msg = self._mav.decode(frame)
                 except self._dialect.MAVError:
@@ -318,9 +318,13 @@ class MavlinkDecoder(StreamDecoderBase):
         win = self._win
         if win is None or not win.covers(pos):
             buf = self._buf
-            if len(buf) - pos < HEADER_V2 or len(buf) - pos < buf[pos + 1] + (
-                    HEADER_V1 + 2 if buf[pos] == STX_V1 else HEADER_V2 + 2):
+            v1 = buf[pos] == STX_V1
+            avail = len(buf) - pos
+            if avail < HEADER_V2 or avail < buf[pos + 1] + (HEADER_V1 + 2 if v1 else HEADER_V2 + 2):
                 return _EMPTY_MAG, 0  # not a whole frame yet: the per-frame path waits for it
+            msg_id = _fast_spec(self._dialect, name).msg_id
+            if (buf[pos + 5] != msg_id) if v1 else (buf[pos + 2] != 0 or buf[pos + 7] != msg_id & 0xFF):
+                return _EMPTY_MAG, 0  # not a frame of the message (a false start in a damaged one): no arrays
             found = self._check_window(pos)
             if found is None:  # no run here (a false start): the window stays for the slots after
                 return _EMPTY_MAG, 0
