@@ -59,10 +59,14 @@ def _footer(text: str, *keys: str) -> None:
 
 
 async def _stop_reader(pilot, app, name: str):
+    """The screen ``name`` with its reader stopped: its worker has ended, so no snapshot of the unit can
+    arrive after the one a test posts (a thread worker only sees its cancellation between reads)."""
     screen = await wait_for(pilot, lambda: type(app.screen).__name__ == name and app.screen, 10, name)
     await pilot.pause(0.3)
+    readers = [w for w in screen.workers if w.group == "reader" and w.node is screen]
     screen.workers.cancel_group(screen, "reader")
-    await pilot.pause(0.3)
+    await wait_for(pilot, lambda: all(w.is_finished for w in readers), 20, "the reader to end")
+    await pilot.pause(0.3)  # and the snapshots it posted before it ended to be shown
     return screen
 
 
