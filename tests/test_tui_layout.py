@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from serial.tools import list_ports
 from test_tui_ports import _ports
-from tui_helpers import expect_snapshot, ideal_run, results_ready, screen_text, wait_for
+from tui_helpers import expect_snapshot, ideal_run, results_ready, screen_text, stop_reader, wait_for
 
 from station.acquisition.checks import PoseCheck, Stillness
 from station.acquisition.runner import LiveStatus, State
@@ -63,10 +63,7 @@ async def _stop_reader(pilot, app, name: str):
     arrive after the one a test posts (a thread worker only sees its cancellation between reads)."""
     screen = await wait_for(pilot, lambda: type(app.screen).__name__ == name and app.screen, 10, name)
     await pilot.pause(0.3)
-    readers = [w for w in screen.workers if w.group == "reader" and w.node is screen]
-    screen.workers.cancel_group(screen, "reader")
-    await wait_for(pilot, lambda: all(w.is_finished for w in readers), 20, "the reader to end")
-    await pilot.pause(0.3)  # and the snapshots it posted before it ended to be shown
+    await stop_reader(pilot, screen)
     return screen
 
 

@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 from textual.screen import Screen
-from tui_helpers import screen_text, wait_for
+from tui_helpers import screen_text, stop_reader, wait_for
 
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
@@ -33,8 +33,7 @@ async def _live_without_reader(pilot, app):
     screen = await wait_for(pilot, lambda: type(app.screen).__name__ == "LiveScreen" and app.screen, 10,
                             "the live view")
     await pilot.pause(0.3)
-    screen.workers.cancel_group(screen, "reader")
-    await pilot.pause(0.3)
+    await stop_reader(pilot, screen)
     return screen
 
 

@@ -28,6 +28,16 @@ async def wait_for(pilot, condition: Callable[[], object], timeout_s: float, wha
         await pilot.pause(step_s)
 
 
+async def stop_reader(pilot, screen) -> None:
+    """Stop ``screen``'s reader worker and wait until it has ended (a thread worker only sees its
+    cancellation between reads, so a snapshot of the unit could otherwise come after one a test posts),
+    then let what it posted before be shown."""
+    readers = [w for w in screen.workers if w.group == "reader" and w.node is screen]
+    screen.workers.cancel_group(screen, "reader")
+    await wait_for(pilot, lambda: all(w.is_finished for w in readers), 20, "the reader to end")
+    await pilot.pause(0.3)
+
+
 def svg_rows(svg: str) -> list[str]:
     """The screen's text, one string per row, from a textual SVG screenshot (styles ignored)."""
     rows: dict[float, list[tuple[float, str]]] = {}
