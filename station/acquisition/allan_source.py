@@ -437,9 +437,10 @@ def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterable
     name = path.name.lower()
     if name.endswith((".h5", ".hdf5")):
         return H5Chunks(path), _h5_device(path), size
-    from station.acquisition.capture_csv import iter_csv_chunks, read_csv_device
+    from station.acquisition import csv_halves
+    from station.acquisition.capture_csv import read_csv_device
 
-    return ((c.t, c.acc, c.gyro) for c in iter_csv_chunks(path)), read_csv_device(path), size
+    return csv_halves.iter_chunks(path), read_csv_device(path), size
 
 
 def _h5_file(path: Path):

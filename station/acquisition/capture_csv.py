@@ -125,10 +125,14 @@ def _read_metadata(path: Path, readline: Callable[[], str]) -> tuple[str, int, d
             metadata.setdefault(*parsed)
 
 
-def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[Capture]:
+def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS,
+                    from_byte: int | None = None) -> Iterator[Capture]:
     """Read a capture CSV in chunks of at most ``chunk_rows`` rows, in bounded memory.
 
-    Checks every rule of the spec across chunk borders (t strictly increasing included).
+    Checks every rule of the spec across chunk borders (t strictly increasing included). With
+    ``from_byte`` (the offset of a line's start in an uncompressed file), the rows from there on, read
+    with the file's header: a part of the file for another process (line numbers in its messages then
+    count from that offset, as if the header stood just before it).
     """
     path = Path(path)
     try:
@@ -141,6 +145,8 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[
         # every line is read with readline(limit): a line without an end in reach is refused, never read whole
         readline = functools.partial(fh.readline, MAX_LINE_CHARS + 1)
         header_line, line_no, device = _read_metadata(path, readline)
+        if from_byte is not None:
+            fh.seek(from_byte)  # a line's start: the UTF-8 decoder holds no state there
         header = [h.strip() for h in header_line.rstrip("\r\n").split(",")]
         if not header_line.strip():
             raise InputFileError(path, "is empty; expected a header row: " + ",".join(HEADER), line=line_no)
