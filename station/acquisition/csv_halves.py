@@ -11,6 +11,7 @@ so every message and warning names the file's own line numbers as a single reade
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 from collections.abc import Iterator
@@ -139,8 +140,12 @@ def _line_start(fh, rows: int) -> int | None:
 
 def _parse_half(path: Path, offset: int, chunk_rows: int, sender: Connection) -> None:
     """In the child: parse from ``offset`` to the end and send the arrays, or None on any problem."""
+    import signal
     import warnings
 
+    # Ctrl-C is the parent's to handle, and it ends this child with SIGTERM: die quietly then
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # a warning (a cut last line) is the parent's to give
@@ -150,8 +155,9 @@ def _parse_half(path: Path, offset: int, chunk_rows: int, sender: Connection) ->
             half = (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
                     np.concatenate([p[2] for p in parts]))
         sender.send(half)
-    except BaseException:  # noqa: BLE001  (any problem: the parent reads this half itself)
-        sender.send(None)
+    except Exception:  # noqa: BLE001  (any problem: the parent reads this half itself)
+        with contextlib.suppress(OSError):
+            sender.send(None)
     finally:
         sender.close()
 
