@@ -187,6 +187,22 @@ def test_plan_errors_escape_and_cut_a_limit_key(tmp_path: Path, terminal) -> Non
     assert len(text) < 10_000  # the 60,000-character key is cut, not echoed
 
 
+def test_a_whole_run_shows_a_hostile_serial_station_and_plan_name_as_text(tmp_path: Path, terminal) -> None:
+    plan = tmp_path / "plan.yaml"
+    name = f"line{LINK}{CONTROLS_TEXT}[reverse]PASS[/]"
+    plan.write_text(f"schema: imu-station/plan/1\nname: {json.dumps(name)}\n"
+                    "sequence: {name: six-position}\n", encoding="utf-8")
+    serial, station = f"SN{CONTROLS_TEXT}[/]", f"st[/]{CONTROLS_TEXT}{LINK}"
+    code, text = terminal("run", "--plan", str(plan), "--simulate", "--speed", "10", "--serial", serial,
+                          "--station", station, "--db", str(tmp_path / "r.sqlite"), "--files",
+                          str(tmp_path / "files"))
+    assert code == 0, text
+    assert_inert(text, printable(serial), "outcome PASS")
+    code, text = terminal("records", "--db", str(tmp_path / "r.sqlite"))
+    assert code == 0, text
+    assert_inert(text, printable(station)[:20], printable(name)[:20])
+
+
 # ---- item 7: the capture CSV's bound, NaN refusals -------------------------------------------------------
 
 

@@ -56,7 +56,7 @@ from station.acquisition.runner import RecorderSink, RunOptions, RunResult, Sequ
 from station.acquisition.sequences import PoseStep, RotationStep, Sequence, Step
 from station.acquisition.settle import Settle, SettleTimeout, wait_settled
 from station.common.files import atomic_write_text
-from station.common.text import printable
+from station.common.text import printable, printable_message
 from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.engines.shared.earth import normal_gravity
 from station.errors import StationError
@@ -678,14 +678,17 @@ def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord
 
 
 class _UnitField(logging.Filter):
-    """Puts the unit's serial in every log line; the serial may only be known once the unit answered."""
+    """Puts the unit's serial in every log line, escaped as the line's message is (the serial is what
+    the unit or the operator gave; a message names steps, files and replies); the serial may only be
+    known once the unit answered."""
 
     def __init__(self, serial: str):
         super().__init__()
         self.serial = serial
 
     def filter(self, record: logging.LogRecord) -> bool:
-        record.unit = self.serial
+        record.unit = printable(self.serial)
+        record.msg, record.args = printable_message(record.getMessage()), None
         return True
 
 
