@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.common.files import atomic_write_text, output_set, staged_path
+from station.common.files import atomic_write_text
 from station.common.text import PATH_CHARS, printable
 from station.console.options import RECORD_OUTCOMES, add_db_arguments, add_output_option, db_url, files_root
 from station.errors import ExitCode, StationError
@@ -230,18 +230,11 @@ def _report(args: argparse.Namespace, url: str) -> int:
         fleet = collect(store, query)
         certificates = store.attachment_paths(CERTIFICATE_NAME, **query) if args.output else {}
     _refused(refused)
-    from station.report.pdf import find_browser, html_to_pdf
+    if args.output is not None:
+        from station.report.pdf import write_with_pdf
 
-    printing = args.pdf is not None and find_browser() is not None
-    # the page and its PDF are one set: a new page never stands beside an old PDF
-    with output_set():
-        if args.output is not None:
-            page = render_fleet(fleet, certificates, Path(args.output).resolve().parent)
-            atomic_write_text(args.output, page)
-        if printing:
-            html_to_pdf(staged_path(args.output), args.pdf)
-    if args.pdf is not None and not printing:
-        html_to_pdf(args.output, args.pdf)  # no Chromium: says what to install, the page is written
+        page = render_fleet(fleet, certificates, Path(args.output).resolve().parent)
+        write_with_pdf(args.output, args.pdf, lambda: atomic_write_text(args.output, page))
     said = sys.stderr if args.json else sys.stdout
     if args.output is not None:
         print(f"{printable(args.output, PATH_CHARS)}: fleet report of {len(fleet.runs)} record(s), "

@@ -135,9 +135,9 @@ def _from_record(args: argparse.Namespace) -> Certificate:
 
 def run(args: argparse.Namespace) -> int:
     """Write the certificate (and its PDF) as one set of files; exit 0, or 4 for bad input."""
-    from station.common.files import output_set, staged_path
     from station.common.text import printable
     from station.report.certificate import write_certificate
+    from station.report.pdf import write_with_pdf
 
     if (args.params is None) == (args.serial is None):
         raise StationError("give the parameter file PARAMS, or --serial SN to certify a factory record "
@@ -148,17 +148,8 @@ def run(args: argparse.Namespace) -> int:
     cert.station = args.station or os.environ.get("IMU_STATION_ID") or cert.station
     cert.operator = args.operator or ""
     cert.on_stage = _stage
-    from station.report.pdf import find_browser, html_to_pdf
-
-    printing = args.pdf is not None and find_browser() is not None
-    # The page and its PDF appear together or not at all: a new page never stands beside an old PDF.
-    with output_set():
-        notes = write_certificate(cert, args.output)
-        if printing:
-            _stage(f"printing {args.pdf} with headless Chromium")
-            html_to_pdf(staged_path(args.output), args.pdf)
-    if args.pdf is not None and not printing:
-        html_to_pdf(args.output, args.pdf)  # no Chromium: says what to install, the page is written
+    notes = write_with_pdf(args.output, args.pdf, lambda: write_certificate(cert, args.output),
+                           on_print=lambda: _stage(f"printing {args.pdf} with headless Chromium"))
     if cert.record is not None:
         serial = cert.record.serial
     else:

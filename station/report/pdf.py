@@ -23,10 +23,11 @@ import shutil
 import signal
 import subprocess
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
-from station.common.files import atomic_write_bytes
+from station.common.files import atomic_write_bytes, output_set, staged_path
 from station.errors import OutputFileError, StationError
 
 BROWSERS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
@@ -60,6 +61,45 @@ def browser_flags(work: Path, out: Path) -> list[str]:
     if hasattr(os, "geteuid") and os.geteuid() == 0:
         flags.append("--no-sandbox")  # Chromium refuses to start as root with its sandbox
     return flags
+
+
+T = TypeVar("T")
+
+
+def write_with_pdf(html_path: str | Path, pdf_path: str | Path | None, write_page: Callable[[], T],
+                   on_print: Callable[[], None] | None = None) -> T:
+    """Write a report page with ``write_page`` and print it to ``pdf_path`` as one set of files: both
+    appear, or (an error, Ctrl-C, SIGTERM) neither changes, so a new page never stands beside an old
+    PDF. Without Chromium the page alone is written and :func:`html_to_pdf`'s error (what to install)
+    raised.
+
+    Parameters
+    ----------
+    html_path : str or Path
+        The page ``write_page`` writes.
+    pdf_path : str or Path, optional
+        The PDF; None writes the page alone.
+    write_page : callable
+        Writes the page (atomically); its result is returned.
+    on_print : callable, optional
+        Told when printing starts (a progress line).
+
+    Returns
+    -------
+    object
+        What ``write_page`` returned.
+    """
+    printing = pdf_path is not None and find_browser() is not None
+    with output_set():
+        result = write_page()
+        if printing:
+            assert pdf_path is not None
+            if on_print is not None:
+                on_print()
+            html_to_pdf(staged_path(html_path), pdf_path)
+    if pdf_path is not None and not printing:
+        html_to_pdf(html_path, pdf_path)
+    return result
 
 
 def html_to_pdf(html_path: str | Path, pdf_path: str | Path) -> None:
