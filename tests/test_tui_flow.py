@@ -11,7 +11,7 @@ import asyncio
 
 import numpy as np
 import pytest
-from tui_helpers import wait_for
+from tui_helpers import answer_every_prompt, wait_for
 
 from station.acquisition.capture import read_capture
 from station.acquisition.sequences import builtin
@@ -33,13 +33,7 @@ async def _drive_with_enter(app: StationApp) -> None:
         await pilot.press("enter")  # live view -> wizard
         wizard = await wait_for(pilot, lambda: isinstance(app.screen, WizardScreen) and app.screen, 5,
                                 "wizard")
-        # Every prompt (start, and any review) is answered with Enter until the run ends.
-        while wizard.result is None:
-            await wait_for(pilot, lambda: wizard.prompt is not None or wizard.result is not None, 150,
-                           "a prompt or the end of the run")
-            if wizard.prompt is not None:
-                await pilot.press("enter")
-                await pilot.pause(0.2)
+        await answer_every_prompt(pilot, wizard)
         await pilot.press("enter")  # -> results
         results = await wait_for(pilot, lambda: isinstance(app.screen, ResultsScreen) and app.screen, 5,
                                  "results")

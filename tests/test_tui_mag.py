@@ -13,7 +13,7 @@ import pytest
 from serial.tools import list_ports
 from test_tui_ports import _ports
 from textual.pilot import Pilot
-from tui_helpers import screen_text, shown, wait_for
+from tui_helpers import answer_every_prompt, screen_text, shown, wait_for
 
 from mocks.mag_sessions import nine_axis_unit
 from protocols.base import MAG_SAMPLE_DTYPE
@@ -197,12 +197,7 @@ def test_after_the_wizard_the_step_starts_fresh_and_asks_before_replacing_a_sess
             await pilot.press("w")
             wizard = await wait_for(pilot, lambda: isinstance(app.screen, WizardScreen) and app.screen, 10,
                                     "the wizard")
-            while wizard.result is None:
-                await wait_for(pilot, lambda: wizard.prompt is not None or wizard.result is not None, 150,
-                               "a prompt or the end of the run")
-                if wizard.prompt is not None:
-                    await pilot.press("enter")
-                    await pilot.pause(0.2)
+            await answer_every_prompt(pilot, wizard)
             await pilot.press("enter")
             results = await wait_for(pilot, lambda: isinstance(app.screen, ResultsScreen) and app.screen, 10,
                                      "the results")

@@ -28,6 +28,16 @@ async def wait_for(pilot, condition: Callable[[], object], timeout_s: float, wha
         await pilot.pause(step_s)
 
 
+async def answer_every_prompt(pilot, wizard) -> None:
+    """Answer each of the wizard's prompts (start, any review) with Enter until its run ends."""
+    while wizard.result is None:
+        await wait_for(pilot, lambda: wizard.prompt is not None or wizard.result is not None, 150,
+                       "a prompt or the end of the run")
+        if wizard.prompt is not None:
+            await pilot.press("enter")
+            await pilot.pause(0.2)
+
+
 async def stop_reader(pilot, screen) -> None:
     """Stop ``screen``'s reader worker and wait until it has ended (a thread worker only sees its
     cancellation between reads, so a snapshot of the unit could otherwise come after one a test posts),
