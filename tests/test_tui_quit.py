@@ -14,11 +14,15 @@ import numpy as np
 import pytest
 from tui_helpers import ideal_run, results_ready, screen_text, wait_for
 
+from drivers import open_device
+from mocks.device import SimDevice
+from mocks.pty_server import PtyServer
 from station.errors import ExitCode
 from station.export.params.file import ParamsFile
 from station.tui.app import StationApp
 from station.tui.config import TuiConfig
 from station.tui.screens.ask import AskScreen
+from station.tui.session import Session
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -91,12 +95,15 @@ def test_a_file_that_cannot_be_written_asks_again_and_another_name_saves(tmp_pat
 
 
 def test_leaving_unsaved_results_for_another_screen_asks_first(tmp_path):
+    server = PtyServer(SimDevice(seed=3, rate_hz=100.0, scenario="still")).start()
+    device = open_device(server.port_path)
     app = StationApp(TuiConfig(out=tmp_path / "unit.yaml"))
 
     async def run() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
             results = await results_ready(pilot, app, ideal_run())
-            app.session = object()  # another screen needs a session; the question comes first
+            # The live view needs a session (the app reads its port meanwhile); the question comes first.
+            app.session = Session(device, "simulated unit", info=device.get_info())
             app.show("live")
             await wait_for(pilot, lambda: isinstance(app.screen, AskScreen), 5, "the question")
             await pilot.press("escape")
@@ -104,7 +111,11 @@ def test_leaving_unsaved_results_for_another_screen_asks_first(tmp_path):
             app.session = None
             app.exit(0)
 
-    asyncio.run(run())
+    try:
+        asyncio.run(run())
+    finally:
+        device.close()
+        server.stop()
 
 
 def test_a_hangup_saves_unsaved_results_beside_out_and_exits(tmp_path):
