@@ -1,13 +1,16 @@
 """Applying a parameter file to raw samples: what ``imu-station apply`` and firmware compute.
 
-    acc  = M_a^-1 (raw_a - b_a - B_a(T, dT))                     (1)
-    gyro = M_g^-1 (raw_g - b_g - B_g(T, dT) - G acc)             (2)
+    acc  = M_a(T)^-1 (raw_a - b_a - B_a(T, dT))                  (1)
+    gyro = M_g(T)^-1 (raw_g - b_g - B_g(T, dT) - G acc)          (2)
     mag  = M_m^-1 (raw_m - b_m)                                   (3)
 
 with B the thermal bias of ``station.engines.thermal.model`` (zero where the file has no
-thermal section or the temperature is unknown), G the gyro's g-sensitivity (rad/s per m/s^2: the
-bias change G f at specific force f, here the corrected accelerometer sample of (1); zero where
-the file has none) and M_m, b_m the magnetometer's soft and hard iron (microtesla).
+thermal section or the temperature is unknown), M(T) the section's matrix moved by the thermal
+section's scale-factor and misalignment polynomials (``station.engines.thermal.intrinsics``; the
+section's own matrix where it has none or the temperature is unknown), G the gyro's
+g-sensitivity (rad/s per m/s^2: the bias change G f at specific force f, here the corrected
+accelerometer sample of (1); zero where the file has none) and M_m, b_m the magnetometer's soft
+and hard iron (microtesla).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.intrinsics import correct_at, matrices_at
 from station.engines.thermal.model import ThermalBias, ThermalModel
 
 
@@ -69,11 +73,29 @@ def apply_calibration(
     gyr_cal = gyro_cal or SensorCalibration.identity()
     acc_tb = _thermal_bias(thermal, thermal.accel if thermal else None, temp, dtemp, n)
     gyr_tb = _thermal_bias(thermal, thermal.gyro if thermal else None, temp, dtemp, n)
-    acc_true = acc_cal.correct(acc, acc_tb)
+    acc_true = _correct(acc, acc_cal, acc_tb, thermal, "accel", temp)
     if g_sensitivity is not None:
         # (2): the bias the specific force adds, in the gyro's raw axes like b_g and B_g.
         gyr_tb = gyr_tb + acc_true @ np.asarray(g_sensitivity, float).reshape(3, 3).T
-    return acc_true, gyr_cal.correct(gyro, gyr_tb)
+    return acc_true, _correct(gyro, gyr_cal, gyr_tb, thermal, "gyro", temp)
+
+
+def _correct(raw: np.ndarray, cal: SensorCalibration, extra_bias: np.ndarray, thermal: ThermalModel | None,
+             triad: str, temp: np.ndarray | None) -> np.ndarray:
+    """M^-1 (raw - b - extra), with M(T) of ``station.engines.thermal.intrinsics`` where the thermal
+    section has the triad's scale or misalignment and the sample's temperature is known."""
+    scale = thermal.scale.get(triad) if thermal is not None else None
+    misalignment = thermal.misalignment.get(triad) if thermal is not None else None
+    if thermal is None or temp is None or (scale is None and misalignment is None):
+        return cal.correct(raw, extra_bias)
+    temp = np.asarray(temp, float)
+    out = cal.correct(raw, extra_bias)
+    known = np.isfinite(temp)
+    if known.any():
+        matrices = matrices_at(cal.matrix, temp[known], thermal.reference_temp, scale, misalignment)
+        bias = (cal.bias + np.broadcast_to(extra_bias, raw.shape))[known]
+        out[known] = correct_at(raw[known], bias, matrices)
+    return out
 
 
 def apply_mag(mag: np.ndarray, mag_cal: SensorCalibration | None) -> np.ndarray:

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from station.engines.thermal.intrinsics import TempPolynomial
+
 TERMS = ("t3", "t2", "t", "dt2", "dt", "tdt", "1")
 
 
@@ -277,13 +279,17 @@ def estimate_dtemp(t_s: np.ndarray, temp: np.ndarray, filt: DtempFilter) -> np.n
 
 @dataclass
 class ThermalModel:
-    """The ``thermal`` section: reference temperature, dT filter and per-triad bias models."""
+    """The ``thermal`` section: reference temperature, dT filter, per-triad bias models and, where a
+    calibration across temperature made them, per-triad scale-factor and misalignment polynomials
+    (``station.engines.thermal.intrinsics``; keys ``accel``/``gyro``)."""
 
     reference_temp: float
     dtemp_filter: DtempFilter
     accel: ThermalBias | None = None
     gyro: ThermalBias | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    scale: dict[str, TempPolynomial] = field(default_factory=dict)
+    misalignment: dict[str, TempPolynomial] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``thermal`` section of the parameter file (``shared/specs/params-file.md``)."""
@@ -294,6 +300,10 @@ class ThermalModel:
         for name in ("accel", "gyro"):
             model = getattr(self, name)
             out[name] = model.to_dict() if model is not None else None
+        for key in ("scale", "misalignment"):
+            entries: dict[str, TempPolynomial] = getattr(self, key)
+            if entries:
+                out[key] = {name: poly.to_dict() for name, poly in entries.items()}
         out.update(self.extra)
         return out
 
@@ -309,11 +319,21 @@ class ThermalModel:
         -------
         ThermalModel
         """
-        known = {"reference_temp", "dtemp_filter", "accel", "gyro"}
+        known = {"reference_temp", "dtemp_filter", "accel", "gyro", "scale", "misalignment"}
+        drifts = {}
+        for key, components in (("scale", 3), ("misalignment", 6)):
+            entries = d.get(key) or {}
+            unknown = set(entries) - {"accel", "gyro"}
+            if unknown:
+                raise ValueError(f"thermal.{key} has {sorted(unknown)}; it holds 'accel' and 'gyro'")
+            drifts[key] = {name: TempPolynomial.from_dict(entry, components)
+                           for name, entry in entries.items() if entry}
         return cls(
             reference_temp=float(d["reference_temp"]),
             dtemp_filter=DtempFilter.from_dict(d["dtemp_filter"]),
             accel=ThermalBias.from_dict(d["accel"]) if d.get("accel") else None,
             gyro=ThermalBias.from_dict(d["gyro"]) if d.get("gyro") else None,
             extra={k: v for k, v in d.items() if k not in known},
+            scale=drifts["scale"],
+            misalignment=drifts["misalignment"],
         )
