@@ -17,7 +17,8 @@ import numpy as np
 from scipy.linalg import null_space
 
 from station.engines.thermal.blocks import Blocks
-from station.engines.thermal.model import TERMS, slope_weights, term_matrix
+from station.engines.thermal.intrinsics import slope_weights
+from station.engines.thermal.model import TERMS, term_matrix
 
 VARIABLE_TERMS = TERMS[:-1]  # every term but the constant, which the pose intercepts carry
 
@@ -213,7 +214,7 @@ def fit_and_predict(d: Design, cols: list[int], z: np.ndarray, axis: int, fold: 
 
 def temperature_slope_sd(d: Design, cols: list[int], z: np.ndarray, y: np.ndarray, group: np.ndarray,
                          t_min: float, t_max: float) -> float:
-    """1-sigma of the temperature sensitivity (:func:`station.engines.thermal.model.slope_weights`) of the
+    """1-sigma of the temperature sensitivity (``intrinsics.slope_weights``) of the
     model on ``cols``, by the delete-a-group jackknife over consecutive stretches of blocks.
 
     The sensitivity is linear in the scaled coefficients, S = g' beta. Each replicate refits without one

@@ -30,6 +30,32 @@ OFF_DIAGONAL = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 OFF_DIAGONAL_NAMES = ("xy", "xz", "yx", "yz", "zx", "zy")
 
 
+SLOPE_POINTS = 101  # temperatures over the range that the temperature sensitivity is the slope through
+
+
+def slope_weights(t_min: float, t_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """The temperatures and weights of a temperature sensitivity: the least-squares slope of a quantity
+    (the thermal bias at dT = 0, a scale factor, a misalignment) through ``SLOPE_POINTS`` evenly spaced
+    temperatures over [t_min, t_max],
+
+        S = sum_i w_i B(T_i, 0),    w_i = (T_i - mean T) / sum_k (T_k - mean T)^2              (3)
+
+    Parameters
+    ----------
+    t_min, t_max : float
+        The model's temperature range, degC.
+
+    Returns
+    -------
+    tuple of ndarray, (SLOPE_POINTS,)
+        T_i (degC) and w_i (1/degC; they sum to zero, so a constant bias has no slope).
+    """
+    temp = np.linspace(t_min, t_max, SLOPE_POINTS)
+    centred = temp - temp.mean()
+    denom = float(np.sum(centred**2))
+    return temp, centred / denom if denom > 0 else np.zeros_like(temp)
+
+
 @dataclass
 class TempPolynomial:
     """Per-component polynomials in t = clip(T) - T_ref without a constant term (equation (2)).
@@ -78,6 +104,38 @@ class TempPolynomial:
         t = np.clip(np.asarray(temp, float), self.t_min, self.t_max) - reference_temp
         basis = np.stack([t**p for p in self.powers], axis=-1) if self.powers else np.zeros((len(t), 0))
         return basis @ self.coeffs.T
+
+    def temperature_coefficient(self, reference_temp: float) -> np.ndarray:
+        """Per component, the least-squares slope of k(t) or s(t) over [t_min, t_max] (equation (3)), per
+        degC: a scale factor's temperature coefficient (divide by K for ppm/degC), a misalignment's drift.
+
+        Parameters
+        ----------
+        reference_temp : float
+            T_ref, degC.
+
+        Returns
+        -------
+        ndarray, (C,)
+        """
+        temp, w = slope_weights(self.t_min, self.t_max)
+        return np.asarray(w @ self.evaluate(temp, reference_temp))
+
+    def change_over_range(self, reference_temp: float) -> np.ndarray:
+        """Per component, max - min of k(t) or s(t) over [t_min, t_max] (the datasheets' "change over the
+        operating range").
+
+        Parameters
+        ----------
+        reference_temp : float
+            T_ref, degC.
+
+        Returns
+        -------
+        ndarray, (C,)
+        """
+        values = self.evaluate(np.linspace(self.t_min, self.t_max, SLOPE_POINTS), reference_temp)
+        return np.asarray(values.max(axis=0) - values.min(axis=0))
 
     def to_dict(self) -> dict[str, Any]:
         """The entry of ``thermal.scale``/``thermal.misalignment`` for one triad."""

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from station.engines.thermal.intrinsics import TempPolynomial
+from station.engines.thermal.intrinsics import TempPolynomial, slope_weights
 
 TERMS = ("t3", "t2", "t", "dt2", "dt", "tdt", "1")
 
@@ -43,31 +43,6 @@ def term_matrix(t_rel: np.ndarray, dtemp: np.ndarray) -> np.ndarray:
     t = np.asarray(t_rel, float)
     d = np.asarray(dtemp, float)
     return np.stack([t**3, t**2, t, d**2, d, t * d, np.ones_like(t)], axis=-1)
-
-
-SLOPE_POINTS = 101  # temperatures over the range that the temperature sensitivity is the slope through
-
-
-def slope_weights(t_min: float, t_max: float) -> tuple[np.ndarray, np.ndarray]:
-    """The temperatures and weights of the temperature sensitivity: the least-squares slope of the bias
-    at dT = 0 through ``SLOPE_POINTS`` evenly spaced temperatures over [t_min, t_max],
-
-        S = sum_i w_i B(T_i, 0),    w_i = (T_i - mean T) / sum_k (T_k - mean T)^2              (5)
-
-    Parameters
-    ----------
-    t_min, t_max : float
-        The model's temperature range, degC.
-
-    Returns
-    -------
-    tuple of ndarray, (SLOPE_POINTS,)
-        T_i (degC) and w_i (1/degC; they sum to zero, so a constant bias has no slope).
-    """
-    temp = np.linspace(t_min, t_max, SLOPE_POINTS)
-    centred = temp - temp.mean()
-    denom = float(np.sum(centred**2))
-    return temp, centred / denom if denom > 0 else np.zeros_like(temp)
 
 
 @dataclass
