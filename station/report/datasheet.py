@@ -12,7 +12,10 @@ Each row says what measured it. Conversions (SI inside, datasheet units out):
 - misalignment: per axis the root-sum-square of its row of S (off-diagonal), mrad;
 - temperature sensitivity of the bias: the least-squares slope of the thermal bias at dT = 0 over the
   thermal model's temperature range, deg/s/degC and mg/degC, with the jackknife 1-sigma the thermal fit
-  stored (``temp_sensitivity_sd``).
+  stored (``temp_sensitivity_sd``);
+- where a calibration across temperature wrote them: the scale factor's temperature coefficient, the
+  least-squares slope of K(T) over the range divided by K, ppm/degC, and the misalignment's change over
+  the range (max - min of each entry of S(T); per axis the root-sum-square of its row), urad.
 
 A figure whose section is absent is left out; an axis not measured shows as null (``-``).
 """
@@ -25,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from station.common import table
+from station.engines.thermal.intrinsics import OFF_DIAGONAL
 from station.engines.thermal.model import ThermalModel
 
 G = 9.80665  # m/s^2 per g, the datasheets' standard gravity
@@ -165,6 +169,36 @@ def _thermal_rows(doc: dict[str, Any]) -> list[Row]:
         rows.append(Row(f"{sensor} bias temperature sensitivity", unit, (slope * factor).tolist(),
                         _scaled(bias.extra.get("temp_sensitivity_sd"), factor),
                         f"slope of the thermal model over {bias.t_min:.1f}..{bias.t_max:.1f} degC (thermal)"))
+    for sensor in ("gyro", "accel"):
+        rows += _intrinsics_rows(doc, model, sensor)
+    return rows
+
+
+def _intrinsics_rows(doc: dict[str, Any], model: ThermalModel, sensor: str) -> list[Row]:
+    """The scale factor's temperature coefficient (ppm of K per degC) and the misalignment's change over the
+    calibrated range (per axis the root-sum-square of its row's changes, urad), where a calibration across
+    temperature wrote ``thermal.scale``/``thermal.misalignment``."""
+    rows = []
+    scale = model.scale.get(sensor)
+    if scale is not None:
+        k = np.asarray((doc.get(sensor) or {}).get("scale") or np.ones(3), float)
+        ppm = 1e6 / k
+        sd = scale.extra.get("temperature_coefficient_sd")
+        rows.append(Row(f"{sensor} scale-factor temperature coefficient", "ppm/degC",
+                        (scale.temperature_coefficient(model.reference_temp) * ppm).tolist(),
+                        (np.asarray(sd, float) * ppm).tolist() if sd is not None else [None, None, None],
+                        f"slope over {scale.t_min:.1f}..{scale.t_max:.1f} degC "
+                        "(calibration across temperature)"))
+    misalignment = model.misalignment.get(sensor)
+    if misalignment is not None:
+        change = np.zeros((3, 3))
+        for c, (i, j) in enumerate(OFF_DIAGONAL):
+            change[i, j] = misalignment.change_over_range(model.reference_temp)[c]
+        span = f"{misalignment.t_min:.1f}..{misalignment.t_max:.1f} degC"
+        rows.append(Row(f"{sensor} misalignment change over temperature", "urad",
+                        (np.sqrt(np.sum(change**2, axis=1)) * 1e6).tolist(), [None, None, None],
+                        f"max - min over {span}, per axis the root-sum-square of its row "
+                        "(calibration across temperature)"))
     return rows
 
 

@@ -222,6 +222,39 @@ def _thermal(c: _Checker, value: Any) -> None:
     for name in ("accel", "gyro"):
         if section.get(name) is not None:
             _thermal_triad(c, section[name], ("thermal", name), SENSOR_UNIT[name])
+    for key, rows in (("scale", 3), ("misalignment", 6)):
+        if section.get(key) is None:
+            continue
+        for name, entry in c.mapping(section[key], ("thermal", key)).items():
+            if name not in ("accel", "gyro"):
+                raise c.fail(("thermal", key, name),
+                             f"is not a triad; 'thermal.{key}' holds 'accel' and 'gyro'")
+            if entry is not None:
+                _temp_polynomial(c, entry, ("thermal", key, name), rows)
+
+
+def _temp_polynomial(c: _Checker, value: Any, keys: Keys, rows: int) -> None:
+    """An entry of ``thermal.scale``/``thermal.misalignment`` (``station.engines.thermal.intrinsics``)."""
+    entry = c.mapping(value, keys)
+    for key in ("clamp", "powers", "coeffs"):
+        if key not in entry:
+            raise c.fail(keys, f"lacks the required key '{key}'")
+    clamp = entry["clamp"]
+    if not isinstance(clamp, list) or len(clamp) != 2:
+        raise c.fail((*keys, "clamp"), f"must be [min, max] in degC, not {_shown(clamp)}")
+    low, high = (c.number(v, (*keys, "clamp", i), *TEMP_RANGE, "degC") for i, v in enumerate(clamp))
+    if not np.float32(low) < np.float32(high):
+        raise c.fail((*keys, "clamp"), f"[{low:g}, {high:g}] degC is not a range (min not below max)")
+    powers = entry["powers"]
+    if (not isinstance(powers, list) or not 1 <= len(powers) <= 3 or len(set(map(str, powers))) != len(powers)
+            or any(isinstance(p, bool) or p not in (1, 2, 3) for p in powers)):
+        raise c.fail((*keys, "powers"),
+                     f"must list distinct powers of t among 1, 2 and 3, not {_shown(powers)}")
+    what = "per degC^k (k the power)"
+    c.array(entry["coeffs"], (*keys, "coeffs"), (rows, len(powers)), COEFF_LIMIT, what)
+    if entry.get("stddev") is not None:
+        c.array(entry["stddev"], (*keys, "stddev"), (rows, len(powers)), COEFF_LIMIT, what)
+        _not_negative(c, entry["stddev"], (*keys, "stddev"))
 
 
 def _thermal_triad(c: _Checker, value: Any, keys: Keys, unit: str) -> None:

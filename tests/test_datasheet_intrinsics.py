@@ -1,0 +1,88 @@
+"""The datasheet's figures of a calibration across temperature: the scale factor's temperature coefficient
+(ppm/degC) and the misalignment's change over the range (urad), from ``thermal.scale`` and
+``thermal.misalignment``, checked against closed forms and numpy's own polynomial fit, in the table that
+``characterise --datasheet`` prints."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from export_params import make_params
+
+from station import cli
+from station.engines.thermal.intrinsics import OFF_DIAGONAL, TempPolynomial
+from station.report.datasheet import datasheet_rows
+
+T_MIN, T_MAX, T_REF = -20.0, 60.0, 25.0
+SCALE = np.array([[2.0e-4, 1.0e-6], [-1.5e-4, 0.0], [1.0e-4, -2.0e-6]])  # per axis: t, t^2 (1/degC, 1/degC^2)
+MISALIGNMENT = np.array([[3e-6], [-2e-6], [1e-6], [0.0], [4e-6], [-1e-6]])  # rad/degC, entries xy .. zy
+
+
+@pytest.fixture
+def unit_file(tmp_path):
+    params = make_params(seed=5)
+    assert params.thermal is not None
+    params.thermal.scale["gyro"] = TempPolynomial(T_MIN, T_MAX, (1, 2), SCALE)
+    params.thermal.misalignment["gyro"] = TempPolynomial(T_MIN, T_MAX, (1,), MISALIGNMENT)
+    path = tmp_path / "unit.yaml"
+    params.save(path)
+    return path
+
+
+def test_scale_temperature_coefficient_is_the_least_squares_slope_in_ppm(unit_file) -> None:
+    doc = yaml.safe_load(unit_file.read_text())
+    rows = {r.figure: r for r in datasheet_rows(doc)}
+    row = rows["gyro scale-factor temperature coefficient"]
+    k = np.asarray(doc["gyro"]["scale"], float)
+    # Closed form: the least-squares slope of c1 t + c2 t^2 over temperatures spread evenly on [a, b] is
+    # c1 + 2 c2 (mean T - T_ref).
+    closed = (SCALE[:, 0] + 2.0 * SCALE[:, 1] * ((T_MIN + T_MAX) / 2 - T_REF)) / k * 1e6
+    assert row.unit == "ppm/degC"
+    assert row.values == pytest.approx(closed, rel=1e-9)
+    temp = np.linspace(T_MIN, T_MAX, 101)
+    t = temp - T_REF
+    for i in range(3):
+        slope = np.polynomial.polynomial.polyfit(temp, SCALE[i, 0] * t + SCALE[i, 1] * t**2, 1)[1]
+        assert row.values[i] == pytest.approx(slope / k[i] * 1e6, rel=1e-9)
+    assert "accel scale-factor temperature coefficient" not in rows  # only the gyro was calibrated so
+
+
+def test_misalignment_change_over_the_range_in_microradians(unit_file) -> None:
+    rows = {r.figure: r for r in datasheet_rows(yaml.safe_load(unit_file.read_text()))}
+    row = rows["gyro misalignment change over temperature"]
+    change = np.zeros((3, 3))
+    for c, (i, j) in enumerate(OFF_DIAGONAL):
+        change[i, j] = abs(MISALIGNMENT[c, 0]) * (T_MAX - T_MIN)  # linear: the change is |slope| x range
+    assert row.unit == "urad"
+    assert row.values == pytest.approx(np.sqrt((change**2).sum(axis=1)) * 1e6, rel=1e-9)
+
+
+def test_characterise_datasheet_prints_the_figures(unit_file, capsys) -> None:
+    assert cli.main(["characterise", "--datasheet", "--params", str(unit_file)]) == 0
+    out = capsys.readouterr().out
+    assert "gyro scale-factor temperature coefficient" in out and "ppm/degC" in out
+    assert "gyro misalignment change over temperature" in out
+    assert cli.main(["characterise", "--datasheet", "--params", str(unit_file), "--json"]) == 0
+    table = {r["figure"]: r for r in json.loads(capsys.readouterr().out)["datasheet"]["rows"]}
+    assert table["gyro misalignment change over temperature"]["values"][2] == pytest.approx(
+        np.hypot(4e-6, 1e-6) * (T_MAX - T_MIN) * 1e6)
+
+
+
+
+@pytest.mark.parametrize(("field", "value", "says"), [
+    ("coeffs", [[1e-4, 0.0]] * 2, "'thermal.scale.gyro.coeffs': must be a list of 3 lists"),
+    ("powers", [1, 4], "'thermal.scale.gyro.powers': must list distinct powers of t among 1, 2 and 3"),
+    ("clamp", [60, -20], "'thermal.scale.gyro.clamp': [60, -20] degC is not a range"),
+])
+def test_a_broken_polynomial_is_refused_naming_file_line_and_field(unit_file, capsys, field, value,
+                                                                   says) -> None:
+    doc = yaml.safe_load(unit_file.read_text())
+    doc["thermal"]["scale"]["gyro"][field] = value
+    unit_file.write_text(yaml.safe_dump(doc))
+    assert cli.main(["export", "-f", "c", str(unit_file), "-o", str(unit_file.parent / "c")]) == 4
+    err = capsys.readouterr().err
+    assert str(unit_file) in err and ", line " in err and says in err
