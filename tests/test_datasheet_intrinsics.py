@@ -70,9 +70,6 @@ def test_characterise_datasheet_prints_the_figures(unit_file, capsys) -> None:
     assert table["gyro misalignment change over temperature"]["values"][2] == pytest.approx(
         np.hypot(4e-6, 1e-6) * (T_MAX - T_MIN) * 1e6)
 
-
-
-
 @pytest.mark.parametrize(("field", "value", "says"), [
     ("coeffs", [[1e-4, 0.0]] * 2, "'thermal.scale.gyro.coeffs': must be a list of 3 lists"),
     ("powers", [1, 4], "'thermal.scale.gyro.powers': must list distinct powers of t among 1, 2 and 3"),
