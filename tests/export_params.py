@@ -13,6 +13,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.intrinsics import TempPolynomial
 from station.engines.thermal.model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
 from station.export.params.file import ParamsFile
 
@@ -95,4 +96,32 @@ def cubic_params(seed: int = 0) -> ParamsFile:
     params.accel = SensorCalibration.from_parts(1 + rng.normal(0, 0.01, 3), np.zeros((3, 3)),
                                                 rng.normal(0, 0.15, 3))
     params.gyro = SensorCalibration.from_parts(np.ones(3), np.zeros((3, 3)), rng.normal(0, 0.01, 3))
+    return params
+
+
+# Per-power spread of the thermal intrinsics polynomials (t, t^2, t^3): a MEMS triad's scale factor
+# moves 100-300 ppm/degC, its axes a few microradians per degC.
+SCALE_PER_POWER = np.array([2e-4, 2e-6, 2e-8])
+MISALIGNMENT_PER_POWER = np.array([3e-6, 5e-8, 5e-10])
+
+
+def add_thermal_intrinsics(params: ParamsFile, seed: int = 0, clamp: tuple[float, float] = (-10.0, 60.0),
+                           scale_powers: tuple[int, ...] = (1, 2, 3),
+                           misalignment_powers: tuple[int, ...] = (1, 2),
+                           triads: tuple[str, ...] = ("accel", "gyro"),
+                           misalignment: bool = True) -> ParamsFile:
+    """``params`` with ``thermal.scale`` and ``thermal.misalignment`` polynomials for ``triads``
+    (a thermal section at 25 degC is added where the file has none)."""
+    rng = np.random.default_rng(seed + 2000)
+    if params.thermal is None:
+        params.thermal = ThermalModel(25.0, DtempFilter("ema", 12.0))
+    for name in triads:
+        idx = [p - 1 for p in scale_powers]
+        params.thermal.scale[name] = TempPolynomial(
+            clamp[0], clamp[1], scale_powers, rng.normal(0.0, 1.0, (3, len(idx))) * SCALE_PER_POWER[idx])
+        if misalignment:
+            idx = [p - 1 for p in misalignment_powers]
+            params.thermal.misalignment[name] = TempPolynomial(
+                clamp[0], clamp[1], misalignment_powers,
+                rng.normal(0.0, 1.0, (6, len(idx))) * MISALIGNMENT_PER_POWER[idx])
     return params

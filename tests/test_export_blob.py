@@ -1,6 +1,7 @@
 """The parameter blob: its documented layout byte by byte, a lossless round trip to float32, the
-version 1 blobs of tests/data/blob-v1 still read, and refusal of damaged or impossible content with
-a message that says what is wrong."""
+version 1 and 2 blobs of tests/data/blob-v1 and blob-v2 still read, and refusal of damaged or
+impossible content with a message that says what is wrong. (The version 3 thermal intrinsics block:
+tests/test_blob_thermal_intrinsics.py.)"""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from station.export.firmware import blob as blobfmt
 from station.export.params.file import ParamsFile
 
 V1_BLOBS = Path(__file__).parent / "data" / "blob-v1"
+V2_BLOBS = Path(__file__).parent / "data" / "blob-v2"
 
 
 def test_layout_matches_the_documented_table() -> None:
@@ -25,7 +27,7 @@ def test_layout_matches_the_documented_table() -> None:
     data = blobfmt.build_blob(params, "bench-7", 1_795_000_123)
     assert data[0:4] == b"IMUC"
     version, header_size, total, schema, flags = struct.unpack_from("<HHIHH", data, 4)
-    assert (version, header_size, total, schema) == (2, 96, len(data), 1)
+    assert (version, header_size, total, schema) == (3, 96, len(data), 1)
     assert flags == 0b111111
     created, exported = struct.unpack_from("<qq", data, 16)
     assert created == int(dt.datetime(2026, 11, 22, 10, tzinfo=dt.UTC).timestamp())
@@ -50,14 +52,19 @@ def test_layout_matches_the_documented_table() -> None:
     assert np.array_equal(struct.unpack_from("<3f", data, mag_at + 36), np.float32(mag["bias"]))
     assert np.array_equal(struct.unpack_from("<9f", data, mag_at + 48),
                           np.float32(params.gyro.extra["g_sensitivity"]).ravel())
-    assert len(data) == 96 + 8 + 2 * 48 + 2 * (12 + 3 * 92) + 48 + 36 + 4
+    # Version 3: two thermal intrinsics blocks, here without polynomials: K = 1, S = 0, zeros.
+    intrinsics_at = mag_at + 48 + 36
+    for k in range(2):
+        block = struct.unpack_from("<40f", data, intrinsics_at + 160 * k)
+        assert block == (1.0, 1.0, 1.0, *[0.0] * 37)
+    assert len(data) == 96 + 8 + 2 * 48 + 2 * (12 + 3 * 92) + 48 + 36 + 2 * 160 + 4
 
 
 def test_round_trip_to_float32() -> None:
     params = make_params(seed=2, mag="accel", g_sensitivity=True)
     back = blobfmt.parse_blob(blobfmt.build_blob(params, "st", 0))
     assert back.serial == "SN-0042" and back.station_id == "st" and back.flags == 63
-    assert back.format_version == 2
+    assert back.format_version == 3 and back.reference_matrix == {}
     mag = params.other["mag"]
     assert np.allclose(back.mag.correction, mag["correction"], rtol=1e-6, atol=1e-7)
     assert np.allclose(back.mag.bias, mag["bias"], rtol=1e-7)
@@ -79,7 +86,7 @@ def test_sections_absent_become_identity_and_zero_segments() -> None:
     assert back.flags == blobfmt.FLAG_ACCEL and back.thermal is None
     assert back.mag is None and back.g_sensitivity is None
     assert np.array_equal(back.gyro.matrix, np.eye(3)) and np.array_equal(back.gyro.bias, np.zeros(3))
-    tail = struct.unpack_from("<21f", data, len(data) - 4 - 84)
+    tail = struct.unpack_from("<21f", data, len(data) - 4 - 320 - 84)
     assert tail == (1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, *[0] * 9)  # identity mag, zero G
 
 
@@ -112,6 +119,33 @@ def test_version_1_blobs_still_read(name: str, seed: int, sections: dict) -> Non
             ours = getattr(params.thermal, triad).evaluate(temp, dtemp, 25.0)
             assert np.allclose(getattr(back.thermal, triad).evaluate(temp, dtemp, back.reference_temp), ours,
                                rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize(("name", "sections"), [
+    ("imu_calib_v2_seed7_mag_g.bin", {"seed": 7, "mag": "accel", "g_sensitivity": True}),
+    ("imu_calib_v2_seed9.bin", {"seed": 9}),
+])
+def test_version_2_blobs_still_read(name: str, sections: dict) -> None:
+    """Blobs written by the station before format version 3 (tests/data/blob-v2/README.md): every
+    section as it was, no thermal intrinsics."""
+    data = (V2_BLOBS / name).read_bytes()
+    assert struct.unpack_from("<H", data, 4)[0] == 2
+    back = blobfmt.parse_blob(data)
+    params = make_params(**sections)
+    assert back.format_version == 2 and back.flags == blobfmt.flags_of(params)
+    assert back.station_id == "v2-fixture" and back.reference_matrix == {}
+    assert back.thermal is not None and back.thermal.scale == {} and back.thermal.misalignment == {}
+    assert np.allclose(back.gyro.correction, params.gyro.correction, rtol=1e-6, atol=1e-7)
+    assert np.array_equal(back.gyro.bias, np.float32(params.gyro.bias))
+    assert (back.mag is None) == ("mag" not in sections)
+    if back.mag is not None:
+        assert np.allclose(back.mag.correction, params.other["mag"]["correction"], rtol=1e-6, atol=1e-7)
+        assert np.allclose(back.g_sensitivity, params.gyro.extra["g_sensitivity"], rtol=1e-7, atol=0)
+    temp, dtemp = np.linspace(-20, 70, 40), np.linspace(-1, 1, 40)
+    for triad in ("accel", "gyro"):
+        ours = getattr(params.thermal, triad).evaluate(temp, dtemp, 25.0)
+        assert np.allclose(getattr(back.thermal, triad).evaluate(temp, dtemp, back.reference_temp), ours,
+                           rtol=1e-6, atol=1e-9)
 
 
 def test_long_strings_cut_on_a_character_boundary() -> None:

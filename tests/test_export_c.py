@@ -1,7 +1,8 @@
 """The exported C, compiled with gcc and g++ and linked with an independent harness
 (tests/test_export_harness.c), against ``apply_calibration``, ``apply_mag`` and ``estimate_dtemp``
 (what ``imu-station apply`` computes), on blobs of this version and on the version 1 blobs of
-tests/data/blob-v1.
+tests/data/blob-v1. (The thermal scale and misalignment, and version 2 blobs:
+tests/test_c_export_thermal_intrinsics.py.)
 
 Tolerances: corrected samples agree with the float64 reference within 2e-6 relative to the
 sample's magnitude (max(1, |raw|, |ref|) per row and sensor): float32 parameters and arithmetic give
@@ -223,12 +224,15 @@ def test_damaged_blobs_rejected_with_distinct_codes(unit: dict, tmp_path: Path) 
     cases = {
         "good": (good, 0),
         "magic": (b"IMUX" + good[4:], -1),
-        "version": (blob_with(good, 4, struct.pack("<H", 3), fix_crc=True), -2),
-        "version_crc_untouched": (blob_with(good, 4, struct.pack("<H", 3), fix_crc=False), -2),
+        "version": (blob_with(good, 4, struct.pack("<H", 4), fix_crc=True), -2),
+        "version_crc_untouched": (blob_with(good, 4, struct.pack("<H", 4), fix_crc=False), -2),
         "version_0": (blob_with(good, 4, struct.pack("<H", 0), fix_crc=True), -2),
-        "version_2_called_1": (blob_with(good, 4, struct.pack("<H", 1), fix_crc=True), -6),
-        "singular_mag": (blob_with(good, len(good) - 4 - 84, bytes(36), fix_crc=True), -6),
-        "nan_g_sensitivity": (blob_with(good, len(good) - 8, struct.pack("<f", np.nan), fix_crc=True), -6),
+        "version_3_called_1": (blob_with(good, 4, struct.pack("<H", 1), fix_crc=True), -6),
+        "version_3_called_2": (blob_with(good, 4, struct.pack("<H", 2), fix_crc=True), -6),
+        "singular_mag": (blob_with(good, len(good) - 4 - 320 - 84, bytes(36), fix_crc=True), -6),
+        "nan_g_sensitivity": (blob_with(good, len(good) - 4 - 320 - 4, struct.pack("<f", np.nan),
+                                        fix_crc=True), -6),
+        "nan_intrinsics": (blob_with(good, len(good) - 8, struct.pack("<f", np.nan), fix_crc=True), -6),
         "version_1_fixture": ((V1_BLOBS / "imu_calib_v1_seed7.bin").read_bytes(), 0),
         "version_1_truncated": (v1_accel[:-1], -3),
         "truncated": (good[:-1], -3),

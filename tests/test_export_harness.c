@@ -72,7 +72,9 @@ static int same_params(const imu_calib_t *a, const imu_calib_t *b)
         && same_thermal(&a->accel_thermal, &b->accel_thermal)
         && same_thermal(&a->gyro_thermal, &b->gyro_thermal)
         && memcmp(&a->mag, &b->mag, sizeof a->mag) == 0
-        && memcmp(a->g_sensitivity, b->g_sensitivity, sizeof a->g_sensitivity) == 0;
+        && memcmp(a->g_sensitivity, b->g_sensitivity, sizeof a->g_sensitivity) == 0
+        && memcmp(&a->accel_intrinsics, &b->accel_intrinsics, sizeof a->accel_intrinsics) == 0
+        && memcmp(&a->gyro_intrinsics, &b->gyro_intrinsics, sizeof a->gyro_intrinsics) == 0;
 }
 
 static void load_or_die(const char *path, imu_calib_t *p)

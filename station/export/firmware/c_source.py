@@ -2,17 +2,20 @@
 
 The C computes, in float32, what ``station.engines.shared.correction`` computes:
 
-    acc  = M_a^-1 (raw_a - b_a - B_a(T, dT)),   gyro = M_g^-1 (raw_g - b_g - B_g(T, dT) - G acc)
-    mag  = M_m^-1 (raw_m - b_m)                 (imu_calib_apply_mag)
+    acc  = M_a(T)^-1 (raw_a - b_a - B_a(T, dT)),   gyro = M_g(T)^-1 (raw_g - b_g - B_g(T, dT) - G acc)
+    mag  = M_m^-1 (raw_m - b_m)                       (imu_calib_apply_mag)
 
 with B the piecewise seven-term thermal bias of ``station.engines.thermal.model`` (T clamped
-to the calibrated range, dT to its clamp, segment chosen by its t_min) and G the gyro's
-g-sensitivity at the corrected specific force. The header carries the
+to the calibrated range, dT to its clamp, segment chosen by its t_min), G the gyro's
+g-sensitivity at the corrected specific force, and M(T) = diag(K + k(t)) (I + S + s(t)) of
+``station.engines.thermal.intrinsics`` (equation (1)) where the thermal section has the triad's
+scale or misalignment polynomials: built at the clamped T and inverted by cofactors per sample;
+the stored M^-1 where it has neither, or T is unknown. The header carries the
 unit's parameters as a ``const imu_calib_t`` initializer; ``imu_calib_load`` reads the same
 parameters from the blob (``station.export.firmware.blob``). Strings from the unit only ever reach the
 generated code through ``c_string_literal`` and ``c_comment_text``.
 
-Why this module is long: about 490 of its lines are the C header and source
+Why this module is long: about 580 of its lines are the C header and source
 templates (``HEADER_TEMPLATE``, ``SOURCE_TEMPLATE``), kept as Python strings beside the code that
 fills them so that the C and the station's reader are changed together (their rules must match).
 """
@@ -88,6 +91,15 @@ def _thermal_init(triad: ThermalBias | None) -> str:
     return f"{{{len(triad.segments)}u, {c_float(triad.dt_min)}, {c_float(triad.dt_max)}, {{{segments}}}}}"
 
 
+def _intrinsics_init(params: ParamsFile, name: str) -> str:
+    """The ``imu_calib_intrinsics_t`` initializer of a triad: the same float32 values as its blob block."""
+    values = blobfmt.intrinsics_values(params, name)
+    scale_rows, mis_rows = values[11:20].reshape(3, 3), values[22:40].reshape(6, 3)
+    return (f"{{{{{_floats(values[0:3])}}}, {{{_floats(values[3:9])}}}, {c_float(values[9])}, "
+            f"{c_float(values[10])}, {_matrix(scale_rows)}, {c_float(values[20])}, {c_float(values[21])}, "
+            f"{_matrix(mis_rows)}}}")
+
+
 def unit_initializer(params: ParamsFile, station_id: str, exported_utc: int) -> str:
     """The ``imu_calib_t`` initializer (C89-style positional, valid C99 and C++) of the unit."""
     triads = blobfmt.thermal_triads(params)
@@ -110,6 +122,8 @@ def unit_initializer(params: ParamsFile, station_id: str, exported_utc: int) -> 
         _thermal_init(triads["gyro"]),
         _triad_init(mag_calibration(params)),
         _matrix(blobfmt.g_sensitivity_or_zero(params)),
+        _intrinsics_init(params, "accel"),
+        _intrinsics_init(params, "gyro"),
     ]
     return "{ \\\n    " + ", \\\n    ".join(fields) + " \\\n}"
 
@@ -138,13 +152,17 @@ HEADER_TEMPLATE = """\
 @DESCRIPTION@
  *
  * Correction (SI units: m/s^2, rad/s, degC, degC/s; microtesla), the same as 'imu-station apply':
- *   acc  = M_a^-1 (raw_acc  - b_a - B_a(T, dT))
- *   gyro = M_g^-1 (raw_gyro - b_g - B_g(T, dT) - G acc)
+ *   acc  = M_a(T)^-1 (raw_acc  - b_a - B_a(T, dT))
+ *   gyro = M_g(T)^-1 (raw_gyro - b_g - B_g(T, dT) - G acc)
  *   mag  = M_m^-1 (raw_mag  - b_m)                       (imu_calib_apply_mag)
  *   B(T, dT) = c0 t^3 + c1 t^2 + c2 t + c3 dT^2 + c4 dT + c5 t dT + c6,  t = T - T_ref,
  * per axis, with T clamped to [t_min of the first segment, t_max of the last] and dT to
  * [dt_min, dt_max]; the segment is the last whose t_min <= T. B = 0 when there is no thermal
  * model or T is not finite. dT comes from imu_calib_dtemp_update, the station's own filter.
+ *   M(T) = diag(K + k(t)) (I + S + s(t)),  t = clamp(T, t_min, t_max) - T_ref,
+ * k and s polynomials in t without constant (coefficients of t, t^2, t^3), each with its own
+ * clamp, where the flags hold the triad's thermal scale or misalignment; M(T) is inverted by
+ * cofactors on each call. Without them, or with T not finite, M(T) is M(T_ref): the stored M^-1.
  * G is the gyro's g-sensitivity (rad/s per m/s^2) at the corrected specific force acc; zero
  * without one. Without a mag section imu_calib_apply_mag copies the raw field.
  */
@@ -158,7 +176,7 @@ HEADER_TEMPLATE = """\
 extern "C" {
 #endif
 
-#define IMU_CALIB_FORMAT_VERSION 2u       /* written; every version from 1 is read */
+#define IMU_CALIB_FORMAT_VERSION 3u       /* written; every version from 1 is read */
 #define IMU_CALIB_HEADER_SIZE 96u
 #define IMU_CALIB_TERMS 7
 #define IMU_CALIB_SERIAL_SIZE 32
@@ -177,6 +195,10 @@ extern "C" {
 #define IMU_CALIB_FLAG_GYRO_THERMAL 8u
 #define IMU_CALIB_FLAG_MAG 16u
 #define IMU_CALIB_FLAG_G_SENSITIVITY 32u
+#define IMU_CALIB_FLAG_ACCEL_THERMAL_SCALE 64u
+#define IMU_CALIB_FLAG_ACCEL_THERMAL_MISALIGNMENT 128u
+#define IMU_CALIB_FLAG_GYRO_THERMAL_SCALE 256u
+#define IMU_CALIB_FLAG_GYRO_THERMAL_MISALIGNMENT 512u
 
 /* imu_calib_load results */
 #define IMU_CALIB_OK 0
@@ -206,6 +228,18 @@ typedef struct {
     float bias[3];                        /* b, sensor units */
 } imu_calib_triad_t;
 
+/* A triad's scale factor and misalignment as functions of T; used where its flags are set. */
+typedef struct {
+    float scale[3];                       /* K: the diagonal of M(T_ref) */
+    float misalignment[6];                /* S: M_ij / K_i, in the order xy, xz, yx, yz, zx, zy */
+    float scale_t_min;                    /* degC: T clamped to [t_min, t_max] for k */
+    float scale_t_max;
+    float scale_coeffs[3][3];             /* k per axis: coefficients of t, t^2, t^3 */
+    float misalignment_t_min;             /* degC: T clamped to [t_min, t_max] for s */
+    float misalignment_t_max;
+    float misalignment_coeffs[6][3];      /* s per entry xy .. zy: coefficients of t, t^2, t^3 */
+} imu_calib_intrinsics_t;
+
 typedef struct {
     uint16_t format_version;
     uint16_t schema_version;              /* parameter file schema imu-station/params/N */
@@ -222,6 +256,8 @@ typedef struct {
     imu_calib_thermal_t gyro_thermal;
     imu_calib_triad_t mag;                /* M_m^-1 and hard iron, microtesla; identity and zero without */
     float g_sensitivity[3][3];            /* G, rad/s per m/s^2, row-major; zero without */
+    imu_calib_intrinsics_t accel_intrinsics; /* K = 1, S = 0 and zeros without (every version 1 or 2 blob) */
+    imu_calib_intrinsics_t gyro_intrinsics;
 } imu_calib_t;
 
 /* State of the dT estimator; start it with imu_calib_dtemp_init. */
@@ -235,11 +271,13 @@ typedef struct {
 /* Parse a parameter blob. 0 on success; a negative IMU_CALIB_ERR_* code for bad magic, unknown
    version, wrong length or CRC mismatch (checked in that order), then for content that breaks the
    blob's rules (non-finite number, singular correction, negative dT time constant, thermal
-   segments out of order or overlapping, too many segments), leaving *out untouched. */
+   segments out of order or overlapping, too many segments, an empty clamp of a thermal scale or
+   misalignment polynomial), leaving *out untouched. */
 int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len);
 
 /* Correct one sample: temperature in degC, its rate in degC/s, raw inputs in sensor units.
-   acc and gyro may alias raw_acc and raw_gyro. */
+   The temperature moves the thermal bias and, where the unit has them, the scale factor and
+   misalignment (M(T) above). acc and gyro may alias raw_acc and raw_gyro. */
 void imu_calib_apply(const imu_calib_t *p, float temp_c, float dtemp_c_per_s,
                      const float raw_acc[3], const float raw_gyro[3],
                      float acc[3], float gyro[3]);
@@ -295,6 +333,12 @@ typedef char imu_calib_float_is_binary32[(sizeof(float) == 4u) ? 1 : -1];
                                     2u * IMU_CALIB_THERMAL_HEAD_BYTES + IMU_CALIB_CRC_SIZE)
 #define IMU_CALIB_MIN_BLOB_SIZE_V2 (IMU_CALIB_MIN_BLOB_SIZE_V1 + IMU_CALIB_TRIAD_BYTES + \\
                                     IMU_CALIB_MATRIX_BYTES)
+#define IMU_CALIB_INTRINSICS_BYTES 160u
+#define IMU_CALIB_MIN_BLOB_SIZE_V3 (IMU_CALIB_MIN_BLOB_SIZE_V2 + 2u * IMU_CALIB_INTRINSICS_BYTES)
+#define IMU_CALIB_FLAGS_BEFORE_V3 0x3Fu
+
+/* The (row, column) of S's off-diagonal entries, in the order the blob stores them. */
+static const unsigned char imu_calib_off_diagonal[6][2] = {{0, 1}, {0, 2}, {1, 0}, {1, 2}, {2, 0}, {2, 1}};
 
 const imu_calib_t imu_calib_unit = IMU_CALIB_UNIT_INITIALIZER;
 
@@ -393,6 +437,29 @@ static int imu_calib_take_thermal(imu_calib_reader_t *r, imu_calib_thermal_t *th
     return r->ok ? IMU_CALIB_OK : IMU_CALIB_ERR_CONTENT;
 }
 
+/* One polynomial's clamp and rows of coefficients; a clamp that is not a range is refused where the
+   flag says the polynomial is there. */
+static void imu_calib_take_poly(imu_calib_reader_t *r, float *t_min, float *t_max, float *coeffs, size_t rows,
+                                uint32_t present)
+{
+    *t_min = imu_calib_take_f32(r);
+    *t_max = imu_calib_take_f32(r);
+    imu_calib_take_floats(r, coeffs, 3u * rows);
+    if (present && !(*t_min < *t_max)) {
+        r->ok = 0;
+    }
+}
+
+static void imu_calib_take_intrinsics(imu_calib_reader_t *r, imu_calib_intrinsics_t *in, uint32_t scale_flag,
+                                      uint32_t misalignment_flag)
+{
+    imu_calib_take_floats(r, in->scale, 3u);
+    imu_calib_take_floats(r, in->misalignment, 6u);
+    imu_calib_take_poly(r, &in->scale_t_min, &in->scale_t_max, &in->scale_coeffs[0][0], 3u, scale_flag);
+    imu_calib_take_poly(r, &in->misalignment_t_min, &in->misalignment_t_max, &in->misalignment_coeffs[0][0],
+                        6u, misalignment_flag);
+}
+
 /* Determinant of a correction matrix, by cofactors in double precision: the station's blob reader
    (station.export.firmware.blob) does the same operations in the same order, so both refuse the same
    blobs. */
@@ -422,10 +489,11 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
         return IMU_CALIB_ERR_MAGIC;
     }
     version = imu_calib_u16(blob + 4);
-    if (version != 1u && version != 2u) {
+    if (version < 1u || version > 3u) {
         return IMU_CALIB_ERR_VERSION;
     }
-    if (len < (version == 1u ? IMU_CALIB_MIN_BLOB_SIZE_V1 : IMU_CALIB_MIN_BLOB_SIZE_V2)
+    if (len < (version == 1u ? IMU_CALIB_MIN_BLOB_SIZE_V1
+               : (version == 2u ? IMU_CALIB_MIN_BLOB_SIZE_V2 : IMU_CALIB_MIN_BLOB_SIZE_V3))
         || (size_t)imu_calib_u32(blob + 8) != len) {
         return IMU_CALIB_ERR_LENGTH;
     }
@@ -478,6 +546,20 @@ int imu_calib_load(imu_calib_t *out, const uint8_t *blob, size_t len)
     } else {
         /* Version 1 has neither: the identity copies the field, a zero G removes nothing. */
         p.mag.correction[0][0] = p.mag.correction[1][1] = p.mag.correction[2][2] = 1.0f;
+    }
+    if (version >= 3u) {
+        imu_calib_take_intrinsics(&r, &p.accel_intrinsics, p.flags & IMU_CALIB_FLAG_ACCEL_THERMAL_SCALE,
+                                  p.flags & IMU_CALIB_FLAG_ACCEL_THERMAL_MISALIGNMENT);
+        imu_calib_take_intrinsics(&r, &p.gyro_intrinsics, p.flags & IMU_CALIB_FLAG_GYRO_THERMAL_SCALE,
+                                  p.flags & IMU_CALIB_FLAG_GYRO_THERMAL_MISALIGNMENT);
+        if (!r.ok) {
+            return IMU_CALIB_ERR_CONTENT;
+        }
+    } else {
+        /* Before version 3 those flag bits meant nothing: none of their blocks exists. */
+        p.flags &= IMU_CALIB_FLAGS_BEFORE_V3;
+        p.accel_intrinsics.scale[0] = p.accel_intrinsics.scale[1] = p.accel_intrinsics.scale[2] = 1.0f;
+        p.gyro_intrinsics.scale[0] = p.gyro_intrinsics.scale[1] = p.gyro_intrinsics.scale[2] = 1.0f;
     }
     if (r.pos != r.end || p.dtemp_tau_s < 0.0f) {
         return IMU_CALIB_ERR_CONTENT;
@@ -542,6 +624,75 @@ static void imu_calib_correct(const imu_calib_triad_t *c, const float raw[3], co
     }
 }
 
+/* k(t) or s(t) of one component: c0 t + c1 t^2 + c2 t^3, by Horner. */
+static float imu_calib_poly(const float c[3], float t)
+{
+    return t * (c[0] + t * (c[1] + t * c[2]));
+}
+
+/* M(T)^-1 (raw - b - extra) with M(T) = diag(K + k(t)) (I + S + s(t)) built at the clamped T and
+   inverted by cofactors; the stored M^-1 without the triad's polynomials or a finite T. A
+   determinant that is zero or not finite (polynomials that cancel K, far outside any fit) also
+   falls back to the stored M^-1 rather than give infinities. */
+static void imu_calib_correct_at(const imu_calib_triad_t *c, const imu_calib_intrinsics_t *in,
+                                 uint32_t scale_on, uint32_t misalignment_on, float t_ref, float temp_c,
+                                 const float raw[3], const float extra[3], float out[3])
+{
+    float k[3], u[3][3], m[3][3], adj[3][3], d[3], det, t;
+    int i, j;
+    if ((!scale_on && !misalignment_on) || !isfinite(temp_c)) {
+        imu_calib_correct(c, raw, extra, out);
+        return;
+    }
+    for (i = 0; i < 3; ++i) {
+        k[i] = in->scale[i];
+        for (j = 0; j < 3; ++j) {
+            u[i][j] = i == j ? 1.0f : 0.0f;
+        }
+    }
+    for (i = 0; i < 6; ++i) {
+        u[imu_calib_off_diagonal[i][0]][imu_calib_off_diagonal[i][1]] = in->misalignment[i];
+    }
+    if (scale_on) {
+        t = imu_calib_clamp(temp_c, in->scale_t_min, in->scale_t_max) - t_ref;
+        for (i = 0; i < 3; ++i) {
+            k[i] += imu_calib_poly(in->scale_coeffs[i], t);
+        }
+    }
+    if (misalignment_on) {
+        t = imu_calib_clamp(temp_c, in->misalignment_t_min, in->misalignment_t_max) - t_ref;
+        for (i = 0; i < 6; ++i) {
+            u[imu_calib_off_diagonal[i][0]][imu_calib_off_diagonal[i][1]] +=
+                imu_calib_poly(in->misalignment_coeffs[i], t);
+        }
+    }
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < 3; ++j) {
+            m[i][j] = k[i] * u[i][j];
+        }
+    }
+    adj[0][0] = m[1][1] * m[2][2] - m[1][2] * m[2][1];
+    adj[0][1] = m[0][2] * m[2][1] - m[0][1] * m[2][2];
+    adj[0][2] = m[0][1] * m[1][2] - m[0][2] * m[1][1];
+    adj[1][0] = m[1][2] * m[2][0] - m[1][0] * m[2][2];
+    adj[1][1] = m[0][0] * m[2][2] - m[0][2] * m[2][0];
+    adj[1][2] = m[0][2] * m[1][0] - m[0][0] * m[1][2];
+    adj[2][0] = m[1][0] * m[2][1] - m[1][1] * m[2][0];
+    adj[2][1] = m[0][1] * m[2][0] - m[0][0] * m[2][1];
+    adj[2][2] = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    det = m[0][0] * adj[0][0] + m[0][1] * adj[1][0] + m[0][2] * adj[2][0];
+    if (det == 0.0f || !isfinite(det)) {
+        imu_calib_correct(c, raw, extra, out);
+        return;
+    }
+    for (i = 0; i < 3; ++i) {
+        d[i] = raw[i] - c->bias[i] - extra[i];
+    }
+    for (i = 0; i < 3; ++i) {
+        out[i] = (adj[i][0] * d[0] + adj[i][1] * d[1] + adj[i][2] * d[2]) / det;
+    }
+}
+
 void imu_calib_apply(const imu_calib_t *p, float temp_c, float dtemp_c_per_s,
                      const float raw_acc[3], const float raw_gyro[3],
                      float acc[3], float gyro[3])
@@ -549,7 +700,9 @@ void imu_calib_apply(const imu_calib_t *p, float temp_c, float dtemp_c_per_s,
     float bias_acc[3], bias_gyro[3];
     imu_calib_thermal_bias(&p->accel_thermal, p->reference_temp, temp_c, dtemp_c_per_s, bias_acc);
     imu_calib_thermal_bias(&p->gyro_thermal, p->reference_temp, temp_c, dtemp_c_per_s, bias_gyro);
-    imu_calib_correct(&p->accel, raw_acc, bias_acc, acc);
+    imu_calib_correct_at(&p->accel, &p->accel_intrinsics, p->flags & IMU_CALIB_FLAG_ACCEL_THERMAL_SCALE,
+                         p->flags & IMU_CALIB_FLAG_ACCEL_THERMAL_MISALIGNMENT, p->reference_temp, temp_c,
+                         raw_acc, bias_acc, acc);
     if (p->flags & IMU_CALIB_FLAG_G_SENSITIVITY) {
         /* The bias the specific force adds, at the corrected sample; acc may alias raw_acc, which is
            why it is read only after the accel correction is complete. */
@@ -559,7 +712,9 @@ void imu_calib_apply(const imu_calib_t *p, float temp_c, float dtemp_c_per_s,
                 + p->g_sensitivity[i][2] * acc[2];
         }
     }
-    imu_calib_correct(&p->gyro, raw_gyro, bias_gyro, gyro);
+    imu_calib_correct_at(&p->gyro, &p->gyro_intrinsics, p->flags & IMU_CALIB_FLAG_GYRO_THERMAL_SCALE,
+                         p->flags & IMU_CALIB_FLAG_GYRO_THERMAL_MISALIGNMENT, p->reference_temp, temp_c,
+                         raw_gyro, bias_gyro, gyro);
 }
 
 void imu_calib_apply_mag(const imu_calib_t *p, const float raw_mag[3], float mag[3])
