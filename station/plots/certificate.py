@@ -1,4 +1,5 @@
-"""The certificate's plots as inline SVG: pose residuals, Allan deviation, thermal bias, magnetometer sphere.
+"""The certificate's plots as inline SVG: pose residuals, Allan deviation, thermal bias, scale factor and
+misalignment against temperature, magnetometer sphere.
 
 Each takes the parameter file's section (and, where it needs the samples, the capture it came
 from) and returns the ``<svg>`` text; colours and markers follow the station's PNGs
@@ -19,6 +20,7 @@ from station.engines.allan.terms import SENSOR_AXES
 from station.engines.calibration.common import pose_vector
 from station.engines.shared.sensor_model import SensorCalibration
 from station.engines.thermal.blocks import block_ids, still_poses
+from station.engines.thermal.intrinsics import OFF_DIAGONAL_NAMES
 from station.engines.thermal.model import ThermalModel
 from station.plots.allan import COLORS
 from station.plots.svg import new_figure, to_svg
@@ -284,6 +286,47 @@ def thermal_svg(params: Calibrated, points: dict[str, tuple[np.ndarray, np.ndarr
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, ncol=3, handlelength=1.2, columnspacing=0.8)
+    fig.tight_layout(pad=0.4)
+    return to_svg(fig)
+
+
+def intrinsics_svg(params: Calibrated) -> str:
+    """Per triad the scale factor's change (ppm of K) and the misalignment's (urad) against temperature, as
+    the thermal section's polynomials give them (``station.engines.thermal.intrinsics``, equation (2));
+    dashed beyond the calibrated range, where T is clamped."""
+    model = params.thermal
+    assert model is not None  # the caller draws this only for a file with scale or misalignment polynomials
+    triads = [name for name in ("accel", "gyro") if name in model.scale or name in model.misalignment]
+    fig, axes = new_figure(PAGE_WIDTH_IN, 1.9 * len(triads), len(triads), 2)
+    for row, name in zip(axes, triads, strict=True):
+        static = getattr(params, name)
+        k = static.scale if static is not None else np.ones(3)
+        title = "accelerometer" if name == "accel" else "gyroscope"
+        panels = ((model.scale.get(name), 1e6 / k, "xyz", "scale factor change (ppm)"),
+                  (model.misalignment.get(name), np.full(6, 1e6), OFF_DIAGONAL_NAMES,
+                   "misalignment change (urad)"))
+        for ax, (poly, factor, labels, ylabel) in zip(row, panels, strict=True):
+            ax.set_title(f"{title}: {ylabel.split(' change')[0]}", fontsize=8)
+            if poly is None:
+                ax.text(0.5, 0.5, "not calibrated across temperature", ha="center", va="center", fontsize=7,
+                        transform=ax.transAxes)
+                ax.set_axis_off()
+                continue
+            pad = 0.1 * (poly.t_max - poly.t_min)
+            grid = np.linspace(poly.t_min - pad, poly.t_max + pad, 300)
+            curve = poly.evaluate(grid, model.reference_temp) * factor
+            inside = (grid >= poly.t_min) & (grid <= poly.t_max)
+            colours = [*COLORS, "tab:purple", "tab:brown", "tab:olive"]
+            for c, label in enumerate(labels):
+                ax.plot(grid[inside], curve[inside, c], color=colours[c], lw=1.5, label=label)
+                for beyond in (grid < poly.t_min, grid > poly.t_max):
+                    ax.plot(grid[beyond], curve[beyond, c], color=colours[c], lw=1, ls="--")
+            ax.axvline(model.reference_temp, color="0.3", lw=0.8)
+            ax.set_xlabel("temperature (degC)", fontsize=7)
+            ax.set_ylabel(ylabel, fontsize=7)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=6, ncol=3, handlelength=1.2, columnspacing=0.8)
     fig.tight_layout(pad=0.4)
     return to_svg(fig)
 

@@ -237,6 +237,11 @@ def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
             caption += "with --capture, adds its block means)"
         plots.append({"title": "Bias against temperature", "svg": cert_plots.thermal_svg(params, points),
                       "caption": caption})
+    if params.thermal is not None and (params.thermal.scale or params.thermal.misalignment):
+        plots.append({"title": "Scale factor and misalignment against temperature",
+                      "svg": cert_plots.intrinsics_svg(params),
+                      "caption": "the calibration across temperature as the thermal section holds it, about "
+                                 f"{params.thermal.reference_temp:g} degC; dashed where T is clamped"})
     mag = params.other.get("mag")
     if isinstance(mag, dict):
         source = _section_capture(cert, "mag") or next(

@@ -1,7 +1,7 @@
-"""The datasheet's figures of a calibration across temperature: the scale factor's temperature coefficient
-(ppm/degC) and the misalignment's change over the range (urad), from ``thermal.scale`` and
-``thermal.misalignment``, checked against closed forms and numpy's own polynomial fit, in the table that
-``characterise --datasheet`` prints."""
+"""The figures of a calibration across temperature: the scale factor's temperature coefficient (ppm/degC)
+and the misalignment's change over the range (urad), from ``thermal.scale`` and ``thermal.misalignment``,
+checked against closed forms and numpy's own polynomial fit, in the table that ``characterise
+--datasheet`` prints and in the certificate with its plot (rendered in headless Chromium)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 import yaml
 from export_params import make_params
+from report_helpers import check_page, not_blank, screenshot
+from report_helpers import cli as run_cli
 
 from station import cli
 from station.engines.thermal.intrinsics import OFF_DIAGONAL, TempPolynomial
@@ -83,3 +85,15 @@ def test_a_broken_polynomial_is_refused_naming_file_line_and_field(unit_file, ca
     assert cli.main(["export", "-f", "c", str(unit_file), "-o", str(unit_file.parent / "c")]) == 4
     err = capsys.readouterr().err
     assert str(unit_file) in err and ", line " in err and says in err
+
+
+def test_the_certificate_shows_the_figures_and_their_plot(unit_file) -> None:
+    done = run_cli("report", str(unit_file), "-o", "unit.html", cwd=unit_file.parent)
+    assert done.returncode == 0, done.stderr
+    text = check_page(unit_file.parent / "unit.html")
+    assert "Scale factor and misalignment against temperature" in text
+    assert "gyro scale-factor temperature coefficient" in text and "ppm/degC" in text
+    assert "gyro misalignment change over temperature" in text
+    plot = text.split("Scale factor and misalignment against temperature", 1)[1]
+    assert plot.index("<svg") < plot.index("</svg>")  # the figure itself, right after its title
+    not_blank(screenshot(unit_file.parent / "unit.html", unit_file.parent))
