@@ -52,15 +52,8 @@ import numpy as np
 from station.engines.calibration.common import CalibrationReport
 from station.engines.shared.sensor_model import SensorCalibration
 from station.engines.thermal.design import Candidate, one_se
-from station.engines.thermal.intrinsics import OFF_DIAGONAL, TempPolynomial
-from station.engines.thermal.model import (
-    TERMS,
-    DtempFilter,
-    ThermalBias,
-    ThermalModel,
-    ThermalSegment,
-    slope_weights,
-)
+from station.engines.thermal.intrinsics import OFF_DIAGONAL, TempPolynomial, slope_weights
+from station.engines.thermal.model import TERMS, DtempFilter, ThermalBias, ThermalModel, ThermalSegment
 from station.errors import EngineInputError
 
 TRIADS = ("accel", "gyro")
@@ -71,7 +64,6 @@ MIN_SPAN_DEGC = 5.0
 MAX_ORDER = 3  # the powers thermal.scale and thermal.misalignment can hold
 NOMINAL_TEMP_DEGC = 25.0
 NOMINAL_WITHIN_DEGC = 10.0  # a soak this close to 25 degC is the reference; else the range's middle
-CURVE_POINTS = 101  # temperatures over the range the misalignment change is taken on
 TAU_WITHOUT_RATE_S = 15.0  # the dT filter stored with no dT terms, as the thermal engine stores it
 
 
@@ -234,12 +226,14 @@ class AcrossTemperature:
         tuple of ndarray, (3,)
         """
         fit = self.fits[f"{triad}.scale"]
-        temp, w = slope_weights(fit.t_min, fit.t_max)
-        gain = w @ fit._basis(temp)  # the slope is linear in the coefficients
         k_ref = fit.coeffs[:, 0]
-        slope = fit.coeffs @ gain / k_ref
+        poly = fit.polynomial()
+        if poly is None:
+            return np.zeros(3), np.zeros(3)
+        temp, w = slope_weights(fit.t_min, fit.t_max)
+        gain = w @ fit._basis(temp)  # the slope is linear in the coefficients: its variance g' C g
         sd = np.sqrt(np.maximum(np.einsum("p,cpq,q->c", gain, fit.cov, gain), 0.0)) / np.abs(k_ref)
-        return slope * 1e6, sd * 1e6
+        return poly.temperature_coefficient(fit.reference_temp) / k_ref * 1e6, sd * 1e6
 
     def misalignment_change_urad(self, triad: str) -> np.ndarray:
         """Each misalignment entry's change over the calibrated range (max - min of s(T)), urad, in
@@ -254,8 +248,8 @@ class AcrossTemperature:
         ndarray, (6,)
         """
         fit = self.fits[f"{triad}.misalignment"]
-        curve = fit.evaluate(np.linspace(fit.t_min, fit.t_max, CURVE_POINTS))
-        return (curve.max(axis=0) - curve.min(axis=0)) * 1e6
+        poly = fit.polynomial()
+        return np.zeros(6) if poly is None else poly.change_over_range(fit.reference_temp) * 1e6
 
     def bias_sensitivity(self, triad: str) -> np.ndarray:
         """The bias's temperature sensitivity per axis (slope over the range), the triad's unit per degC.
