@@ -47,6 +47,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_output_option(parser, required=True, metavar="OUTPUT.csv", help="corrected capture CSV to write")
 
 
+def _matrix_how(params: ParamsFile, triad: str, has_temp: bool) -> str:
+    """How the triad's section is applied: its constant matrix, or M(T) where the thermal section has the
+    triad's scale or misalignment polynomials (``station.engines.thermal.intrinsics`` equation (1))."""
+    if getattr(params, triad) is None:
+        return "absent (identity)"
+    thermal = params.thermal
+    drifts = [] if thermal is None else [
+        name for name, entries in (("scale", thermal.scale), ("misalignment", thermal.misalignment))
+        if triad in entries]
+    if thermal is None or not drifts:
+        return "matrix and bias"
+    what = " and ".join(f"thermal.{d}" for d in drifts)
+    if not has_temp:
+        return f"matrix and bias; {what} not applied: the input has no temperature column"
+    return (f"matrix M(T) at each sample's temperature ({what}, T_ref {thermal.reference_temp:g} degC) "
+            "and bias")
+
+
 def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[str, str]]:
     """The corrected capture and how each section was applied.
 
@@ -73,8 +91,8 @@ def apply_params(params: ParamsFile, capture: Capture) -> tuple[Capture, dict[st
     g_matrix = g_sensitivity(params)
     mag_cal = mag_calibration(params)
     how = {
-        "accel": "matrix and bias" if params.accel else "absent (identity)",
-        "gyro": "matrix and bias" if params.gyro else "absent (identity)",
+        "accel": _matrix_how(params, "accel", capture.temp is not None),
+        "gyro": _matrix_how(params, "gyro", capture.temp is not None),
         "g-sensitivity": "removed at the corrected specific force" if g_matrix is not None else "absent",
     }
     if params.thermal is None:

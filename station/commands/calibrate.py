@@ -43,6 +43,13 @@ Estimate the intrinsics of both triads, raw = K (I + S) true + b, from a capture
   fit minimises r = g - |a| (analytic Jacobian, Levenberg-Marquardt); the gyroscope fit integrates the
   calibrated rates (RK4) between static intervals and matches the gravity directions.
 --method auto (default): turntable when the capture has step labels, else free.
+--across-temperature (turntable): several labelled captures, each at one soak temperature (its 'temp'
+  column), each calibrated as above; bias, scale factor and misalignment of both triads are fitted as
+  polynomials in T (order by leave-one-out cross-validation, weighted by each soak's 1-sigma) and the
+  'accel', 'gyro' (at the reference temperature) and 'thermal' sections (bias change, thermal.scale,
+  thermal.misalignment) are written; prints every soak, the orders and the scale-factor temperature
+  coefficient (ppm/degC), misalignment change (urad) and bias sensitivity; --plot (default beside -o)
+  draws them against T.
 --method mag: the magnetometer (capture columns mx, my, mz) into the 'mag' section: hard iron, soft iron
   and the rotation to the accelerometer, fitted jointly with the dip constraint (the angle between
   gravity and the field is the same at every still pose), so a desk-bound session whose z axis stays
@@ -61,6 +68,7 @@ exit codes: 0 done, 4 unusable input (the message says what the data fail to det
 EPILOG = """\
 examples:
   imu-station calibrate twelve.csv --method turntable -o unit.yaml
+  imu-station calibrate m20.csv p00.csv p20.csv p40.csv p60.csv --across-temperature -o unit.yaml
   imu-station calibrate handheld.csv --method free --initial-still 30 --convention upper -o unit.yaml
   imu-station calibrate session.csv --latitude 45.07 --height 240 --json
   imu-station calibrate compass.csv --method mag --latitude 45.07 --longitude 7.68 -o unit.yaml"""
@@ -69,14 +77,16 @@ examples:
 # A station's height above the WGS-84 ellipsoid: from below the Dead Sea to above any laboratory.
 MIN_HEIGHT_M, MAX_HEIGHT_M = -1000.0, 10_000.0
 MAX_WINDOW_S = 60.0
+MAX_SOAK_SPREAD_DEGC = 2.0  # a soak's capture whose temperature moved more is flagged
 # The field magnitude --field accepts, microtesla: the Earth's is 22 to 67 uT; a lab's coil more.
 MIN_FIELD_UT, MAX_FIELD_UT = 1.0, 1000.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the calibrate command's options to ``parser``."""
-    parser.add_argument("input", type=Path, metavar="INPUT",
-                        help="capture CSV (.csv, .csv.gz) or capture file (.h5)")
+    parser.add_argument("input", type=Path, metavar="INPUT", nargs="+",
+                        help="capture CSV (.csv, .csv.gz) or capture file (.h5); several with "
+                             "--across-temperature, one per soak temperature")
     parser.add_argument("--method", choices=("auto", "turntable", "free", "mag"), default="auto",
                         help="turntable (labelled poses and rotations), free (hand-held), auto (default), "
                              "mag (the magnetometer)")
@@ -119,6 +129,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=RATE_HZ, metavar="HZ",
                         help="the sample rate the device was set to (default: the capture's device "
                              "info, if any); refused if the timestamps disagree")
+    parser.add_argument("--across-temperature", action="store_true",
+                        help="turntable method on one capture per soak temperature: bias, scale and "
+                             "misalignment as polynomials in T into the accel, gyro and thermal sections")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write a residual plot (PNG)")
 
@@ -419,6 +432,12 @@ def run(args: argparse.Namespace) -> int:
     from station.common.text import PATH_CHARS, printable
     from station.export.params.file import merge_sections, name_unit, open_for_unit
 
+    if args.across_temperature:
+        return run_across_temperature(args)
+    if len(args.input) > 1:
+        raise StationError(f"{len(args.input)} captures given: one is calibrated at a time; give one per "
+                           "soak temperature with --across-temperature (turntable method)")
+    args.input = args.input[0]
     if args.method == "mag":
         return run_mag(args)
     local_gravity(args)  # refuse bad options before reading a long capture
@@ -451,4 +470,112 @@ def run(args: argparse.Namespace) -> int:
     print_report(report, sys.stdout)
     for path, what in outputs.items():
         print(f"{printable(path, PATH_CHARS)}: {what}")
+    return ExitCode.OK
+
+
+def _soak_of(path: Path, args: argparse.Namespace) -> tuple[Any, dict[str, Any], list[str]]:
+    """Read one soak's capture and calibrate it as a single turntable capture is: the soak, the unit's
+    device info, and warnings (a capture whose temperature moved)."""
+    import numpy as np
+
+    from station.acquisition.capture import read_capture
+    from station.engines.thermal.intrinsics_fit import SoakCalibration
+    from station.errors import EngineInputError, InputFileError
+
+    capture = read_capture(path)
+    temp = None if capture.temp is None else np.asarray(capture.temp, float)
+    if temp is None or not np.any(np.isfinite(temp)):
+        raise InputFileError(path, "has no temperature (column 'temp'): each capture of a calibration "
+                             "across temperature is placed by its mean temperature; capture from a unit that "
+                             "reports it, or add the chamber's reading as a 'temp' column", column="temp")
+    try:
+        report = calibrate_capture(capture, args)
+    except EngineInputError as exc:
+        raise EngineInputError(f"{path}: {exc}") from None
+    warnings = [f"{path}: {w}" for w in report.warnings]
+    spread = float(np.nanmax(temp) - np.nanmin(temp))
+    if spread > MAX_SOAK_SPREAD_DEGC:
+        warnings.append(f"{path}: the temperature moved {spread:.1f} degC during the capture (the unit had "
+                        "not settled); it is placed at its mean")
+    return SoakCalibration(float(np.nanmean(temp)), report, path.name), capture.device, warnings
+
+
+def run_across_temperature(args: argparse.Namespace) -> int:
+    """--across-temperature: calibrate each capture, fit across temperature, merge the accel, gyro and
+    thermal sections into --output, print the soaks and figures (or JSON), write the plot."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from station.common.files import output_set, sha256_file
+    from station.common.text import PATH_CHARS
+    from station.console.across_temperature import across_dict, print_across
+    from station.console.markup import markup_safe
+    from station.engines.thermal.intrinsics_fit import MIN_SOAKS, fit_across_temperature
+    from station.export.params.file import merge_sections, name_unit, open_for_unit
+
+    if args.method not in ("auto", "turntable"):
+        raise StationError(f"--across-temperature calibrates labelled turntable captures; --method "
+                           f"{args.method} cannot be used with it (leave --method out, or give --method "
+                           "turntable)")
+    args.method = "turntable"
+    if len(args.input) < MIN_SOAKS:
+        raise StationError(f"--across-temperature needs captures at {MIN_SOAKS} or more soak temperatures "
+                           f"(5 or more to choose the curves' order); {len(args.input)} given")
+    local_gravity(args)  # refuse bad options before reading long captures
+    soaks, warnings, device = [], [], None
+    err = sys.stderr
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=Console(file=err), transient=True, disable=not err.isatty()) as progress:
+        task = progress.add_task("calibrating each soak", total=len(args.input))
+        for path in args.input:
+            progress.update(task, description=f"calibrating {markup_safe(path, PATH_CHARS)}")
+            soak, info, notes = _soak_of(path, args)
+            unit = name_unit(info, args.serial)
+            if device is None:
+                device = unit
+                if args.output:
+                    open_for_unit(args.output, device, replace=args.replace)  # refuse before the fits
+            elif unit.get("serial") and device.get("serial") and unit["serial"] != device["serial"]:
+                raise StationError(f"{path} is unit {unit['serial']}, {args.input[0]} unit "
+                                   f"{device['serial']}: a calibration across temperature is of one unit")
+            soaks.append(soak)
+            warnings += notes
+            progress.advance(task)
+        progress.update(task, description="fitting across temperature")
+        result = fit_across_temperature(soaks)
+    result.warnings[:0] = warnings
+    result.thermal.extra["across_temperature"]["soaks"] = [
+        {"capture": str(path), "sha256": sha256_file(path), "temp": soak.temp}
+        for path, soak in zip(args.input, soaks, strict=True)]
+    plot = args.plot
+    if plot is None and args.output:
+        plot = args.output.with_name(args.output.name.split(".")[0] + "-across-temperature.png")
+    outputs = {}
+    with output_set():  # the sections and their plot together, or neither
+        if args.output:
+            merge_sections(args.output, device, {"accel": result.accel, "gyro": result.gyro,
+                                                 "thermal": result.thermal}, replace=args.replace)
+            written = ("accel, gyro and thermal sections" if result.gyro is not None
+                       else "accel and thermal sections")
+            outputs[str(args.output)] = f"{written} written (T_ref {result.thermal.reference_temp:g} degC)"
+        if plot is not None:
+            from station.plots.across_temperature import plot_across_temperature
+
+            names = " ".join(p.name for p in args.input)
+            plot_across_temperature(result, plot, f"imu-station calibrate --across-temperature {names}")
+            outputs[str(plot)] = "plot of scale, misalignment and bias against temperature written"
+    if args.json:
+        import json
+
+        out = across_dict(result, [str(p) for p in args.input])
+        out["outputs"] = outputs
+        json.dump(out, sys.stdout, indent=1, allow_nan=False)
+        sys.stdout.write("\n")
+        return ExitCode.OK
+    console = Console(file=sys.stdout, width=160)
+    print_across(result, console)
+    for path, what in outputs.items():
+        console.print(f"{markup_safe(path, PATH_CHARS)}: {what}")
+    if not outputs:
+        console.print("nothing written: give -o PARAMS.yaml for the sections, --plot FILE.png for the plot")
     return ExitCode.OK
