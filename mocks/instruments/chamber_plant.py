@@ -49,12 +49,15 @@ class ChamberPlant:
         The controller's gradient up and down at power-up.
     min_c, max_c : float
         What the controller itself accepts as a setpoint.
+    initial_c : float, optional
+        Where the air and the unit start (default ``ambient_c``): a chamber taken over mid-campaign
+        (a resumed run) holds the unit where the campaign left it.
     """
 
     def __init__(self, clock: Callable[[], float] | None = None, *, speed: float = 1.0,
                  ambient_c: float = AMBIENT_C, tau_air_s: float = 60.0, tau_unit_s: float = 180.0,
                  tau_ambient_s: float = 1800.0, gradient_k_per_min: float = 3.0, min_c: float = -70.0,
-                 max_c: float = 180.0):
+                 max_c: float = 180.0, initial_c: float | None = None):
         if speed <= 0 or min(tau_air_s, tau_unit_s, tau_ambient_s) <= 0:
             raise ValueError("speed and the time constants must be positive")
         started = time.monotonic()
@@ -65,7 +68,8 @@ class ChamberPlant:
         self.tau_ambient_s = tau_ambient_s
         self.min_c = min_c
         self.max_c = max_c
-        self.setpoint_c = ambient_c
+        start_c = ambient_c if initial_c is None else float(initial_c)
+        self.setpoint_c = start_c
         self.gradient_up = gradient_k_per_min
         self.gradient_down = gradient_k_per_min
         self.running = False
@@ -74,8 +78,8 @@ class ChamberPlant:
         self._lock = threading.RLock()
         t0 = self.clock()
         self._t = [t0]
-        self._air = [ambient_c]
-        self._unit = [ambient_c]
+        self._air = [start_c]
+        self._unit = [start_c]
 
     # --- commands (what an emulator does when the driver asks) --------------------------------
 

@@ -57,7 +57,13 @@ MIN_SPEED, MAX_SPEED = 0.1, 20.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the run command's options to ``parser``."""
-    parser.add_argument("--plan", required=True, type=Path, metavar="PLAN.yaml", help="the factory plan")
+    parser.add_argument("--plan", type=Path, metavar="PLAN.yaml",
+                        help="the factory plan (with --resume: default the journal's, checked by SHA-256)")
+    parser.add_argument("--resume", type=Path, default=None, metavar="RUN_DIR",
+                        help="carry on a chamber campaign cut short (a crash, kill -9, a power cut) from the "
+                             "journal in its run folder: the steps journaled are kept (their files checked "
+                             "by SHA-256), the instruments brought back, the first step not journaled done "
+                             "next")
     parser.add_argument("--port", type=port, metavar="PORT",
                         help="the unit's serial port (device path or pyserial URL)")
     parser.add_argument("--table-port", type=port, metavar="PORT", help="the turntable's serial port")
@@ -78,10 +84,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--simulate: the simulated unit's intrinsics and noise (default 0)")
     parser.add_argument("--unplug-after", type=DURATION_S, default=None, metavar="S",
                         help="--simulate: pull the unit's cable after S seconds (to rehearse exit 3)")
-    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
+    parser.add_argument("--speed", type=float, default=None, metavar="X",
                         help="--simulate: run the simulated unit's clock X times faster than real time, "
-                             f"{MIN_SPEED:g} to {MAX_SPEED:g} (rehearsals; default 1)")
-    parser.add_argument("--serial", required=True, metavar="SN",
+                             f"{MIN_SPEED:g} to {MAX_SPEED:g} (rehearsals; default 1, a campaign's "
+                             "campaign.simulate.speed)")
+    parser.add_argument("--serial", default=None, metavar="SN",
                         help="the unit's serial number; 'auto' takes the one the unit reports")
     parser.add_argument("--station", default=None, metavar="ID",
                         help="this station's id (default $IMU_STATION_ID or the host name)")
@@ -95,6 +102,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> None:
+    if args.resume is None and (args.plan is None or args.serial is None):
+        raise StationError("give the --plan and the unit's --serial (or --resume RUN_DIR, a campaign's "
+                           "folder)")
     if args.simulate and (args.port or args.table_port or args.table or args.chamber or args.supply):
         raise StationError("give either --simulate or --port/--table-port (and instrument URLs), not both: "
                            "--simulate serves the plan's instruments simulated")
@@ -102,9 +112,12 @@ def _check(args: argparse.Namespace) -> None:
         raise StationError("give the unit's --port and the turntable's --table-port, or --simulate")
     if args.table_port and args.table:
         raise StationError("give the table's --table-port (the station's own table) or --table URL, not both")
-    if (args.unplug_after is not None or args.seed or args.speed != 1.0) and not args.simulate:
+    if (args.unplug_after is not None or args.seed or args.speed is not None) and not args.simulate:
         raise StationError("--seed, --speed and --unplug-after apply to --simulate only")
-    check_range("--speed", args.speed, MIN_SPEED, MAX_SPEED, unit="times real time")
+    if args.speed is not None:
+        check_range("--speed", args.speed, MIN_SPEED, MAX_SPEED, unit="times real time")
+    if args.resume is not None and args.seed:
+        raise StationError("--resume takes the simulated unit's --seed from the run's journal; leave it out")
 
 
 def summary(record: RunRecord) -> str:
@@ -132,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
     from station.factory.store_errors import RecordsUnavailable, wait_s
 
     _check(args)
+    resumed = resume_arguments(args)
     plan = load_plan(args.plan)
     plan_table = plan.instruments is not None and plan.instruments.table is not None
     if not args.simulate and not (args.table_port or args.table or plan_table):
@@ -143,18 +157,22 @@ def run(args: argparse.Namespace) -> int:
     plan = with_instruments(plan, {"chamber": args.chamber, "table": args.table, "supply": args.supply})
     station = args.station or os.environ.get("IMU_STATION_ID") or socket.gethostname()
     url = db_url(args)
-    handler = configure_logging(args.serial)
+    progress = CampaignProgress.start() if plan.campaign is not None and sys.stderr.isatty() else None
+    handler = configure_logging(args.serial, progress.stream if progress is not None else None)
     on_event = None
-    if args.events:
+    if args.events or progress is not None:
         def on_event(event: dict[str, Any]) -> None:
-            sys.stderr.write("@event " + json.dumps(event) + "\n")
-            sys.stderr.flush()
+            if progress is not None:
+                progress.update(event)
+            if args.events:
+                sys.stderr.write("@event " + json.dumps(event) + "\n")
+                sys.stderr.flush()
 
     request = RunRequest(plan=plan, serial=args.serial, station=station, port=args.port,
                          table_port=args.table_port, files_root=files_root(args, url), on_event=on_event,
                          simulate=SimulatedUnit(args.seed, unplug_after_s=args.unplug_after,
-                                                speed=args.speed)
-                         if args.simulate else None)
+                                                speed=_speed(args, plan))
+                         if args.simulate else None, resume=resumed)
     check_serial(request)  # before the record database is opened
     try:
         # A damaged or foreign database is refused before the unit is touched; one that is locked or
@@ -167,6 +185,8 @@ def run(args: argparse.Namespace) -> int:
         record = run_unit(request)
     finally:
         logging.getLogger("imu_station.factory").removeHandler(handler)
+        if progress is not None:
+            progress.stop()
     pending = keep(record, url, request.files_root)
     if args.json:
         sys.stdout.write(json.dumps(record.to_dict(), indent=1, allow_nan=False) + "\n")
@@ -178,6 +198,102 @@ def run(args: argparse.Namespace) -> int:
                       "reason": pending.reason})
         print(pending_line(record, pending, url, request.files_root), file=sys.stderr)
     return record.exit_code  # the unit's outcome, whether its record is stored or pending
+
+
+def _speed(args: argparse.Namespace, plan: Any) -> float:
+    if args.speed is not None:
+        return float(args.speed)
+    return plan.campaign.speed if plan.campaign is not None else 1.0
+
+
+def resume_arguments(args: argparse.Namespace) -> Path | None:
+    """With ``--resume``: the plan, serial and simulated seed from the run's journal where not given.
+
+    Returns
+    -------
+    Path or None
+        The run folder to resume.
+
+    Raises
+    ------
+    StationError
+        No resumable journal in the folder, or a --serial that is not the run's.
+    """
+    if args.resume is None:
+        return None
+    from station.factory.campaign import resume_folder
+
+    begin = resume_folder(args.resume)
+    if args.plan is None:
+        args.plan = Path(begin["plan"]["path"])
+    if args.serial is not None and args.serial not in ("auto", begin["serial"]):
+        raise StationError(f"--serial {args.serial}: the run in {args.resume} is unit {begin['serial']}")
+    args.serial = begin["serial"]
+    simulated = begin.get("simulate")
+    if simulated is not None and not args.simulate:
+        raise StationError(f"the run in {args.resume} was simulated: resume it with --simulate")
+    if simulated is None and args.simulate:
+        raise StationError(f"the run in {args.resume} ran on real instruments: resume it without --simulate")
+    if simulated is not None:
+        args.seed = int(simulated["seed"])
+    return Path(args.resume)
+
+
+class CampaignProgress:
+    """A campaign's live line on the terminal (rich): step i/N, soak i/N, the unit's temperature; the log
+    lines print above it."""
+
+    def __init__(self) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.console = Console(stderr=True)
+        self.progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                 TimeElapsedColumn(), console=self.console, redirect_stderr=False,
+                                 redirect_stdout=False)
+        self.task = self.progress.add_task("campaign", total=None)
+        self.where = "starting"
+        self.stream = _ConsoleStream(self.console)
+
+    @classmethod
+    def start(cls) -> CampaignProgress:
+        """Show the line until :meth:`stop`."""
+        progress = cls()
+        progress.progress.start()
+        return progress
+
+    def update(self, event: dict[str, Any]) -> None:
+        """Follow the run's events (``campaign``: a step begins; ``temperature``: a reading while waiting)."""
+        if event.get("event") == "campaign":
+            soak = f"soak {event['soak']}/{event['soaks']}" if event["soak"] else "end"
+            self.where = f"{soak} {event['temp_c']:g} degC: {event['kind']}"
+            self.progress.update(self.task, total=event["total"], completed=event["index"],
+                                 description=self.where)
+        elif event.get("event") == "temperature":
+            slope = event.get("slope")
+            text = f"{self.where} | unit {event['unit_c']:.2f} degC" + \
+                ("" if slope is None else f" ({slope:+.2f} degC/min)")
+            self.progress.update(self.task, description=text)
+        elif event.get("event") in ("phase", "outcome"):
+            self.progress.update(self.task, description=str(event.get("phase") or event.get("outcome")))
+
+    def stop(self) -> None:
+        """Leave the last line on the terminal."""
+        self.progress.stop()
+
+
+class _ConsoleStream:
+    """A text stream that prints through the rich console (log lines above the live line)."""
+
+    def __init__(self, console: Any):
+        self.console = console
+
+    def write(self, text: str) -> int:
+        self.console.print(text, end="", markup=False, highlight=False, soft_wrap=True)
+        return len(text)
+
+    def flush(self) -> None:
+        """Nothing kept back."""
 
 
 def pending_line(record: RunRecord, pending: Pending, url: str, root: Path) -> str:

@@ -60,6 +60,7 @@ from station.acquisition.sequences import Sequence
 from station.common.text import printable
 from station.common.yaml_file import read_yaml
 from station.errors import InputFileError, StationError
+from station.factory.campaign_plan import CampaignPlan, read_campaign
 from station.instruments.bench import InstrumentPlan, OnAbort, check_on_abort
 from station.instruments.limits import Limits
 
@@ -91,7 +92,8 @@ SI_UNIT = {"acceleration": "m/s^2", "rate": "rad/s", "angle": "rad", "ratio": ""
 EXPORT_FORMATS = ("c", "bin", "json", "yaml", "px4", "ardupilot")
 METHODS = ("turntable",)
 
-_TOP = {"schema", "name", "sequence", "device", "engine", "run", "limits", "export", "instruments"}
+_TOP = {"schema", "name", "sequence", "device", "engine", "run", "limits", "export", "instruments",
+        "campaign"}
 _SEQUENCE = {"name", "file", "rotations", "hold_s", "rotation_rate_dps", "settle_s"}
 _DEVICE = {"rate_hz", "protocol"}
 _ENGINE = {"method", "gravity", "latitude", "height"}
@@ -151,6 +153,7 @@ class Plan:
     limits: tuple[LimitSpec, ...] = ()
     export: tuple[str, ...] = ()
     instruments: InstrumentPlan | None = None
+    campaign: CampaignPlan | None = None
 
     @property
     def asks_serial(self) -> bool:
@@ -282,6 +285,8 @@ def load_plan(path: str | Path) -> Plan:
         fields["export"] = _export(r, top["export"])
     if "instruments" in top:
         fields["instruments"] = _instruments(r, top["instruments"])
+    if "campaign" in top:
+        fields["campaign"] = read_campaign(r, top["campaign"], fields.get("instruments"))
     return Plan(path=path, sha256=hashlib.sha256(raw).hexdigest(), **fields)
 
 

@@ -213,6 +213,8 @@ class RunRequest:
     simulate: SimulatedUnit | None = None
     files_root: Path = Path("imu-station-files")
     on_event: EventSink | None = None
+    resume: Path | None = None
+    """A campaign's run folder to carry on from its journal (``station.factory.campaign``)."""
 
 
 class _Stop(Exception):
@@ -245,6 +247,8 @@ class UnitRun:
         self._instruments_phase: Phase | None = None
         self._identities: dict[str, dict[str, str]] = {}
         self.files: Path | None = None
+        # The simulated unit's clock pace, settable while it runs (None on real instruments).
+        self.pace: Callable[[float], None] | None = None
 
     def _event(self, **kw: Any) -> None:
         if self.req.on_event is not None:
@@ -301,6 +305,7 @@ class UnitRun:
                 kinds = list(instruments.urls()) if instruments is not None else []
                 with simulated_rig(self.req.simulate, serial, self.req.plan.rate_hz,
                                    self.req.plan.protocol, instruments=kinds) as ports:
+                    self.pace = ports.pace
                     if self.req.operator is not None:
                         # A manual fixture in simulation: a simulated hand does what the script asks.
                         self.req.operator = SimulatedOperator(ports.rig, self.req.operator)
@@ -490,10 +495,7 @@ class UnitRun:
             self._connect_native(phase, port)
         else:
             self._connect_streaming(phase, port)
-        day = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-        self.files = (self.req.files_root / _dir_name(self.record.serial) /
-                      f"{day}-{self.record.run_id[:8]}").resolve()
-        self.files.mkdir(parents=True, exist_ok=True)
+        self.files = self._make_files()
         self.record.files_dir = str(self.files)
         if self.req.operator is None and self.bench is not None and self.bench.table is not None:
             assert self.req.plan.instruments is not None
@@ -508,6 +510,14 @@ class UnitRun:
             phase.measurements.append(Measurement("table.serial", table_info.get("serial", "")))
             log.info("turntable %s %s on %s", printable(table_info.get("model")),
                      printable(table_info.get("serial")), table_port)
+
+    def _make_files(self) -> Path:
+        """The run's folder, FILES/<serial>/<start>-<run id>, made."""
+        day = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        files = self.req.files_root / _dir_name(self.record.serial) / f"{day}-{self.record.run_id[:8]}"
+        files = files.resolve()
+        files.mkdir(parents=True, exist_ok=True)
+        return files
 
     def _connect_native(self, phase: Phase, port: str) -> None:
         """A unit of the native protocol: asked who it is, set to the plan's rate, started."""
@@ -544,7 +554,8 @@ class UnitRun:
         log.info("unit %s (%s) on %s at %d Hz", printable(self.record.serial),
                  printable(self.device.protocol), port, plan.rate_hz)
 
-    def _sequence(self, phase: Phase) -> RunResult:
+    def _sequence(self, phase: Phase, capture_name: str = "capture.csv", attachment: str = RAW_CAPTURE
+                  ) -> RunResult:
         plan = self.req.plan
         assert self.device is not None and self.files is not None
         inner = self.req.operator
@@ -554,7 +565,7 @@ class UnitRun:
         self._inner = inner
         self._factory_op = FactoryOperator(inner, self.deadline, self._relay)
         options = RunOptions(step_timeout_s=plan.step_timeout_s, max_attempts=plan.max_attempts)
-        capture_path = self.files / "capture.csv"
+        capture_path = self.files / capture_name
         recorder = Recorder(capture_path, device=self.device.info, with_step=True, port=self.device.port,
                             protocol=self.device.protocol)
         runner = SequenceRunner(self.device, plan.sequence, self._factory_op, options,
@@ -564,7 +575,7 @@ class UnitRun:
         finally:
             # The link with the clock guard's counts (outliers left out, jumps), not the device's alone.
             recorder.close(runner.link_stats().as_dict())
-            self._attach(phase, capture_path, RAW_CAPTURE)
+            self._attach(phase, capture_path, attachment)
         link = runner.link_stats().as_dict()
         accepted = sum(1 for s in result.steps if s.status == "accepted")
         phase.measurements.append(Measurement("sequence.steps_accepted", float(accepted), "",
@@ -669,7 +680,12 @@ def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord
     RunRecord
         The run's record (outcome, exit code, phases, measurements, attachments).
     """
-    record = UnitRun(request).execute()
+    if request.plan.campaign is not None or request.resume is not None:
+        from station.factory.campaign import CampaignRun  # the campaign is a UnitRun: imported here
+
+        record = CampaignRun(request).execute()
+    else:
+        record = UnitRun(request).execute()
     if store is not None:
         pending = keep(record, store, request.files_root)
         if pending is not None:

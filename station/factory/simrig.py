@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -32,7 +32,9 @@ class SimulatedUnit:
     ``table_turn_error``: the simulated table turns (1 + this) times the asked angle (a wrong gear).
     ``speed``: the unit's clock (and so the table's motion) runs this many times faster than the
     wall clock (rehearsals and tests; the plan's times stay in device seconds, its timeouts in
-    wall seconds).
+    wall seconds); a campaign changes it while it runs (``SimulatedPorts.pace``).
+    ``initial_c``: the simulated chamber's air and the unit start at this temperature (a resumed
+    campaign: where the journal left the unit), else at the room's.
     """
 
     seed: int = 0
@@ -40,6 +42,7 @@ class SimulatedUnit:
     unplug_after_s: float | None = None
     table_turn_error: float = 0.0
     speed: float = 1.0
+    initial_c: float | None = None
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,8 @@ class SimulatedPorts:
     table_port: str
     rig: Any
     instruments: dict[str, str] = field(default_factory=dict)
+    pace: Callable[[float], None] | None = None
+    """Sets the unit's clock to run this many times the wall clock from now on (continuous)."""
 
 
 @contextlib.contextmanager
@@ -88,7 +93,7 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float, protocol: st
     """
     from mocks.device import SimDevice
     from mocks.faults import FaultSpec
-    from mocks.pty_server import PtyServer
+    from mocks.instruments.warp import WarpPtyServer
     from mocks.truth import UnitTruth
     from mocks.turntable_sim import TurntableSim
 
@@ -103,10 +108,10 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float, protocol: st
         from station.frames.reader import load_description
 
         speak_frames(device, load_description(protocol.partition(":")[2]))
-    server = PtyServer(device, faults=faults, block_s=0.05, speed=unit.speed)
+    server = WarpPtyServer(device, faults=faults, block_s=0.05, speed=unit.speed)
     with server, TurntableSim(server.device, turn_error=unit.table_turn_error) as table, \
-            _instruments(server, kinds) as urls:
-        yield SimulatedPorts(server.port_path, table.port_path, server.device, urls)
+            _instruments(server, kinds, unit.initial_c) as urls:
+        yield SimulatedPorts(server.port_path, table.port_path, server.device, urls, server.set_speed)
 
 
 def _kinds(instruments: Iterable[str]) -> tuple[str, ...]:
@@ -122,15 +127,19 @@ def _kinds(instruments: Iterable[str]) -> tuple[str, ...]:
 
 
 @contextlib.contextmanager
-def _instruments(server: PtyServer, kinds: tuple[str, ...]) -> Iterator[dict[str, str]]:
-    """The simulated bench of ``kinds`` around the served unit, registered as ``sim://KIND``."""
+def _instruments(server: PtyServer, kinds: tuple[str, ...], initial_c: float | None = None
+                 ) -> Iterator[dict[str, str]]:
+    """The simulated bench of ``kinds`` around the served unit, registered as ``sim://KIND``; the
+    chamber's air and unit start at ``initial_c`` when given."""
     if not kinds:
         yield {}
         return
     from mocks.instruments.bench import simulated_bench
+    from mocks.instruments.chamber_plant import ChamberPlant
     from station.instruments.open import register_simulated
 
-    with simulated_bench(server.device, server.device_time_s, kinds) as bench:
+    plant = None if initial_c is None else ChamberPlant(server.device_time_s, initial_c=initial_c)
+    with simulated_bench(server.device, server.device_time_s, kinds, plant=plant) as bench:
         try:
             for kind, url in bench.urls.items():
                 register_simulated(kind, url)
