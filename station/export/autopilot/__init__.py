@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from station.export.autopilot.shared import six_poses as six_poses
     from station.export.autopilot.shared import symmetric_from as symmetric_from
     from station.export.autopilot.shared import symmetric_params as symmetric_params
+    from station.export.autopilot.shared import thermal_intrinsics_loss as thermal_intrinsics_loss
     from station.export.autopilot.shared import thermal_range as thermal_range
     from station.export.autopilot.shared import vector_params as vector_params
 
@@ -53,5 +54,6 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
                "InstanceOffsets", "Limitation", "limitations", "MAG_UNIT", "MagCorrection",
                "misalignment_size", "NEGLIGIBLE", "NOMINAL_TEMP", "Param", "polar", "POSE_NAMES",
                "reference_temp", "rotation_angle", "sanitize_comment", "six_poses", "symmetric_from",
-               "symmetric_params", "TargetCorrection", "thermal_range", "vector_params"),
+               "symmetric_params", "TargetCorrection", "thermal_intrinsics_loss", "thermal_range",
+               "vector_params"),
 })

@@ -13,6 +13,13 @@ W (raw - offset). Our correction C = M_m^-1 also turns the field into the accele
 positive definite): P is written, U is what the target cannot hold. P (raw - b) has exactly the
 length of C (raw - b), so the field's magnitude survives and only its direction turns, by U's
 angle; ``assess_mag`` measures that error with the target's own formula.
+
+Scale factor and misalignment as functions of temperature (``thermal.scale``,
+``thermal.misalignment``; M(T) = diag(K + k(t)) (I + S + s(t)), ``station.engines.thermal.intrinsics``):
+neither autopilot's temperature calibration (PX4 TC_*, ArduPilot INS_TCAL*) holds anything but a bias,
+so their change is lost whole. ``thermal_intrinsics_loss`` states it at the ends of each
+polynomial's clamp, where it is largest for a monotonic drift: the scale-factor change k_i(t) / K_i in
+ppm of K at T_ref, and the misalignment change s_ij(t) in microradians.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ import numpy as np
 from protocols.units import STANDARD_GRAVITY
 from station.engines.shared.correction import apply_calibration
 from station.engines.shared.sensor_model import SensorCalibration
+from station.engines.thermal.intrinsics import OFF_DIAGONAL_NAMES, TempPolynomial, matrices_at
 from station.engines.thermal.model import ThermalBias
 from station.export.params.file import ParamsFile
 from station.export.params.sections import field_norm, g_sensitivity, mag_calibration
@@ -46,6 +54,9 @@ InstanceOffsets = Callable[[dict[str, float], int, np.ndarray], tuple[np.ndarray
 # A target's magnetometer formula: parameters, instance, raw field (uT) -> corrected field (uT).
 MagCorrection = Callable[[dict[str, float], int, np.ndarray], np.ndarray]
 MAG_UNIT = "uT"
+PPM = 1e6
+URAD_PER_RAD = 1e6
+AXIS_NAMES = ("x", "y", "z")
 
 
 @dataclass
@@ -88,6 +99,9 @@ class AutopilotExport:
     limitations: list[Limitation] = field(default_factory=list)
     pose_errors: dict[str, dict[str, Any]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    thermal_intrinsics_lost: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """``thermal_intrinsics_loss`` of the parameter file: what the target drops of the scale-factor
+    and misalignment polynomials, per triad."""
     # What the target subtracts from raw accel and gyro at given temperatures (for the plot).
     offsets: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
 
@@ -96,14 +110,18 @@ class AutopilotExport:
         return {p.name: float(p.text()) for p in self.params}
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data for ``--json``: target, parameters, limitations, pose errors, notes."""
-        return {
+        """Plain data for ``--json``: target, parameters, limitations, pose errors, notes and, where the
+        file has thermal scale or misalignment polynomials, ``thermal_intrinsics_lost``."""
+        out = {
             "target": self.target,
             "parameters": {p.name: int(p.value) if p.kind == "int" else float(p.text()) for p in self.params},
             "limitations": [lim.to_dict() for lim in self.limitations],
             "pose_errors": self.pose_errors,
             "notes": self.notes,
         }
+        if self.thermal_intrinsics_lost:
+            out["thermal_intrinsics_lost"] = self.thermal_intrinsics_lost
+        return out
 
 
 def six_poses(magnitude: float) -> np.ndarray:
@@ -145,13 +163,16 @@ def fit_cubic(triad: ThermalBias, reference_temp: float, centre: float, t_min: f
 
 
 def thermal_range(params: ParamsFile) -> tuple[float, float] | None:
-    """[min t_min, max t_max] over the triads with a thermal model, or None."""
+    """[min t_min, max t_max] over the triads' thermal bias models and their scale and misalignment
+    polynomials' clamps, or None without any."""
     if params.thermal is None:
         return None
-    triads = [t for t in (params.thermal.accel, params.thermal.gyro) if t is not None]
-    if not triads:
+    spans = [(t.t_min, t.t_max) for t in (params.thermal.accel, params.thermal.gyro) if t is not None]
+    spans += [(poly.t_min, poly.t_max) for polys in (params.thermal.scale, params.thermal.misalignment)
+              for poly in polys.values()]
+    if not spans:
         return None
-    return min(t.t_min for t in triads), max(t.t_max for t in triads)
+    return min(lo for lo, _ in spans), max(hi for _, hi in spans)
 
 
 def reference_temp(params: ParamsFile) -> float:
@@ -160,10 +181,15 @@ def reference_temp(params: ParamsFile) -> float:
 
 
 def _raw(cal: SensorCalibration | None, triad: ThermalBias | None, t_ref: float, true: np.ndarray,
-         temp: np.ndarray) -> np.ndarray:
-    """raw = M true + b + B(T, 0), the forward model behind the correction."""
+         temp: np.ndarray, intrinsics: tuple[TempPolynomial | None, TempPolynomial | None] = (None, None)
+         ) -> np.ndarray:
+    """raw = M(T) true + b + B(T, 0), the forward model behind the correction (M(T) = M without the
+    triad's scale and misalignment polynomials)."""
     cal = cal or SensorCalibration.identity()
     raw = cal.forward(true)
+    if intrinsics != (None, None):
+        matrices = matrices_at(cal.matrix, temp, t_ref, *intrinsics)
+        raw = (matrices @ np.asarray(true, float)[:, :, None])[:, :, 0] + cal.bias
     if triad is not None:
         raw = raw + triad.evaluate(temp, np.zeros_like(temp), t_ref)
     return raw
@@ -207,8 +233,8 @@ def assess(params: ParamsFile, values: dict[str, float],
     acc_triad = thermal.accel if thermal is not None else None
     gyr_triad = thermal.gyro if thermal is not None else None
     g_matrix = g_sensitivity(params)
-    raw_acc = _raw(params.accel, acc_triad, t_ref, true_acc, grid_t)
-    raw_gyr = _raw(params.gyro, gyr_triad, t_ref, true_gyr, grid_t)
+    raw_acc = _raw(params.accel, acc_triad, t_ref, true_acc, grid_t, _intrinsics(params, "accel"))
+    raw_gyr = _raw(params.gyro, gyr_triad, t_ref, true_gyr, grid_t, _intrinsics(params, "gyro"))
     if g_matrix is not None:
         # Each gyro pose is taken at the accel pose of its row: the bias G f rides on it.
         raw_gyr = raw_gyr + true_acc @ g_matrix.T
@@ -233,6 +259,76 @@ def assess(params: ParamsFile, values: dict[str, float],
             "temperature_range": [float(temps[0]), float(temps[-1])],
         }
         out[name] = entry
+    return out
+
+
+def _intrinsics(params: ParamsFile, name: str) -> tuple[TempPolynomial | None, TempPolynomial | None]:
+    thermal = params.thermal
+    if thermal is None:
+        return None, None
+    return thermal.scale.get(name), thermal.misalignment.get(name)
+
+
+def thermal_intrinsics_loss(params: ParamsFile) -> dict[str, dict[str, Any]]:
+    """What a target holding bias alone over temperature drops of the thermal scale factor and
+    misalignment, at the ends of each polynomial's clamp (module docstring).
+
+    The scale-factor change relative to K at T_ref, k_i(t) / K_i, in ppm, and the misalignment change
+    s_ij(t) in microradians, equation (1) of ``station.engines.thermal.intrinsics`` at
+    t = t_min - T_ref and t = t_max - T_ref (K the diagonal of the section's matrix; 1 without one).
+
+    Parameters
+    ----------
+    params : ParamsFile
+
+    Returns
+    -------
+    dict
+        Per triad with a polynomial, ``reference_temp`` and, per polynomial present, ``scale``:
+        ``{"unit": "ppm", "components": [x, y, z], "temps": [t_min, t_max], "change": [[at t_min,
+        at t_max] per axis], "largest": max |change|}``, ``misalignment`` the same in ``urad`` over
+        the components xy, xz, yx, yz, zx, zy. Empty without polynomials.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    if params.thermal is None:
+        return out
+    t_ref = params.thermal.reference_temp
+    for name in ("accel", "gyro"):
+        scale, misalignment = _intrinsics(params, name)
+        if scale is None and misalignment is None:
+            continue
+        entry: dict[str, Any] = {"reference_temp": t_ref}
+        k0 = np.diag((getattr(params, name) or SensorCalibration.identity()).matrix)
+        for key, poly, unit, components, factor in (
+                ("scale", scale, "ppm", AXIS_NAMES, PPM / k0[:, None]),
+                ("misalignment", misalignment, "urad", OFF_DIAGONAL_NAMES, URAD_PER_RAD)):
+            if poly is None:
+                continue
+            ends = np.array([poly.t_min, poly.t_max])
+            change = poly.evaluate(ends, t_ref).T * factor  # (components, 2)
+            entry[key] = {"unit": unit, "components": list(components), "temps": ends.tolist(),
+                          "change": change.tolist(), "largest": float(np.max(np.abs(change)))}
+        out[name] = entry
+    return out
+
+
+def _intrinsics_limitations(target: str, lost: dict[str, dict[str, Any]]) -> list[Limitation]:
+    """The loss of ``thermal_intrinsics_loss`` as limitations, one per triad and polynomial."""
+    holds = "TC_* thermal parameters hold" if target == "px4" else "INS_TCAL* parameters hold"
+    out = []
+    for name, entry in lost.items():
+        for key, what in (("scale", "scale factor over temperature"),
+                          ("misalignment", "misalignment over temperature")):
+            if key not in entry:
+                continue
+            e = entry[key]
+            lo, hi = e["temps"]
+            per = ", ".join(f"{c} {a:+.4g}/{b:+.4g}" for c, (a, b) in zip(e["components"], e["change"],
+                                                                          strict=True))
+            relative = " relative to K at" if key == "scale" else " from"
+            out.append(Limitation(name, what, e["largest"], e["unit"],
+                                  f"{holds} bias only; change{relative} {entry['reference_temp']:g} degC, at "
+                                  f"T = {lo:g}/{hi:g} degC ({e['unit']}): {per}"))
     return out
 
 
@@ -347,6 +443,8 @@ def finish_export(target: str, params: ParamsFile, out: list[Param], notes: list
     result.pose_errors = assess(params, values, lambda v, a, g, t: correct(v, instance, a, g, t))
     result.offsets = lambda temp: offsets(values, instance, temp)
     result.limitations = limitations(params, result.pose_errors, cubic_fits=fits)
+    result.thermal_intrinsics_lost = thermal_intrinsics_loss(params)
+    result.limitations += _intrinsics_limitations(target, result.thermal_intrinsics_lost)
     mag = assess_mag(params, values, lambda v, raw: correct_mag(v, instance, raw))
     if mag is not None:
         result.pose_errors["mag"], mag_limits = mag
