@@ -76,6 +76,8 @@ def test_characterise_datasheet_prints_the_figures(unit_file, capsys) -> None:
     ("coeffs", [[1e-4, 0.0]] * 2, "'thermal.scale.gyro.coeffs': must be a list of 3 lists"),
     ("powers", [1, 4], "'thermal.scale.gyro.powers': must list distinct powers of t among 1, 2 and 3"),
     ("clamp", [60, -20], "'thermal.scale.gyro.clamp': [60, -20] degC is not a range"),
+    ("stddev", [[1e-6, 0.0], [1e-6, -1e-7], [0.0, 0.0]],
+     "'thermal.scale.gyro.stddev[1][1]': -1e-07 is negative"),
 ])
 def test_a_broken_polynomial_is_refused_naming_file_line_and_field(unit_file, capsys, field, value,
                                                                    says) -> None:

@@ -158,3 +158,30 @@ def test_refusals_name_the_problem(sweep_csv, sweep_h5, tmp_path, capsys) -> Non
     with pytest.raises(SystemExit):
         cli.main(["thermal", str(sweep_csv), "-o", str(tmp_path / "p.yaml"), "--terms", "t4"])
     assert "unknown terms" in capsys.readouterr().err
+
+
+def test_a_new_bias_fit_keeps_the_calibration_across_temperature(unit, sweep_csv, tmp_path, capsys) -> None:
+    from station.engines.thermal.intrinsics import TempPolynomial
+    from station.engines.thermal.model import DtempFilter, ThermalModel
+
+    params_path = tmp_path / "unit.yaml"
+    calibrated_params(unit, params_path)
+    params = ParamsFile.load(params_path)
+    scale = TempPolynomial(-20.0, 60.0, (1,), [[2e-4], [1e-4], [-1e-4]], [[1e-6], [1e-6], [1e-6]])
+    misalignment = TempPolynomial(-20.0, 60.0, (1, 2), np.full((6, 2), 1e-7))
+    params.thermal = ThermalModel(21.5, DtempFilter(), scale={"gyro": scale},
+                                  misalignment={"accel": misalignment})
+    params.save(params_path)
+    before = yaml.safe_load(params_path.read_text())["thermal"]
+
+    assert cli.main(["thermal", str(sweep_csv), "-o", str(params_path), "--reference-temp", "30"]) == 4
+    err = capsys.readouterr().err
+    assert f"{params_path}, column 'thermal.reference_temp': holds a calibration across temperature about " \
+           "21.5 degC" in err
+    assert yaml.safe_load(params_path.read_text())["thermal"] == before  # nothing written
+
+    assert cli.main(["thermal", str(sweep_csv), "-o", str(params_path)]) == 0
+    after = yaml.safe_load(params_path.read_text())["thermal"]
+    assert after["reference_temp"] == 21.5  # the bias is fitted about the polynomials' own T_ref
+    assert after["scale"] == before["scale"] and after["misalignment"] == before["misalignment"]
+    assert after["gyro"] is not None and after["accel"] is not None  # the new bias model beside them

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from protocols.units import STANDARD_GRAVITY
 from station.console.options import (
@@ -19,6 +20,9 @@ from station.console.options import (
     positive,
 )
 from station.errors import ExitCode, InputFileError
+
+if TYPE_CHECKING:
+    from station.engines.thermal.model import ThermalModel
 
 NAME = "thermal"
 HELP = "fit the bias against temperature and its rate from a still temperature sweep"
@@ -119,6 +123,19 @@ def _terms(text: str) -> list[str]:
     return names
 
 
+def _reference_temp(args: argparse.Namespace, held: ThermalModel | None) -> float | None:
+    """--reference-temp, or, where the file holds a calibration across temperature, the temperature its
+    polynomials are about (the new bias model must share it); another --reference-temp is refused."""
+    if held is None or not (held.scale or held.misalignment):
+        return args.reference_temp
+    if args.reference_temp is not None and abs(args.reference_temp - held.reference_temp) > 1e-9:
+        raise InputFileError(args.output, f"holds a calibration across temperature about "
+                             f"{held.reference_temp:g} degC: fit the bias about it (leave --reference-temp "
+                             f"out, or give {held.reference_temp:g}), or write to another file",
+                             column="thermal.reference_temp")
+    return float(held.reference_temp)
+
+
 def run(args: argparse.Namespace) -> int:
     """Fit the sweep, write the thermal section, print the report (or JSON)."""
     from rich.console import Console
@@ -149,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         settings = ThermalSettings(
             gravity=args.gravity, segments=args.joins if args.joins else args.segments, terms=args.terms,
             max_segments=args.max_segments,
-            reference_temp=args.reference_temp, tau_s=args.tau, fit_scale=not args.no_scale,
+            reference_temp=_reference_temp(args, params.thermal), tau_s=args.tau, fit_scale=not args.no_scale,
         )
         sweep = ThermalSweep(capture.t, capture.temp, capture.acc, capture.gyro, capture.step,
                              accel_cal=params.accel, gyro_cal=params.gyro)
@@ -161,7 +178,9 @@ def run(args: argparse.Namespace) -> int:
 
                 plot_thermal(fit, args.plot)
             progress.update(task, description=f"writing {markup_safe(args.output, PATH_CHARS)}")
-            merge_sections(args.output, device, {"thermal": fit.model}, capture=args.input,
+            # A bias fit does not make the scale and misalignment polynomials: the file's are kept.
+            merge_sections(args.output, device, {"thermal": fit.model.keeping_intrinsics(params.thermal)},
+                           capture=args.input,
                            replace=args.replace)
     calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
     for message in fit.warnings:

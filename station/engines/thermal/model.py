@@ -16,7 +16,7 @@ firmware estimates dT the same way; see :func:`estimate_dtemp`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -281,6 +281,34 @@ class ThermalModel:
                 out[key] = {name: poly.to_dict() for name, poly in entries.items()}
         out.update(self.extra)
         return out
+
+    def keeping_intrinsics(self, held: ThermalModel | None) -> ThermalModel:
+        """This model (a new bias fit) with the scale-factor and misalignment polynomials of ``held`` (the
+        section it replaces), which a bias fit alone does not make: a file calibrated across temperature
+        keeps that calibration when its thermal bias is fitted again.
+
+        Parameters
+        ----------
+        held : ThermalModel or None
+            The thermal section already in the file.
+
+        Returns
+        -------
+        ThermalModel
+
+        Raises
+        ------
+        ValueError
+            ``held`` has polynomials about another reference temperature (they are relative to the
+            ``accel``/``gyro`` sections' values at that temperature).
+        """
+        if held is None or not (held.scale or held.misalignment):
+            return self
+        if abs(held.reference_temp - self.reference_temp) > 1e-9:
+            raise ValueError(f"the file's calibration across temperature is about {held.reference_temp:g} "
+                             f"degC and this fit about {self.reference_temp:g} degC; fit about "
+                             f"{held.reference_temp:g} degC (--reference-temp {held.reference_temp:g})")
+        return replace(self, scale=dict(held.scale), misalignment=dict(held.misalignment))
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ThermalModel:

@@ -254,7 +254,10 @@ def _temp_polynomial(c: _Checker, value: Any, keys: Keys, rows: int) -> None:
     c.array(entry["coeffs"], (*keys, "coeffs"), (rows, len(powers)), COEFF_LIMIT, what)
     if entry.get("stddev") is not None:
         c.array(entry["stddev"], (*keys, "stddev"), (rows, len(powers)), COEFF_LIMIT, what)
-        _not_negative(c, entry["stddev"], (*keys, "stddev"))
+        for r, row in enumerate(entry["stddev"]):
+            for j, sd in enumerate(row):
+                if sd < 0:
+                    raise c.fail((*keys, "stddev", r, j), f"{sd:g} is negative; a 1-sigma is at least 0")
 
 
 def _thermal_triad(c: _Checker, value: Any, keys: Keys, unit: str) -> None:

@@ -11,7 +11,7 @@ from textual.widgets import Static
 
 from station.acquisition.runner import samples_to_capture
 from station.console.thermal_report import format_report
-from station.engines.thermal.fit import ThermalSweep, fit_thermal
+from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
 from station.errors import StationError
 from station.export.params.file import ParamsFile
 from station.tui.messages import LinkFailed, Snapshot
@@ -147,13 +147,18 @@ class ThermalScreen(LongRecordingScreen):
             if capture.temp is None:
                 raise StationError("the recording has no temperature readings; the unit must send its "
                                    "temperature for a thermal model")
+            held = params.thermal
+            # A file calibrated across temperature keeps its polynomials: the bias is fitted about its T_ref.
+            across = held is not None and bool(held.scale or held.misalignment)
+            settings = ThermalSettings(reference_temp=held.reference_temp if across and held else None)
             fit = fit_thermal(ThermalSweep(capture.t, capture.temp, capture.acc, capture.gyro,
-                                           accel_cal=params.accel, gyro_cal=params.gyro))
+                                           accel_cal=params.accel, gyro_cal=params.gyro), settings)
+            section = fit.model.keeping_intrinsics(held)
         except (StationError, ValueError) as exc:
             self.post_message(LinkFailed(StationError(f"the thermal fit failed: {exc}")))
             return
         calibrated = {"accel": params.accel is not None, "gyro": params.gyro is not None}
-        self.post_message(Snapshot({"fit": format_report(fit, calibrated), "section": fit.model}))
+        self.post_message(Snapshot({"fit": format_report(fit, calibrated), "section": section}))
 
     def show_fit(self, report: str) -> None:
         """Show the fit's report."""
