@@ -23,12 +23,24 @@ SCALE = np.array([[2.0e-4, 1.0e-6], [-1.5e-4, 0.0], [1.0e-4, -2.0e-6]])  # per a
 MISALIGNMENT = np.array([[3e-6], [-2e-6], [1e-6], [0.0], [4e-6], [-1e-6]])  # rad/degC, entries xy .. zy
 
 
+# What a chamber campaign writes (station.factory.campaign): turn-on repeatability per soak, in SI.
+TURN_ON = [{"soak_c": -20.0, "accel_bias_repeatability": [2e-3, 3e-3, 4e-3],
+            "gyro_bias_repeatability": [1e-4, 2e-4, 3e-4]},
+           {"soak_c": 60.0, "accel_bias_repeatability": [5e-3, 6e-3, 7e-3],
+            "gyro_bias_repeatability": [4e-4, 5e-4, 6e-4]}]
+HYSTERESIS = {"accel_bias": [1e-3, -2e-3, 0.0], "gyro_bias": [1e-5, 0.0, -2e-5],
+              "accel_bias_max": [3e-3, 4e-3, 1e-3], "gyro_bias_max": [3e-5, 1e-5, 4e-5],
+              "bins": 70, "bin_c": 1.0, "t_min": -15.0, "t_max": 55.0}
+
+
 @pytest.fixture
 def unit_file(tmp_path):
     params = make_params(seed=5)
     assert params.thermal is not None
     params.thermal.scale["gyro"] = TempPolynomial(T_MIN, T_MAX, (1, 2), SCALE)
     params.thermal.misalignment["gyro"] = TempPolynomial(T_MIN, T_MAX, (1,), MISALIGNMENT)
+    params.other["characterisation"] = {"turn_ons": 3, "across_temperature": {
+        "soaks_c": [-20.0, 60.0], "turn_on": TURN_ON, "hysteresis": HYSTERESIS}}
     path = tmp_path / "unit.yaml"
     params.save(path)
     return path
@@ -60,6 +72,21 @@ def test_misalignment_change_over_the_range_in_microradians(unit_file) -> None:
         change[i, j] = abs(MISALIGNMENT[c, 0]) * (T_MAX - T_MIN)  # linear: the change is |slope| x range
     assert row.unit == "urad"
     assert row.values == pytest.approx(np.sqrt((change**2).sum(axis=1)) * 1e6, rel=1e-9)
+
+
+def test_campaign_turn_ons_per_soak_and_hysteresis_in_datasheet_units(unit_file) -> None:
+    rows = {r.figure: r for r in datasheet_rows(yaml.safe_load(unit_file.read_text()))}
+    deg = 180.0 / np.pi
+    assert rows["gyro turn-on bias repeatability at -20 degC"].values == pytest.approx(
+        [1e-4 * deg, 2e-4 * deg, 3e-4 * deg])
+    assert rows["accel turn-on bias repeatability at 60 degC"].unit == "mg"
+    assert rows["accel turn-on bias repeatability at 60 degC"].values == pytest.approx(
+        [5e-3 / 9.80665 * 1e3, 6e-3 / 9.80665 * 1e3, 7e-3 / 9.80665 * 1e3])
+    hysteresis = rows["gyro bias hysteresis (up - down)"]
+    assert hysteresis.unit == "deg/h" and hysteresis.values == pytest.approx([1e-5 * deg * 3600, 0.0,
+                                                                             -2e-5 * deg * 3600])
+    assert rows["accel bias hysteresis, largest"].values[1] == pytest.approx(4e-3 / 9.80665 * 1e3)
+    assert "70 bins of 1 degC over -15.0..55.0 degC" in hysteresis.measured_by
 
 
 def test_characterise_datasheet_prints_the_figures(unit_file, capsys) -> None:
@@ -94,6 +121,7 @@ def test_the_certificate_shows_the_figures_and_their_plot(unit_file) -> None:
     assert done.returncode == 0, done.stderr
     text = check_page(unit_file.parent / "unit.html")
     assert "Scale factor and misalignment against temperature" in text
+    assert "Turn-on repeatability across temperature" in text and "bias hysteresis (up - down)" in text
     assert "gyro scale-factor temperature coefficient" in text and "ppm/degC" in text
     assert "gyro misalignment change over temperature" in text
     plot = text.split("Scale factor and misalignment against temperature", 1)[1]

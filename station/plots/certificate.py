@@ -1,5 +1,5 @@
 """The certificate's plots as inline SVG: pose residuals, Allan deviation, thermal bias, scale factor and
-misalignment against temperature, magnetometer sphere.
+misalignment against temperature, turn-on repeatability per soak, magnetometer sphere.
 
 Each takes the parameter file's section (and, where it needs the samples, the capture it came
 from) and returns the ``<svg>`` text; colours and markers follow the station's PNGs
@@ -327,6 +327,31 @@ def intrinsics_svg(params: Calibrated) -> str:
             ax.tick_params(labelsize=7)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=6, ncol=3, handlelength=1.2, columnspacing=0.8)
+    fig.tight_layout(pad=0.4)
+    return to_svg(fig)
+
+
+def turn_on_svg(block: dict[str, Any]) -> str:
+    """A chamber campaign's turn-on bias repeatability (1-sigma over the power-ups) at each soak, per triad
+    and axis (``characterisation.across_temperature.turn_on``)."""
+    soaks = block["turn_on"]
+    temp = np.array([float(s["soak_c"]) for s in soaks])
+    fig, axes = new_figure(PAGE_WIDTH_IN, 2.0, 1, 2)
+    # In the datasheet's units of turn-on repeatability (``station.report.datasheet``): mg and deg/s.
+    triads = (("accel", "mg", PEOPLE["mg"]), ("gyro", "deg/s", PEOPLE["deg"]))
+    for ax, (name, unit, factor) in zip(axes[0], triads, strict=True):
+        values = np.array([[np.nan if v is None else float(v) for v in s[f"{name}_bias_repeatability"]]
+                           for s in soaks]) * factor
+        for j, colour in enumerate(COLORS):
+            ax.plot(temp, values[:, j], "o-", color=colour, ms=3.5, lw=1, label="xyz"[j])
+        ax.set_title(f"{'accelerometer' if name == 'accel' else 'gyroscope'} turn-on bias repeatability",
+                     fontsize=8)
+        ax.set_xlabel("soak temperature (degC)", fontsize=7)
+        ax.set_ylabel(f"1-sigma ({unit})", fontsize=7)
+        ax.set_ylim(bottom=0)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=3, handlelength=1.2, columnspacing=0.8)
     fig.tight_layout(pad=0.4)
     return to_svg(fig)
 

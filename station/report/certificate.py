@@ -242,6 +242,12 @@ def _plots(cert: Certificate) -> tuple[list[dict[str, Any]], list[str]]:
                       "svg": cert_plots.intrinsics_svg(params),
                       "caption": "the calibration across temperature as the thermal section holds it, about "
                                  f"{params.thermal.reference_temp:g} degC; dashed where T is clamped"})
+    campaign = (params.other.get("characterisation") or {}).get("across_temperature") or {}
+    if campaign.get("turn_on"):
+        plots.append({"title": "Turn-on repeatability across temperature",
+                      "svg": cert_plots.turn_on_svg(campaign),
+                      "caption": "1-sigma of the turn-on bias over the power-ups at each soak of the "
+                                 "campaign"})
     mag = params.other.get("mag")
     if isinstance(mag, dict):
         source = _section_capture(cert, "mag") or next(

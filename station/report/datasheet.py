@@ -6,7 +6,8 @@ Each row says what measured it. Conversions (SI inside, datasheet units out):
 - in-run bias stability: the Allan B term (the floor is 0.664 B), rad/s -> deg/h, m/s^2 -> ug;
 - angle / velocity random walk: N, rad/s/sqrt(Hz) = rad/sqrt(s) -> deg/sqrt(h) (x 180/pi x 60),
   m/s^2/sqrt(Hz) = m/s/sqrt(s) -> m/s/sqrt(h) (x 60);
-- turn-on repeatability: deg/s and mg, with the chi-square interval of ``characterise``;
+- turn-on repeatability: deg/s and mg, with the chi-square interval of ``characterise``; a chamber
+  campaign's at each soak, and its bias hysteresis between the up and down ramps (deg/h, mg);
 - g-sensitivity: G (rad/s per m/s^2) -> deg/s/g, one row per direction of the specific force;
 - scale-factor error (K - 1) in ppm from the calibration's scale, nonlinearity and asymmetry in ppm;
 - misalignment: per axis the root-sum-square of its row of S (off-diagonal), mrad;
@@ -111,12 +112,39 @@ def _characterisation_rows(doc: dict[str, Any]) -> list[Row]:
         rows.append(Row(f"{sensor} turn-on bias repeatability", unit, _scaled(ch[key], factor),
                         [None if i is None else [float(v) * factor for v in i] for i in interval],
                         f"spread of {turn_ons} turn-on means, in-run noise removed (characterise)", kind))
+    rows += _across_temperature_rows(ch)
     for key, figure in (("gyro_scale_nonlinearity_ppm", "gyro scale-factor nonlinearity"),
                         ("gyro_scale_asymmetry_ppm", "gyro scale-factor asymmetry")):
         if ch.get(key) is not None:
             sd = ch.get(key.replace("_ppm", "_sd_ppm"))
             rows.append(Row(figure, "ppm", _scaled(ch[key], 1.0), _scaled(sd, 1.0),
                             "constant-rate steps (characterise)"))
+    return rows
+
+
+def _across_temperature_rows(ch: dict[str, Any]) -> list[Row]:
+    """A chamber campaign's turn-on repeatability at each soak and bias hysteresis between its up and down
+    ramps (``characterisation.across_temperature``, ``station.factory.campaign_figures``)."""
+    block = ch.get("across_temperature") or {}
+    rows = []
+    for soak in block.get("turn_on") or []:
+        for sensor, unit, factor in (("gyro", "deg/s", DEG), ("accel", "mg", 1e3 / G)):
+            values = soak.get(f"{sensor}_bias_repeatability")
+            if values is not None:
+                figure = f"{sensor} turn-on bias repeatability at {float(soak['soak_c']):g} degC"
+                rows.append(Row(figure, unit, _scaled(values, factor), [None, None, None],
+                                f"1-sigma over {ch.get('turn_ons')} power-ups at the soak (campaign)"))
+    hysteresis = block.get("hysteresis")
+    if hysteresis:
+        span = (f"{hysteresis['bins']} bins of {hysteresis['bin_c']:g} degC over "
+                f"{hysteresis['t_min']:.1f}..{hysteresis['t_max']:.1f} degC")
+        for sensor, unit, factor in (("gyro", "deg/h", RAD_S_TO_DEG_H), ("accel", "mg", 1e3 / G)):
+            rows.append(Row(f"{sensor} bias hysteresis (up - down)", unit,
+                            _scaled(hysteresis[f"{sensor}_bias"], factor), [None, None, None],
+                            f"mean over {span} of the up ramp's bias less the down ramp's (campaign)"))
+            rows.append(Row(f"{sensor} bias hysteresis, largest", unit,
+                            _scaled(hysteresis[f"{sensor}_bias_max"], factor), [None, None, None],
+                            f"largest |up - down| of the {span} (campaign)"))
     return rows
 
 
