@@ -133,7 +133,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="turntable method on one capture per soak temperature: bias, scale and "
                              "misalignment as polynomials in T into the accel, gyro and thermal sections")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
-    parser.add_argument("--plot", type=Path, metavar="FILE.png", help="write a residual plot (PNG)")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png",
+                        help="write a residual plot (PNG); with --across-temperature, scale, misalignment "
+                             "and bias against T (default: beside -o, NAME-across-temperature.png)")
 
 
 def _iso_date(text: str) -> datetime.date:
@@ -485,7 +487,7 @@ def _soak_of(path: Path, args: argparse.Namespace) -> tuple[Any, dict[str, Any],
     capture = read_capture(path)
     temp = None if capture.temp is None else np.asarray(capture.temp, float)
     if temp is None or not np.any(np.isfinite(temp)):
-        raise InputFileError(path, "has no temperature (column 'temp'): each capture of a calibration "
+        raise InputFileError(path, "has no temperature: each capture of a calibration "
                              "across temperature is placed by its mean temperature; capture from a unit that "
                              "reports it, or add the chamber's reading as a 'temp' column", column="temp")
     try:
