@@ -64,6 +64,10 @@ rules that ``parse_blob`` applies exactly as the C does (same order, same error 
 
 A version 1 blob reads as one without a mag section or g-sensitivity (flags bits 4 and 5 clear), a
 version 1 or 2 blob as one without thermal intrinsics (flags bits 6 to 9 clear).
+
+Why this module is long: the writer and the reader of one layout belong together, and the reader
+mirrors the C loader rule by rule (same order, same error code) for every format version it still
+reads; split, the two halves of each rule would drift apart.
 """
 
 from __future__ import annotations
