@@ -12,7 +12,9 @@ with the temperature calibration of ``AP_InertialSensor_tempcal.cpp``: T and T_c
 
 and T_cal the INS_ACCn_CALTEMP / INS_GYRn_CALTEMP at which the offsets hold. Our re-fit of the
 thermal bias is c0 + P(T), so the offsets are b + c0 + P(T_cal). ArduPilot holds no misalignment,
-no gyro scale, no dT terms, no gyro g-sensitivity, and one temperature range per IMU for both sensors.
+no gyro scale, no dT terms, no gyro g-sensitivity, no change of scale factor or misalignment with
+temperature (INS_TCAL* is a bias: ``shared.thermal_intrinsics_loss`` reports what is dropped), and one
+temperature range per IMU for both sensors.
 
 The compass (``AP_Compass_Backend::correct_field``, milligauss):
 

@@ -11,8 +11,9 @@ with R the board rotation (not ours to set) and the thermal offset of
     TC(T) = X0 + X1 dt + X2 dt^2 + X3 dt^3,   dt = clamp(T, TMIN, TMAX) - TREF.
 
 So offsets are our bias b, scales 1/K (the six-pose optimum), TREF our reference temperature and
-X0..X3 a cubic re-fitted on it. PX4 holds no misalignment, no gyro scale, no dT terms and no gyro
-g-sensitivity.
+X0..X3 a cubic re-fitted on it. PX4 holds no misalignment, no gyro scale, no dT terms, no gyro
+g-sensitivity, and no change of scale factor or misalignment with temperature (TC_* is a bias:
+``shared.thermal_intrinsics_loss`` reports what is dropped).
 
 The magnetometer (``sensor_calibration::Magnetometer::Correct``, gauss):
 
