@@ -83,7 +83,8 @@ def test_prints_soaks_and_figures(campaign, tmp_path, capsys) -> None:
     code = cli.main(["calibrate", *map(str, paths), "--across-temperature", "-o", str(tmp_path / "u.yaml")])
     assert code == 0
     out = capsys.readouterr().out
-    assert "calibration across temperature: 5 soaks, -20.0 to 60.0 degC; T_ref 20" in out
+    assert ("calibration across temperature: 5 soaks, -20.0 to 60.0 degC; T_ref 20 degC, the soak nearest 25"
+            in out)
     for path in paths:
         assert path.name in out
     assert "gyro scale-factor temperature coefficient: x" in out

@@ -78,8 +78,8 @@ def print_across(result: AcrossTemperature, console: Console) -> None:
 
     t_ref = result.thermal.reference_temp
     console.print(f"[bold]calibration across temperature[/]: {len(result.soaks)} soaks, "
-                  f"{result.soaks[0].temp:.1f} to {result.soaks[-1].temp:.1f} degC; T_ref {t_ref:g} degC "
-                  f"({markup_safe(result.reference_reason)})")
+                  f"{result.soaks[0].temp:.1f} to {result.soaks[-1].temp:.1f} degC; T_ref {t_ref:g} degC, "
+                  f"{markup_safe(result.reference_reason)}")
     for triad in result.triads:
         unit, factor = BIAS_UNITS[triad]
         k_ref = result.fits[f"{triad}.scale"].coeffs[:, 0]
@@ -102,11 +102,12 @@ def print_across(result: AcrossTemperature, console: Console) -> None:
             bias = [_pm(v["bias"][i] * factor, sd["bias"][i] * factor, 3) for i in range(3)]
             table.add_row(markup_safe(soak.label), f"{soak.temp:.2f}", *scale, mis, *bias)
         console.print(table)
-        orders = ", ".join(
-            f"{q} {result.orders[f'{triad}.{q}']} (held-out chi2/soak "
-            + " ".join(f"{s:.3g}" for s in result.fits[f"{triad}.{q}"].cv_scores.values()) + ")"
-            for q in ("bias", "scale", "misalignment"))
-        console.print(f"{triad} polynomial orders in T, by leave-one-out cross-validation: {orders}")
+        tried = len(result.fits[f"{triad}.bias"].cv_scores)
+        console.print(f"{triad} polynomial orders in T by leave-one-out cross-validation (held-out chi2 "
+                      f"per soak of orders {', '.join(str(p) for p in range(tried))}):")
+        for q in ("bias", "scale", "misalignment"):
+            scores = " ".join(f"{s:.3g}" for s in result.fits[f"{triad}.{q}"].cv_scores.values())
+            console.print(f"  {q} {result.orders[f'{triad}.{q}']}  ({scores})")
         tc, tc_sd = result.scale_tc_ppm(triad)
         console.print(f"{triad} scale-factor temperature coefficient: "
                       + ", ".join(f"{'xyz'[i]} {_pm(tc[i], tc_sd[i])}" for i in range(3)) + " ppm/degC")

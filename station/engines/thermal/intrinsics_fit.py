@@ -406,14 +406,13 @@ def choose_reference(temps: np.ndarray, reference_temp: float | None) -> tuple[f
         T_ref (degC) and how it was chosen.
     """
     if reference_temp is not None:
-        return float(reference_temp), f"given: {reference_temp:g} degC"
+        return float(reference_temp), "as given"
     nearest = float(temps[np.argmin(np.abs(temps - NOMINAL_TEMP_DEGC))])
     if abs(nearest - NOMINAL_TEMP_DEGC) <= NOMINAL_WITHIN_DEGC:
-        value = round(nearest, 2)
-        return value, f"the soak nearest {NOMINAL_TEMP_DEGC:g} degC ({value:g} degC)"
+        return round(nearest, 2), f"the soak nearest {NOMINAL_TEMP_DEGC:g} degC"
     value = round(0.5 * (float(temps.min()) + float(temps.max())), 1)
-    return value, f"the middle of the soaks' range ({value:g} degC; no soak within " \
-                  f"{NOMINAL_WITHIN_DEGC:g} degC of {NOMINAL_TEMP_DEGC:g})"
+    return value, (f"the middle of the soaks' range: no soak within {NOMINAL_WITHIN_DEGC:g} degC of "
+                   f"{NOMINAL_TEMP_DEGC:g}")
 
 
 def _check(soaks: Sequence[SoakCalibration]) -> np.ndarray:
