@@ -41,6 +41,11 @@ Random draws come from independent streams per noise term (``numpy.random.SeedSe
 children), each consumed in sample order, so the numbers do not depend on how a stream of
 samples is cut into blocks: a simulated device serving blocks of any size produces exactly
 the arrays of one :func:`mocks.rig.simulate` call with the same seed.
+
+Why this module is long: it is the whole truth of one simulated unit (intrinsics and their
+temperature dependence, nonlinearity, noise generators, thermal bias, turn-on repeatability, the
+random realistic unit), which the simulator, the chamber, the instruments and the tests all read
+as one model; split, each part would need the others' definitions.
 """
 
 from __future__ import annotations

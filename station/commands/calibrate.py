@@ -1,4 +1,10 @@
-"""``imu-station calibrate``: accelerometer and gyroscope intrinsics from a capture."""
+"""``imu-station calibrate``: accelerometer and gyroscope intrinsics from a capture.
+
+Why this module is long: one command with four ways in (turntable, free, mag, across temperature)
+that share its parser, its options' checks (gravity, rate, place) and the way results are merged
+into the parameter file; each way's composition of reading, engine, output set and report is a
+function here, the engines and the printing are elsewhere.
+"""
 
 from __future__ import annotations
 

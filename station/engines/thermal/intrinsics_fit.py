@@ -39,6 +39,10 @@ The figures people quote are computed from the fitted curves: the scale factor's
 coefficient per axis in ppm/degC (the least-squares slope of k(T) / K over the range, equation (5)
 of ``station.engines.thermal.model``, as ``ThermalBias.temperature_sensitivity`` does for the bias)
 and each misalignment entry's change over the range (max - min, urad).
+
+Why this module is long: it holds the engine's input and result types (the result with the figures
+computed from it) and the few stages of one pipeline a reader follows in order (per-soak values,
+weighted fit, leave-one-out order, sections at T_ref); each stage is short.
 """
 
 from __future__ import annotations
