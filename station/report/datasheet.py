@@ -245,7 +245,18 @@ def datasheet_rows(doc: dict[str, Any]) -> list[Row]:
     return _noise_rows(doc) + _characterisation_rows(doc) + _calibration_rows(doc) + _thermal_rows(doc)
 
 
-def _cell(value: float | None, unc: Any) -> str:
+def cell(value: float | None, unc: Any) -> str:
+    """One value as the table shows it: value +/- 1-sigma, value [interval], or ``-`` where not measured.
+
+    Parameters
+    ----------
+    value : float or None
+    unc : float, [lo, hi] or None
+
+    Returns
+    -------
+    str
+    """
     if value is None:
         return "-"
     text = f"{value:.4g}"
@@ -256,18 +267,21 @@ def _cell(value: float | None, unc: Any) -> str:
     return text
 
 
-def format_table(rows: list[Row]) -> str:
+def format_table(rows: list[Row], sources: bool = True) -> str:
     """The rows as a plain-text table: figure, unit, x, y, z (value +/- 1-sigma, or [interval]), source.
 
     Parameters
     ----------
     rows : list of Row
+    sources : bool
+        With the "measured by" column (False: a table that fits 80 columns).
 
     Returns
     -------
     str
     """
-    header = ("figure", "unit", "x", "y", "z", "measured by")
-    cells = [(r.figure, r.unit, *(_cell(v, u) for v, u in zip(r.values, r.uncertainty, strict=True)),
-              r.measured_by + (f" [{r.interval}]" if r.interval else "")) for r in rows]
+    columns = 6 if sources else 5
+    header = ("figure", "unit", "x", "y", "z", "measured by")[:columns]
+    cells = [(r.figure, r.unit, *(cell(v, u) for v, u in zip(r.values, r.uncertainty, strict=True)),
+              r.measured_by + (f" [{r.interval}]" if r.interval else ""))[:columns] for r in rows]
     return table.format_table("", header, cells, rule=False)

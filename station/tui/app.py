@@ -53,6 +53,7 @@ class StationApp(App[int]):
         Binding("t", "show('thermal')", "thermal", show=False),
         Binding("m", "show('mag')", "magnetometer", show=False),
         Binding("o", "show('turnons')", "turn-ons", show=False),
+        Binding("d", "show('datasheet')", "datasheet", show=False),
     ]
 
     def __init__(self, config: TuiConfig) -> None:
@@ -110,7 +111,7 @@ class StationApp(App[int]):
     def show(self, name: str) -> None:
         """Switch to a screen by name; everything but connect needs an open session. Leaving
         unsaved results asks first (:meth:`leave`)."""
-        if self.session is None:
+        if self.session is None and name != "datasheet":  # the datasheet reads --out alone
             self.notify("connect to a unit first (Enter on a port)", severity="warning")
             return
         self.leave(lambda: self._switch(name))
@@ -134,6 +135,10 @@ class StationApp(App[int]):
             from station.tui.screens.mag import MagScreen
 
             screen = MagScreen()
+        elif name == "datasheet":
+            from station.tui.screens.datasheet import DatasheetScreen
+
+            screen = DatasheetScreen()
         elif name == "turnons":
             from station.tui.screens.turn_ons import TurnOnsScreen
 

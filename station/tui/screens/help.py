@@ -18,7 +18,7 @@ HELP = """\
   a        Allan recording        t          temperature sweep
   o        turn-on repeatability (restarts the unit, or asks
            you to power-cycle it)
-  m        magnetometer step (a unit with a magnetometer)
+  m        magnetometer step      d          datasheet of --out
 
 [b]Connect[/b]
   up/down  choose a port          Enter      connect, then the live view
@@ -47,6 +47,12 @@ HELP = """\
 
 [b]Allan recording / temperature sweep[/b]
   Enter    stop the recording and fit   Escape   back
+
+[b]Datasheet[/b] (also without a unit)
+  The figures of --out; across temperature, the scale factor's change
+  and the turn-on repeatability per soak, plotted.
+  s        plot the other triad   r          read --out again
+  Escape   back
 """
 
 
