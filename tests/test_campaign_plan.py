@@ -48,8 +48,8 @@ def test_campaign_steps_in_order() -> None:
     ids = [s.id for s in steps]
     per_soak = 1 + 1 + c.power_cycles + 1  # ramp, sequence, turn-ons, still
     assert len(ids) == len(set(ids)) == per_soak * len(c.soaks_c) + 1
-    assert ids[:6] == ["ramp-1", "soak-1.sequence", "soak-1.turn-on-1", "soak-1.turn-on-2", "soak-1.turn-on-3",
-                       "soak-1.still"]
+    assert ids[:6] == ["ramp-1", "soak-1.sequence", "soak-1.turn-on-1", "soak-1.turn-on-2",
+                       "soak-1.turn-on-3", "soak-1.still"]
     assert ids[-1] == "ramp-end" and steps[-1].temp_c == c.end_c
     assert [s.temp_c for s in steps if s.kind == "ramp"][:-1] == list(c.soaks_c)
 
