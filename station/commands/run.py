@@ -102,9 +102,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> None:
-    if args.resume is None and (args.plan is None or args.serial is None):
-        raise StationError("give the --plan and the unit's --serial (or --resume RUN_DIR, a campaign's "
-                           "folder)")
+    missing = [name for name, value in (("--plan", args.plan), ("--serial", args.serial)) if value is None]
+    if args.resume is None and missing:
+        # a usage error, as argparse's own for a required option (exit 4)
+        print(f"imu-station run: error: the following arguments are required: {', '.join(missing)} (or "
+              "--resume RUN_DIR, a campaign's folder)", file=sys.stderr)
+        raise SystemExit(4)
     if args.simulate and (args.port or args.table_port or args.table or args.chamber or args.supply):
         raise StationError("give either --simulate or --port/--table-port (and instrument URLs), not both: "
                            "--simulate serves the plan's instruments simulated")
