@@ -56,19 +56,18 @@ import numpy as np
 from station.engines.calibration.common import CalibrationReport
 from station.engines.shared.sensor_model import SensorCalibration
 from station.engines.thermal.design import Candidate, one_se
+from station.engines.thermal.fit import TAU_WITHOUT_RATE_S  # the filter stored without dT terms
 from station.engines.thermal.intrinsics import OFF_DIAGONAL, TempPolynomial, slope_weights
 from station.engines.thermal.model import TERMS, DtempFilter, ThermalBias, ThermalModel, ThermalSegment
 from station.errors import EngineInputError
 
 TRIADS = ("accel", "gyro")
 QUANTITIES = ("bias", "scale", "misalignment")
-COMPONENTS = {"bias": 3, "scale": 3, "misalignment": 6}
 MIN_SOAKS = 2
 MIN_SPAN_DEGC = 5.0
 MAX_ORDER = 3  # the powers thermal.scale and thermal.misalignment can hold
 NOMINAL_TEMP_DEGC = 25.0
 NOMINAL_WITHIN_DEGC = 10.0  # a soak this close to 25 degC is the reference; else the range's middle
-TAU_WITHOUT_RATE_S = 15.0  # the dT filter stored with no dT terms, as the thermal engine stores it
 
 
 @dataclass
