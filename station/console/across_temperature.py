@@ -4,12 +4,11 @@ degC), as rich tables or JSON."""
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocols.units import STANDARD_GRAVITY
+from station.console.thermal_report import SCALES
 from station.engines.thermal.intrinsics import OFF_DIAGONAL_NAMES
 from station.engines.thermal.intrinsics_fit import AcrossTemperature
 from station.export.params.file import to_plain
@@ -17,8 +16,8 @@ from station.export.params.file import to_plain
 if TYPE_CHECKING:
     from rich.console import Console
 
-BIAS_UNITS = {"accel": ("mg", 1e3 / STANDARD_GRAVITY), "gyro": ("deg/h", 3600.0 * 180.0 / math.pi)}
-"""Unit and factor from SI of each triad's bias in the tables."""
+BIAS_UNITS = SCALES
+"""Unit and factor from SI of each triad's bias in the tables: the thermal report's."""
 
 
 def _pm(value: float, sd: float, digits: int = 1) -> str:

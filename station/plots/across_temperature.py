@@ -3,17 +3,14 @@ each triad against temperature, the soaks with their 1-sigma bars and the fitted
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
-from protocols.units import STANDARD_GRAVITY
 from station.common.files import atomic_open
 from station.engines.thermal.intrinsics import OFF_DIAGONAL_NAMES
 from station.engines.thermal.intrinsics_fit import AcrossTemperature
-
-BIAS_UNITS = {"accel": ("mg", 1e3 / STANDARD_GRAVITY), "gyro": ("deg/h", 3600.0 * 180.0 / math.pi)}
+from station.plots.thermal import UNITS as BIAS_UNITS
 
 
 def plot_across_temperature(result: AcrossTemperature, path: str | Path, title: str) -> None:
