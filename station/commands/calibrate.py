@@ -530,7 +530,7 @@ def run_across_temperature(args: argparse.Namespace) -> int:
         raise StationError(f"--across-temperature needs captures at {MIN_SOAKS} or more soak temperatures "
                            f"(5 or more to choose the curves' order); {len(args.input)} given")
     local_gravity(args)  # refuse bad options before reading long captures
-    soaks, warnings, device = [], [], None
+    soaks, warnings, device, had_thermal = [], [], None, False
     err = sys.stderr
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=Console(file=err), transient=True, disable=not err.isatty()) as progress:
@@ -541,8 +541,8 @@ def run_across_temperature(args: argparse.Namespace) -> int:
             unit = name_unit(info, args.serial)
             if device is None:
                 device = unit
-                if args.output:
-                    open_for_unit(args.output, device, replace=args.replace)  # refuse before the fits
+                if args.output:  # refuse another unit's file before the fits
+                    had_thermal = open_for_unit(args.output, device, replace=args.replace).thermal is not None
             elif unit.get("serial") and device.get("serial") and unit["serial"] != device["serial"]:
                 raise StationError(f"{path} is unit {unit['serial']}, {args.input[0]} unit "
                                    f"{device['serial']}: a calibration across temperature is of one unit")
@@ -565,7 +565,9 @@ def run_across_temperature(args: argparse.Namespace) -> int:
                                                  "thermal": result.thermal}, replace=args.replace)
             written = ("accel, gyro and thermal sections" if result.gyro is not None
                        else "accel and thermal sections")
-            outputs[str(args.output)] = f"{written} written (T_ref {result.thermal.reference_temp:g} degC)"
+            replaced = "; the thermal section it held before is replaced" if had_thermal else ""
+            t_ref = result.thermal.reference_temp
+            outputs[str(args.output)] = f"{written} written (T_ref {t_ref:g} degC){replaced}"
         if plot is not None:
             from station.plots.across_temperature import plot_across_temperature
 
