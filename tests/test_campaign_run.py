@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
+from mocks.truth import UnitTruth
 from station.factory.campaign import campaign_steps
 from station.factory.plan import load_plan
 from station.factory.records import RecordStore
@@ -163,6 +164,25 @@ def test_campaign_runs_whole(uninterrupted: Path) -> None:
     with RecordStore.open(folder.parents[2] / "records.sqlite") as store:
         (stored,) = store.query()
     assert stored.run_id == record["run_id"] and stored.verify() == []
+
+
+def test_campaign_recovers_the_scale_factor_across_temperature(uninterrupted: Path) -> None:
+    """Against the simulated unit's truth (seed 0, intrinsics moving with T): each soak's scale factor,
+    the slope through the soaks (numpy.polyfit on both sides) and the fit's value at T_ref."""
+    truth = UnitTruth.random(0, "mems", thermal_intrinsics=True)
+    record = json.loads((uninterrupted / "record.json").read_text())
+    values = {m["name"]: m["value"] for p in record["phases"] for m in p["measurements"]}
+    params = yaml.safe_load((uninterrupted / "params.yaml").read_text())
+    temps = np.array([values[f"soak-{i}.temperature_c"] for i in (1, 2, 3)])
+    for triad in ("accel", "gyro"):
+        sensor = getattr(truth, triad)
+        assert np.ptp(sensor.scale_at(temps) - 1, axis=0).max() > 1e-3  # the truth moves: a real check
+        measured = np.array([[values[f"soak-{i}.{triad}.scale_error.{a}"] for a in "xyz"] for i in (1, 2, 3)])
+        np.testing.assert_allclose(measured, sensor.scale_at(temps) - 1, atol=3e-4)
+        slope, true_slope = np.polyfit(temps, measured, 1)[0], np.polyfit(temps, sensor.scale_at(temps), 1)[0]
+        np.testing.assert_allclose(slope, true_slope, rtol=0.15, atol=1e-5)  # 1/degC
+        t_ref = params[triad]["reference_temp"]
+        np.testing.assert_allclose(params[triad]["scale"], sensor.scale_at(np.array([t_ref]))[0], atol=3e-4)
 
 
 def test_killed_at_many_points_resumes_to_one_record(uninterrupted: Path, tmp_path: Path) -> None:

@@ -174,7 +174,9 @@ def run(args: argparse.Namespace) -> int:
     request = RunRequest(plan=plan, serial=args.serial, station=station, port=args.port,
                          table_port=args.table_port, files_root=files_root(args, url), on_event=on_event,
                          simulate=SimulatedUnit(args.seed, unplug_after_s=args.unplug_after,
-                                                speed=_speed(args, plan))
+                                                speed=_speed(args, plan),
+                                                # a campaign's unit: its scale and misalignment move with T
+                                                thermal_intrinsics=plan.campaign is not None)
                          if args.simulate else None, resume=resumed)
     check_serial(request)  # before the record database is opened
     try:

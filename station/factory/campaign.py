@@ -133,8 +133,11 @@ class CampaignRun(UnitRun):
                                    f"({begin['plan']['path']}, SHA-256 {begin['plan']['sha256'][:12]}...); "
                                    "give that plan (or leave --plan out)")
             if request.simulate is not None:
+                # the same unit as the run began with, where the journal left it
+                simulated = begin.get("simulate") or {}
                 request = dataclasses.replace(request, simulate=dataclasses.replace(
-                    request.simulate, initial_c=self.journal.last_unit_c()))
+                    request.simulate, initial_c=self.journal.last_unit_c(),
+                    thermal_intrinsics=bool(simulated.get("thermal_intrinsics", False))))
         super().__init__(request)
         if request.plan.campaign is None:
             raise StationError(f"{request.plan.path}: the plan has no 'campaign' section; --resume "
@@ -245,7 +248,8 @@ class CampaignRun(UnitRun):
         sim = self.req.simulate
         return {"run_id": self.record.run_id, "start": self.record.start, "serial": self.record.serial,
                 "station": self.record.station, "plan": self.record.plan, "device": self.record.device,
-                "simulate": None if sim is None else {"seed": sim.seed, "grade": sim.grade},
+                "simulate": None if sim is None else {"seed": sim.seed, "grade": sim.grade,
+                                                      "thermal_intrinsics": sim.thermal_intrinsics},
                 "phases": [asdict(p) for p in self.record.phases]}
 
     def _keep_aside(self, pending: list[CampaignStep]) -> list[str]:
@@ -376,6 +380,8 @@ class CampaignRun(UnitRun):
         if recorder is not None:
             self._attach(phase, path, f"{step.id} ramp record")
         slope = watch.slope()
+        log.info("%s: the unit settled at %.2f degC (%+.3f degC/min over %g s), from %s degC", step.id,
+                 watch.temperature_c, slope, c.settle_hold_s, "?" if start_c is None else f"{start_c:.2f}")
         direction = 1 if step.temp_c > (start_c if start_c is not None else step.temp_c) else -1
         phase.measurements += [
             Measurement("chamber.setpoint_c", step.temp_c, "degC"),

@@ -35,6 +35,8 @@ class SimulatedUnit:
     wall seconds); a campaign changes it while it runs (``SimulatedPorts.pace``).
     ``initial_c``: the simulated chamber's air and the unit start at this temperature (a resumed
     campaign: where the journal left the unit), else at the room's.
+    ``thermal_intrinsics``: the unit's scale factor and misalignment move with temperature too
+    (``UnitTruth.random(thermal_intrinsics=True)``; a chamber campaign's unit).
     """
 
     seed: int = 0
@@ -43,6 +45,7 @@ class SimulatedUnit:
     table_turn_error: float = 0.0
     speed: float = 1.0
     initial_c: float | None = None
+    thermal_intrinsics: bool = False
 
 
 @dataclass(frozen=True)
@@ -98,7 +101,8 @@ def simulated_rig(unit: SimulatedUnit, serial: str, rate_hz: float, protocol: st
     from mocks.turntable_sim import TurntableSim
 
     kinds = _kinds(instruments)
-    truth = dataclasses.replace(UnitTruth.random(unit.seed, unit.grade), serial=serial)
+    truth = dataclasses.replace(UnitTruth.random(unit.seed, unit.grade, unit.thermal_intrinsics),
+                                serial=serial)
     faults = FaultSpec(disconnect_after_s=unit.unplug_after_s) if unit.unplug_after_s is not None else None
     # 50 ms blocks (the server default is 20 ms): each block is one batch the runner checks, and the
     # station runs several simulated units at once.
