@@ -29,6 +29,11 @@ record (unit, station, start/end, outcome, phases, measurements with limits and 
 with SHA-256) in the record database. The raw capture, the parameter file and the exports are kept
 beside the record in FILES/<serial>/<start>-<run id>/, with record.json.
 
+A plan with a 'campaign:' section runs a chamber campaign: soaks at several temperatures (the
+sequence, power cycles through the supply, still records), the ramps recorded, a calibration
+across temperature at the end; every completed step is journaled (journal.jsonl, fsync'ed) and
+--resume RUN_DIR carries on after a crash, ending with the one record.
+
 One JSON record on stdout with --json (else a short summary); logs go to stderr."""
 EPILOG = """\
 exit codes:
@@ -49,7 +54,9 @@ examples:
   imu-station run --plan plan.yaml --port /dev/ttyUSB0 --table-port /dev/ttyUSB1 --serial A1234 --json
   imu-station run --plan plan.yaml --simulate --seed 3 --serial SIM-3 --db postgresql://line@db/imu
   imu-station run --plan plan.yaml --protocol frame:myboard.yaml --port /dev/ttyUSB0 \\
-                  --table-port /dev/ttyUSB1 --serial B-0042"""
+                  --table-port /dev/ttyUSB1 --serial B-0042
+  imu-station run --plan examples/campaign.yaml --simulate --serial auto
+  imu-station run --resume imu-station-records-files/SIM-000000/20261128T123500Z-46303b15 --simulate"""
 
 # The simulated units' clock may run this much faster than the wall clock (rehearsals).
 MIN_SPEED, MAX_SPEED = 0.1, 20.0
