@@ -8,6 +8,11 @@ target cannot hold, and renders the report the command prints.
 
 A parameter file may hold any subset of sections: each format writes what it carries
 (:data:`CARRIES`) and notes the sections it leaves out; only a file holding none of them is refused.
+
+The estimators' noise files (:data:`NOISE_FORMATS`: Kalibr, VINS-Fusion, ORB-SLAM3, OpenVINS, PX4 EKF2,
+ArduPilot EKF3) are written by the same call from the ``noise`` section alone, each value times the
+inflation factor (``inflate``, :mod:`station.export.estimators.inflation`), which the report states with
+its reason every time; :func:`noise_exports` gives the ``allan`` command the same files from a record.
 """
 
 from __future__ import annotations
@@ -24,6 +29,8 @@ from station.common.files import atomic_write_bytes, atomic_write_text
 from station.errors import StationError
 from station.export.autopilot import ardupilot, px4
 from station.export.autopilot.shared import AutopilotExport, reference_temp, thermal_range
+from station.export.estimators import noise_export
+from station.export.estimators.noise_export import NOISE_FORMATS, EstimatorExport, build_noise_export
 from station.export.firmware import c_source
 from station.export.firmware.blob import CARRIED, SERIAL_SIZE, STATION_ID_SIZE, build_blob, fixed_utf8
 from station.export.params import json_document
@@ -32,7 +39,7 @@ from station.export.params.sections import left_out, present
 from station.plots.autopilot_loss import plot_losses
 
 DEFAULT_NAMES = {"bin": "imu_calib.bin", "json": "imu_calib.json", "yaml": "imu_calib.yaml",
-                 "px4": "imu_calib.params", "ardupilot": "imu_calib.param"}
+                 "px4": "imu_calib.params", "ardupilot": "imu_calib.param", **noise_export.DEFAULT_NAMES}
 """The file a format writes when ``out`` is a directory (``c`` always writes three into one)."""
 AUTOPILOTS = ("px4", "ardupilot")
 MAX_EPOCH_S = 253_402_300_799
@@ -60,6 +67,12 @@ class ExportSettings:
         px4/ardupilot: the sensor instance, 0-based.
     device_id, gyro_device_id : int, optional
         px4/ardupilot: the accelerometer's and the gyroscope's device ids.
+    inflate : float
+        Noise formats: the inflation factor of every value written.
+    ekf_rate_hz : float, optional
+        ekf2/ekf3: the filter's prediction rate (default the autopilot's).
+    rostopic : str
+        kalibr/openvins: the IMU topic.
     """
 
     source: str
@@ -68,6 +81,9 @@ class ExportSettings:
     instance: int = 0
     device_id: int | None = None
     gyro_device_id: int | None = None
+    inflate: float = 1.0
+    ekf_rate_hz: float | None = None
+    rostopic: str = "/imu0"
 
     @property
     def exported(self) -> str:
@@ -95,6 +111,8 @@ class ExportResult:
         Every file written, the loss plot last when one was asked for.
     autopilot : AutopilotExport, optional
         px4/ardupilot: the parameters, what the target cannot hold and the error it leaves.
+    estimator : EstimatorExport, optional
+        Noise formats: each value written, its formula and the inflation factor with its reason.
     notes : list of str
         What the caller should know (a station id or serial cut to fit the blob).
     """
@@ -105,15 +123,18 @@ class ExportResult:
     exported: str
     files: list[Path] = field(default_factory=list)
     autopilot: AutopilotExport | None = None
+    estimator: EstimatorExport | None = None
     notes: list[str] = field(default_factory=list)
 
     def report(self) -> dict[str, Any]:
         """The JSON-able report: format, params, station_id, exported, files, the autopilot's
-        parameters, limitations and pose errors, and notes."""
+        parameters, limitations and pose errors or the estimator's values and inflation, and notes."""
         out: dict[str, Any] = {"format": self.format, "params": self.params, "station_id": self.station_id,
                                "exported": self.exported, "files": [str(p) for p in self.files]}
         if self.autopilot is not None:
             out.update(self.autopilot.to_dict())
+        if self.estimator is not None:
+            out.update(self.estimator.to_dict())
         if self.notes:
             out["notes"] = list(out.get("notes") or []) + self.notes
         return out
@@ -130,9 +151,12 @@ def report_lines(report: dict[str, Any]) -> list[str]:
     Returns
     -------
     list of str
-        The files written, the autopilot's parameters and limitations, the pose errors, the notes.
+        The files written, the autopilot's parameters and limitations, the pose errors, an estimator's
+        values and the inflation factor with its reason, the notes.
     """
     lines = [f"wrote {path}" for path in report["files"]]
+    if "estimator" in report:
+        lines += noise_export.value_lines(report)
     if "parameters" in report:
         lines.append(f"{len(report['parameters'])} {report['target']} parameters")
     limits = report.get("limitations") or []
@@ -242,6 +266,47 @@ WRITERS: dict[str, Writer] = {
 }
 """The writer of each format: ``writer(params, out, settings) -> (files, autopilot export or None)``."""
 FORMATS = tuple(WRITERS)
+"""The formats of the unit's calibration; the estimators' noise files are :data:`NOISE_FORMATS`."""
+
+
+def _write_noise(params: ParamsFile, fmt: str, out: Path, settings: ExportSettings) -> EstimatorExport:
+    """An estimator's noise file from the ``noise`` section, refused without one."""
+    result = build_noise_export(fmt, params.noise, params.device, factor=settings.inflate,
+                                ekf_rate_hz=settings.ekf_rate_hz, rostopic=settings.rostopic,
+                                station_id=settings.station_id, exported=settings.exported,
+                                source=settings.source)
+    atomic_write_text(_file_target(out, fmt), result.text)
+    return result
+
+
+def noise_exports(noise: dict[str, Any], device: dict[str, Any] | None, requests: dict[str, Path], *,
+                  inflate: float = 1.0, ekf_rate_hz: float | None = None, rostopic: str = "/imu0",
+                  station_id: str | None = None) -> dict[Path, EstimatorExport]:
+    """The estimators' noise files asked of the ``allan`` command, built (not written) from its section.
+
+    Parameters
+    ----------
+    noise : dict
+        The noise section just computed.
+    device : dict, optional
+        The unit, for the PX4 and ArduPilot headers.
+    requests : dict
+        Format (:data:`NOISE_FORMATS`) -> the path it goes to.
+    inflate, ekf_rate_hz, rostopic :
+        As :func:`write_export`'s.
+    station_id : str, optional
+        This station's name (default: the host name).
+
+    Returns
+    -------
+    dict
+        Path -> :class:`EstimatorExport` (its ``text`` to write, its values and inflation to print).
+    """
+    exported = ExportSettings(source="", station_id="", exported_utc=export_time()).exported
+    station = station_id if station_id is not None else socket.gethostname()
+    return {Path(path): build_noise_export(fmt, noise, device, factor=inflate, ekf_rate_hz=ekf_rate_hz,
+                                           rostopic=rostopic, station_id=station, exported=exported)
+            for fmt, path in requests.items()}
 
 
 def _cut_notes(params: ParamsFile, station_id: str) -> list[str]:
@@ -257,7 +322,8 @@ def _cut_notes(params: ParamsFile, station_id: str) -> list[str]:
 def write_export(params: ParamsFile, fmt: str, out: str | Path, *, source: str | Path = "<params>",
                  station_id: str | None = None, exported_utc: int | None = None, instance: int = 0,
                  device_id: int | None = None, gyro_device_id: int | None = None,
-                 plot: str | Path | None = None) -> ExportResult:
+                 plot: str | Path | None = None, inflate: float = 1.0, ekf_rate_hz: float | None = None,
+                 rostopic: str = "/imu0") -> ExportResult:
     """Write ``params`` in format ``fmt`` to ``out``.
 
     Parameters
@@ -265,7 +331,8 @@ def write_export(params: ParamsFile, fmt: str, out: str | Path, *, source: str |
     params : ParamsFile
         The unit's parameters.
     fmt : str
-        One of :data:`FORMATS`: c, bin, json, yaml, px4, ardupilot.
+        One of :data:`FORMATS` (c, bin, json, yaml, px4, ardupilot) or :data:`NOISE_FORMATS` (kalibr,
+        vins, orbslam3, openvins, ekf2, ekf3).
     out : str or Path
         A directory for ``c`` (created if missing); for the others a file, or a directory that
         gets the format's default name (:data:`DEFAULT_NAMES`).
@@ -281,20 +348,37 @@ def write_export(params: ParamsFile, fmt: str, out: str | Path, *, source: str |
         px4/ardupilot: the accelerometer's device id (also the gyroscope's unless ``gyro_device_id``).
     plot : str or Path, optional
         px4/ardupilot: a PNG of the offset the target subtracts against ours, over temperature.
+    inflate : float
+        Noise formats: the factor (1 to ``inflation.MAX_FACTOR``) every value is multiplied by.
+    ekf_rate_hz : float, optional
+        ekf2/ekf3: the filter's prediction rate (default PX4's 100 Hz, ArduPilot's 83.3 Hz).
+    rostopic : str
+        kalibr/openvins: the IMU topic written.
 
     Returns
     -------
     ExportResult
-        The files written, the autopilot's parameters and limitations, and notes.
+        The files written, the autopilot's parameters and limitations or the estimator's values with
+        the inflation factor and its reason, and notes.
 
     Raises
     ------
     StationError
-        An unknown format, parameters with nothing to export, an instance the target has no
-        parameters for, an output path of the wrong kind, or a file that cannot be written.
+        An unknown format, parameters with nothing to export (for a noise format: no noise section, or
+        a term it does not show), an inflation factor below 1, an instance the target has no parameters
+        for, an output path of the wrong kind, or a file that cannot be written.
     """
+    if fmt in NOISE_FORMATS:
+        settings = ExportSettings(source=str(source),
+                                  station_id=station_id if station_id is not None else socket.gethostname(),
+                                  exported_utc=export_time() if exported_utc is None else exported_utc,
+                                  inflate=inflate, ekf_rate_hz=ekf_rate_hz, rostopic=rostopic)
+        estimator = _write_noise(params, fmt, Path(out), settings)
+        return ExportResult(format=fmt, params=settings.source, station_id=settings.station_id,
+                            exported=settings.exported, files=[_file_target(Path(out), fmt)],
+                            estimator=estimator)
     if fmt not in WRITERS:
-        raise StationError(f"unknown export format {fmt!r}; known: {', '.join(FORMATS)}")
+        raise StationError(f"unknown export format {fmt!r}; known: {', '.join((*FORMATS, *NOISE_FORMATS))}")
     carried = CARRIES[fmt]
     held = present(params)
     if carried is not None and not set(held) & set(carried):
