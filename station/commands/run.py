@@ -237,7 +237,7 @@ def resume_arguments(args: argparse.Namespace) -> Path | None:
 
     begin = resume_folder(args.resume)
     if args.plan is None:
-        args.plan = Path(begin["plan"]["path"])
+        args.plan = Path(begin.get("plan_file") or begin["plan"]["path"])
     if args.serial is not None and args.serial not in ("auto", begin["serial"]):
         raise StationError(f"--serial {args.serial}: the run in {args.resume} is unit {begin['serial']}")
     args.serial = begin["serial"]

@@ -248,6 +248,8 @@ class CampaignRun(UnitRun):
         sim = self.req.simulate
         return {"run_id": self.record.run_id, "start": self.record.start, "serial": self.record.serial,
                 "station": self.record.station, "plan": self.record.plan, "device": self.record.device,
+                # where a resume from another folder finds the plan again
+                "plan_file": str(Path(self.req.plan.path).resolve()),
                 "simulate": None if sim is None else {"seed": sim.seed, "grade": sim.grade,
                                                       "thermal_intrinsics": sim.thermal_intrinsics},
                 "phases": [asdict(p) for p in self.record.phases]}
