@@ -9,7 +9,7 @@ from collections import Counter
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
-from station.console.options import RATE_HZ, add_output_option, add_replace_option, number
+from station.console.options import RATE_HZ, add_instance_option, add_output_option, add_replace_option, number
 from station.engines.allan.terms import TERMS
 from station.errors import EngineInputError, ExitCode
 
@@ -29,8 +29,9 @@ Gauss-Markov processes (GM), the sensor's output filter and sinusoids is fitted 
 does is reported, with the range of tau where it holds (valid_tau). The Kalibr, VINS and ORB-SLAM3
 values are the N and K equivalent to the whole model over --horizon.
 
-INPUT is a capture CSV, a station capture file (.h5) or a ROS 1/ROS 2 bag with sensor_msgs/Imu
-(header stamps are used; needs the 'ros' extra). Timestamps are checked: gaps, repeated and
+INPUT is a capture CSV, a station capture file (.h5), a ROS 1/ROS 2 bag with sensor_msgs/Imu
+(header stamps are used; needs the 'ros' extra) or a PX4 (.ulg) or ArduPilot (.bin) log (--instance
+picks its IMU; what was converted is printed on stderr). Timestamps are checked: gaps, repeated and
 out-of-order stamps are reported; a record missing more than --max-missing of its samples is refused.
 Records of any length are processed in bounded memory (temporary files of 48 bytes per sample).
 
@@ -43,12 +44,17 @@ examples:
 
 
 MAX_PER_DECADE = 1000  # beyond this the cluster sizes repeat: every integer m is already there
+ESTIMATOR_OPTIONS = ("kalibr", "vins", "orbslam3", "openvins", "ekf2", "ekf3")
+"""The options writing an estimator's file, each named as its ``export`` format."""
+INFLATE = number(float, 1.0, 1000.0)
+EKF_RATE_HZ = number(float, 1.0, 10000.0, unit="Hz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the allan command's options to ``parser``."""
     parser.add_argument("input", type=Path, metavar="INPUT",
-                        help="capture CSV (.csv, .csv.gz), capture file (.h5) or ROS bag (.bag, ROS 2 dir)")
+                        help="capture CSV (.csv, .csv.gz), capture file (.h5), ROS bag (.bag, ROS 2 dir) or "
+                             "PX4/ArduPilot log (.ulg, .bin)")
     add_output_option(parser, metavar="PARAMS",
                       help="parameter file to write the 'noise' section into (other sections are kept; "
                            "of the same unit)")
@@ -59,6 +65,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kalibr", type=Path, metavar="FILE.yaml", help="write Kalibr's imu.yaml")
     parser.add_argument("--vins", type=Path, metavar="FILE.yaml", help="write VINS-Fusion's IMU noise lines")
     parser.add_argument("--orbslam3", type=Path, metavar="FILE.yaml", help="write the ORB-SLAM3 IMU lines")
+    parser.add_argument("--openvins", type=Path, metavar="FILE.yaml",
+                        help="write OpenVINS' kalibr_imu_chain.yaml")
+    parser.add_argument("--ekf2", type=Path, metavar="FILE.params",
+                        help="write PX4 EKF2's IMU noise (EKF2_GYR_NOISE, .._ACC_.., .._GYR_B_.., "
+                             ".._ACC_B_..) as a QGroundControl .params file")
+    parser.add_argument("--ekf3", type=Path, metavar="FILE.param",
+                        help="write ArduPilot EKF3's IMU noise (EK3_GYRO_P_NSE, .._ACC_.., .._GBIAS_.., "
+                             ".._ABIAS_..) as a .param file")
+    parser.add_argument("--inflate", type=INFLATE, default=1.0, metavar="K",
+                        help="multiply every value of the estimator files (Kalibr .. EKF3) by K, 1..1000 "
+                             "(default 1, the still bench values; Kalibr: 10 or more for low-cost MEMS, "
+                             "OpenVINS: 10-20); the factor and why is printed")
+    parser.add_argument("--ekf-rate", type=EKF_RATE_HZ, metavar="HZ",
+                        help="the --ekf2/--ekf3 filter's prediction rate (default PX4 100 Hz, ArduPilot "
+                             "83.3 Hz)")
     parser.add_argument("--horizon", type=number(float, 0.0, 1e9, low_open=True, unit="s"), metavar="S",
                         help="time scale (s) over which the Kalibr/VINS/ORB-SLAM3 N and K cover the whole "
                              "noise model, from the sample period (default: each axis's valid_tau end); a "
@@ -70,6 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="filter rate of the --gm discrete-time terms (default: the record's rate)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.add_argument("--topic", help="IMU topic of a ROS bag holding several (default: the only one)")
+    add_instance_option(parser)
     parser.add_argument("--rostopic", help="rostopic for Kalibr's imu.yaml (default: --topic or /imu0)")
     parser.add_argument("--rate", type=RATE_HZ, metavar="HZ",
                         help="nominal sample rate (default: from the median timestamp step)")
@@ -205,16 +227,17 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     # the engines load here, not when --help is asked for
     from station.acquisition.allan_source import AXES, capture_chunks, integrate_stream
     from station.common.files import atomic_write_text, output_set
+    from station.console.log_notes import print_log_notes
     from station.engines.allan.deviation import allan_curve, cluster_sizes
     from station.engines.allan.fit import identify_noise
     from station.engines.allan.solver import solver_ready
-    from station.export.estimators import kalibr
     from station.export.params import noise as noise_file
     from station.export.params.file import merge_sections, name_unit, open_for_unit, to_plain
 
     if args.per_decade < 10:
         raise EngineInputError(f"--per-decade {args.per_decade}: use at least 10 points per decade")
-    chunks, device, size = capture_chunks(args.input, args.topic)
+    chunks, device, size = capture_chunks(args.input, args.topic, args.instance)
+    print_log_notes(args.input, getattr(chunks, "notes", ()), err)
     device = name_unit(device, args.serial)
     if args.output:
         open_for_unit(args.output, device, replace=args.replace)  # refuse before hours of computing
@@ -256,13 +279,14 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     section = to_plain(noise_file.noise_section(noise, curve, source, horizon_s=args.horizon))
     outputs: dict[str, str] = {}
     rostopic = args.rostopic or args.topic or "/imu0"
-    texts = {}
-    if args.kalibr:
-        texts[args.kalibr] = kalibr.kalibr_yaml(section, rostopic=rostopic)
-    if args.vins:
-        texts[args.vins] = kalibr.vins_snippet(section)
-    if args.orbslam3:
-        texts[args.orbslam3] = kalibr.orbslam3_snippet(section)
+    requests = {fmt: getattr(args, fmt) for fmt in ESTIMATOR_OPTIONS if getattr(args, fmt)}
+    estimators = {}
+    if requests:
+        from station.export.writers import noise_exports
+
+        estimators = noise_exports(section, device, requests, inflate=args.inflate, ekf_rate_hz=args.ekf_rate,
+                                   rostopic=rostopic)
+    texts = {path: estimator.text for path, estimator in estimators.items()}
     if args.gm:
         from station.export.estimators.gauss_markov import gm_yaml
 
@@ -283,7 +307,10 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
         if args.output:
             merge_sections(args.output, device, {"noise": section}, capture=args.input, replace=args.replace)
             outputs[str(args.output)] = "noise section written"
-    return {"noise": section, "outputs": outputs}
+    result: dict[str, Any] = {"noise": section, "outputs": outputs}
+    if estimators:
+        result["estimators"] = {str(path): estimator.to_dict() for path, estimator in estimators.items()}
+    return result
 
 
 def run(args: argparse.Namespace) -> int:
@@ -306,4 +333,17 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     for path, what in result["outputs"].items():
         print(f"{path}: {what}")
+    _print_estimators(result.get("estimators") or {})
     return ExitCode.OK
+
+
+def _print_estimators(estimators: dict[str, dict[str, Any]]) -> None:
+    """Each estimator file's values and notes, then the inflation factor and its reason (once: one factor)."""
+    from station.export.estimators.noise_export import value_lines
+
+    for path, estimator in estimators.items():
+        *values, inflation = value_lines(estimator)
+        print(f"{path}: {values[0]}")
+        print("\n".join([*values[1:], *(f"note: {note}" for note in estimator.get("notes") or [])]))
+    if estimators:
+        print(inflation)
