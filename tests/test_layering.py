@@ -80,10 +80,15 @@ RULES = (
     # Frame descriptions: read (acquisition's level), checked live on a port, guessed from bytes.
     Rule("station/frames/", ("station.frames", "drivers", "protocols", *STATION_CORE), ("numpy", "yaml"),
          "frames import drivers and protocols, as acquisition does"),
-    # h5py and rosbags read and write the capture files and bags; pyyaml the sequence files.
+    # h5py and rosbags read and write the capture files and bags; pyyaml the sequence files; pymavlink
+    # indexes ArduPilot's DataFlash logs (its DFReader) and holds ArduPilot's board rotations; numba walks
+    # a ULog's message headers (station/acquisition/ulog_reader.py: one compiled loop, 100x Python's).
     Rule("station/acquisition/", ("station.acquisition", "drivers", "protocols", *STATION_CORE),
-         ("numpy", "yaml", "h5py", "rosbags"),
-         "acquisition imports drivers (through their interface) and protocols"),
+         ("numpy", "yaml", "h5py", "rosbags", "pymavlink", "numba"),
+         "acquisition imports drivers (through their interface) and protocols",
+         # Taking ArduPilot's own correction out of a log's IMU messages evaluates the formula the
+         # ArduPilot export documents and checks (ardupilot_offsets, names): one implementation of it.
+         exceptions=(("station/acquisition/autopilot_log.py", "station.export.autopilot.ardupilot"),)),
     # Engines: their result types and the pure functions that evaluate them (the error an autopilot
     # leaves is computed with the station's own correction); protocols.crc: the blob's CRC-32 is
     # the protocols' one implementation; matplotlib draws the PNGs written beside an export.

@@ -13,6 +13,10 @@ process's resident memory does not grow with the record either.
 Timestamps are checked on the way: duplicates and samples older than the newest one are dropped and
 counted, gaps (steps over 1.5 nominal periods) are counted with the samples they miss. Nothing is assumed
 silently: the report goes to the user and into the outputs.
+
+Why this module is long: the two passes, the timestamp checks between them, the read-ahead thread and
+each input's chunking (CSV halves, capture files read twice, bags, autopilot logs) share one invariant,
+the drop masks of pass 1 applied by chunk index in pass 2; apart, each piece would have to re-state it.
 """
 
 from __future__ import annotations
@@ -403,14 +407,24 @@ def _merge_first(chunks: Iterable[Chunk], rows: int = FIRST_ROWS) -> Iterator[Ch
     yield from it
 
 
-def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterable[Chunk], dict[str, Any], int]:
-    """Chunks of a capture CSV, station capture file or ROS bag; the unit's info; the size in bytes.
+class LogChunks(list):
+    """An autopilot log's IMU as one chunk (a log is read whole), with the notes of its conversion."""
+
+    notes: list[str]
+
+
+def capture_chunks(path: str | Path, topic: str | None = None,
+                   instance: int | None = None) -> tuple[Iterable[Chunk], dict[str, Any], int]:
+    """Chunks of a capture CSV, station capture file, ROS bag or autopilot log; the unit's info; the size
+    in bytes.
 
     Parameters
     ----------
     path : str or Path
     topic : str, optional
         The IMU topic of a bag.
+    instance : int, optional
+        The IMU of a PX4 or ArduPilot log (:class:`LogChunks`, whose ``notes`` say what was converted).
 
     Returns
     -------
@@ -427,13 +441,21 @@ def capture_chunks(path: str | Path, topic: str | None = None) -> tuple[Iterable
 
     path = Path(path)
     if not path.exists():
-        raise InputFileError(path, "does not exist; give a capture CSV, a capture file (.h5) or a ROS bag")
+        raise InputFileError(path, "does not exist; give a capture CSV, a capture file (.h5), a ROS bag or a "
+                             "PX4/ArduPilot log")
     if path.is_dir():
         size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
     else:
         size = path.stat().st_size
     if rosbag_reader.is_rosbag(path):
         return rosbag_reader.iter_imu_chunks(path, topic), {}, size
+    from station.acquisition import autopilot_log
+
+    if autopilot_log.is_autopilot_log(path):
+        capture = autopilot_log.read_log_capture(path, instance)
+        chunks = LogChunks([(capture.t, capture.acc, capture.gyro)])
+        chunks.notes = autopilot_log.log_notes(capture)
+        return chunks, capture.device, size
     name = path.name.lower()
     if name.endswith((".h5", ".hdf5")):
         return H5Chunks(path), _h5_device(path), size

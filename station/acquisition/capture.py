@@ -17,12 +17,19 @@ _COLUMNS = {"t": ("t",), "acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), 
             "dtemp": ("dtemp",), "mag": ("mx", "my", "mz")}
 
 
-def read_capture(path: str | Path) -> Capture:
-    """Read a capture CSV (``.csv``, ``.csv.gz``) or a station capture file (``.h5``, ``.hdf5``).
+def read_capture(path: str | Path, instance: int | None = None) -> Capture:
+    """Read a capture CSV (``.csv``, ``.csv.gz``), a station capture file (``.h5``, ``.hdf5``), or one IMU
+    of a PX4 ULog (``.ulg``) or ArduPilot DataFlash log (``.bin``).
+
+    A log's IMU is converted by :mod:`station.acquisition.autopilot_log` (SI units, the board's axes, the
+    autopilot's own correction taken out); what was done is in the capture's notes
+    (:func:`station.acquisition.autopilot_log.log_notes`), which the commands print.
 
     Parameters
     ----------
     path : str or Path
+    instance : int, optional
+        The log's IMU (PX4 multi_id, ArduPilot IMU.I; ``--instance``); needed when it has several.
 
     Returns
     -------
@@ -31,10 +38,17 @@ def read_capture(path: str | Path) -> Capture:
     Raises
     ------
     InputFileError
-        A file that cannot be read, naming the line and column.
+        A file that cannot be read, naming the line and column; a log with several IMUs and no
+        ``instance`` (naming them: instance, device id, rate, samples); ``instance`` for a file that is
+        not a log.
     """
-    from station.acquisition import capture_csv
+    from station.acquisition import autopilot_log, capture_csv
 
+    if autopilot_log.is_autopilot_log(path):
+        return autopilot_log.read_log_capture(path, instance)
+    if instance is not None:
+        raise InputFileError(path, f"--instance {instance} picks an IMU of a PX4 (.ulg) or ArduPilot (.bin) "
+                             "log, and this is not one; leave --instance out")
     name = str(path).lower()
     if name.endswith((".h5", ".hdf5")):
         from station.acquisition import capture_h5
@@ -67,7 +81,7 @@ def require_finite(capture: Capture, path: str | Path, arrays: Sequence[str], wh
         Naming the file, the line (a CSV's: row *i* is line *i* + 2, after the header) or the row
         (an HDF5 capture file's), and the column.
     """
-    csv = not str(path).lower().endswith((".h5", ".hdf5"))
+    csv = not str(path).lower().endswith((".h5", ".hdf5", ".ulg", ".bin"))  # a file without lines: rows
     for name in arrays:
         values = getattr(capture, name)
         if values is None:

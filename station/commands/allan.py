@@ -9,7 +9,13 @@ from collections import Counter
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
-from station.console.options import RATE_HZ, add_instance_option, add_output_option, add_replace_option, number
+from station.console.options import (
+    RATE_HZ,
+    add_instance_option,
+    add_output_option,
+    add_replace_option,
+    number,
+)
 from station.engines.allan.terms import TERMS
 from station.errors import EngineInputError, ExitCode
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.console.options import add_output_option
+from station.console.options import add_instance_option, add_output_option
 from station.errors import ExitCode
 
 if TYPE_CHECKING:
@@ -43,7 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("params", type=Path, metavar="PARAMS",
                         help="parameter file (YAML) written by the station")
     parser.add_argument("input", type=Path, metavar="INPUT",
-                        help="capture CSV (.csv, .csv.gz) or capture file (.h5)")
+                        help="capture CSV (.csv, .csv.gz), capture file (.h5), or a PX4 (.ulg) or ArduPilot "
+                             "(.bin) log")
+    add_instance_option(parser)
     add_output_option(parser, required=True, metavar="OUTPUT.csv", help="corrected capture CSV to write")
 
 
@@ -124,9 +126,11 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+    from station.acquisition.autopilot_log import log_notes
     from station.acquisition.capture import read_capture, require_finite
     from station.acquisition.capture_csv import write_csv
     from station.common.text import PATH_CHARS, printable
+    from station.console.log_notes import print_log_notes
     from station.console.markup import markup_safe
     from station.export.params.file import ParamsFile
 
@@ -135,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
                   console=Console(file=sys.stderr), transient=True, disable=quiet) as progress:
         task = progress.add_task(f"reading {markup_safe(args.input, PATH_CHARS)}", total=None)
-        capture = read_capture(args.input)
+        capture = read_capture(args.input, args.instance)
+        print_log_notes(args.input, log_notes(capture))
         # a NaN would come out as a NaN corrected sample, unnoticed; temperature counts once a thermal
         # section uses it (without one, temp and dtemp are copied as they are)
         used = ("t", "acc", "gyro", *(("temp", "dtemp") if params.thermal is not None else ()))

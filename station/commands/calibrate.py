@@ -21,6 +21,7 @@ from station.console.options import (
     MAX_GRAVITY,
     MIN_GRAVITY,
     RATE_HZ,
+    add_instance_option,
     add_output_option,
     add_replace_option,
     check_range,
@@ -138,6 +139,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--across-temperature", action="store_true",
                         help="turntable method on one capture per soak temperature: bias, scale and "
                              "misalignment as polynomials in T into the accel, gyro and thermal sections")
+    add_instance_option(parser)
     parser.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     parser.add_argument("--plot", type=Path, metavar="FILE.png",
                         help="write a residual plot (PNG); with --across-temperature, scale, misalignment "
@@ -191,9 +193,11 @@ def run_mag(args: argparse.Namespace) -> int:
     """--method mag: fit the magnetometer, merge the 'mag' section into --output, print the summary."""
     from rich.console import Console
 
+    from station.acquisition.autopilot_log import log_notes
     from station.acquisition.capture import read_capture
     from station.common.files import output_set
     from station.common.text import PATH_CHARS
+    from station.console.log_notes import print_log_notes
     from station.console.mag_summary import mag_report_dict, print_mag_report
     from station.console.markup import markup_safe
     from station.engines.magnetometer.calibration import MagCapture, MagSettings, calibrate_mag
@@ -205,7 +209,8 @@ def run_mag(args: argparse.Namespace) -> int:
     field, dip, field_source = mag_field(args)  # refuse bad options before reading a long capture
     with PhaseLine(sys.stderr) as phase:
         phase.show(f"reading {args.input}")
-        capture = read_capture(args.input)
+        capture = read_capture(args.input, args.instance)
+        print_log_notes(args.input, log_notes(capture))
         if capture.mag is None:
             raise InputFileError(args.input, "has no magnetometer columns (mx, my, mz): capture from a "
                                  "unit that reports its magnetometer, or calibrate the accelerometer and "
@@ -435,9 +440,11 @@ def write_plot(path: Path, report: CalibrationReport, source: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Calibrate the capture, merge the sections into --output, print the report (or JSON)."""
+    from station.acquisition.autopilot_log import log_notes
     from station.acquisition.capture import read_capture
     from station.common.files import output_set
     from station.common.text import PATH_CHARS, printable
+    from station.console.log_notes import print_log_notes
     from station.export.params.file import merge_sections, name_unit, open_for_unit
 
     if args.across_temperature:
@@ -451,7 +458,8 @@ def run(args: argparse.Namespace) -> int:
     local_gravity(args)  # refuse bad options before reading a long capture
     with PhaseLine(sys.stderr) as phase:
         phase.show(f"reading {args.input}")
-        capture = read_capture(args.input)
+        capture = read_capture(args.input, args.instance)
+        print_log_notes(args.input, log_notes(capture))
         device = name_unit(capture.device, args.serial)
         if args.output:
             open_for_unit(args.output, device, replace=args.replace)  # refuse before the fit
@@ -486,11 +494,14 @@ def _soak_of(path: Path, args: argparse.Namespace) -> tuple[Any, dict[str, Any],
     device info, and warnings (a capture whose temperature moved)."""
     import numpy as np
 
+    from station.acquisition.autopilot_log import log_notes
     from station.acquisition.capture import read_capture
+    from station.console.log_notes import print_log_notes
     from station.engines.thermal.intrinsics_fit import SoakCalibration
     from station.errors import EngineInputError, InputFileError
 
-    capture = read_capture(path)
+    capture = read_capture(path, args.instance)
+    print_log_notes(path, log_notes(capture))
     temp = None if capture.temp is None else np.asarray(capture.temp, float)
     if temp is None or not np.any(np.isfinite(temp)):
         raise InputFileError(path, "has no temperature: each capture of a calibration "

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from station.console.options import add_db_arguments, add_output_option, db_url
+from station.console.options import add_db_arguments, add_instance_option, add_output_option, db_url
 from station.errors import ExitCode, StationError
 
 if TYPE_CHECKING:
@@ -54,7 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pdf", type=Path, metavar="FILE.pdf",
                         help="also print it to PDF (headless Chromium)")
     parser.add_argument("--capture", action="append", default=[], type=Path, metavar="FILE",
-                        help="a capture the parameter file was computed from (repeat), for the plots")
+                        help="a capture the parameter file was computed from (repeat), for the plots; a PX4 "
+                             "(.ulg) or ArduPilot (.bin) log's IMU is chosen with --instance")
+    add_instance_option(parser)
     parser.add_argument("--plan", type=Path, metavar="PLAN.yaml",
                         help="judge the parameter file against this factory plan's limits")
     add_db_arguments(parser)
@@ -75,8 +77,10 @@ def _stage(text: str) -> None:
 
 
 def _from_params(args: argparse.Namespace) -> Certificate:
+    from station.acquisition.autopilot_log import is_autopilot_log, log_notes
     from station.acquisition.capture import read_capture
     from station.common.files import sha256_file
+    from station.console.log_notes import print_log_notes
     from station.engines.calibration.common import CalibrationReport
     from station.export.params.file import ParamsFile
     from station.factory.measure import measure
@@ -88,7 +92,9 @@ def _from_params(args: argparse.Namespace) -> Certificate:
     captures = []
     for path in args.capture:
         _stage(f"reading {path}")
-        captures.append(capture_file(path, read_capture(path)))
+        capture = read_capture(path, args.instance if is_autopilot_log(path) else None)
+        print_log_notes(path, log_notes(capture))
+        captures.append(capture_file(path, capture))
     measurements, plan = [], {}
     if args.plan is not None:
         loaded = load_plan(args.plan)

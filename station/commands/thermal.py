@@ -13,6 +13,7 @@ from station.console.options import (
     GRAVITY,
     MAX_GRAVITY,
     MIN_GRAVITY,
+    add_instance_option,
     add_output_option,
     add_replace_option,
     describe_range,
@@ -61,7 +62,9 @@ MAX_TAU_S = 3600.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the thermal command's options to ``parser``."""
     parser.add_argument("input", type=Path, metavar="INPUT",
-                        help="capture CSV (.csv, .csv.gz) or capture file (.h5) with a temp column")
+                        help="capture CSV (.csv, .csv.gz) or capture file (.h5) with a temp column, or a PX4 "
+                             "(.ulg) or ArduPilot (.bin) log")
+    add_instance_option(parser)
     add_output_option(parser, required=True, metavar="PARAMS",
                       help="parameter file to write the thermal section into (created if missing; "
                            "of the same unit)")
@@ -141,9 +144,11 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from station.acquisition.autopilot_log import log_notes
     from station.acquisition.capture import read_capture, require_finite
     from station.common.files import output_set
     from station.common.text import PATH_CHARS, printable, printable_message
+    from station.console.log_notes import print_log_notes
     from station.console.markup import markup_safe
     from station.console.thermal_report import format_report
     from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
@@ -153,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
     with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=err,
                   transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task(f"reading {markup_safe(args.input, PATH_CHARS)}", total=1.0)
-        capture = read_capture(args.input)
+        capture = read_capture(args.input, args.instance)
+        print_log_notes(args.input, log_notes(capture))
         if capture.temp is None:
             raise InputFileError(args.input, "has no temperature; a thermal fit needs the 'temp' column",
                                  column="temp")

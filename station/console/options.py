@@ -3,6 +3,11 @@
 Every numeric option is range-checked where it is parsed: a value outside its range is a usage
 error (exit 4) whose one line names the option, the value and the range, e.g.
 ``argument --baud: 99999999999 is outside the allowed range, 50..12000000 (bit/s)``.
+
+Why this module is long: it is the one place every shared option is defined, parsed and range-checked
+(ports, protocols, outputs, the record database, the lab instruments, a log's IMU instance), so that
+the commands say the same thing the same way; split by topic it would scatter the ranges and messages
+the tests read from one table.
 """
 
 from __future__ import annotations
@@ -328,6 +333,24 @@ def add_output_option(parser: argparse.ArgumentParser, *, required: bool = False
     kwargs.setdefault("type", Path)
     parser.add_argument("-o", "--output", "--out", dest=dest, required=required, metavar=metavar, help=help,
                         **kwargs)
+
+
+MAX_LOG_INSTANCE = 255
+"""The largest IMU instance a log can name (ULog multi_id and DataFlash IMU.I are one byte)."""
+
+
+def add_instance_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--instance N``: the IMU of a PX4 ULog (multi_id) or ArduPilot DataFlash log (IMU.I) to read.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    """
+    parser.add_argument("--instance", type=number(int, 0, MAX_LOG_INSTANCE), metavar="N",
+                        help="the IMU of a PX4 (.ulg) or ArduPilot (.bin) log, 0-based as the autopilot "
+                             "numbers them (PX4 multi_id, ArduPilot IMU.I); needed when the log has several "
+                             "(the command lists them)")
 
 
 def serial_number(text: str) -> str:
