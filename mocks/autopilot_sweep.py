@@ -141,6 +141,31 @@ def log_sweep(options: Mapping[str, float] | None = None) -> ChamberSweep:
     return scenario_sweep(**values)
 
 
+def parse_log_sweep(spec: str) -> ChamberSweep:
+    """:func:`log_sweep` from ``"t_min=-20,t_max=60,rate_c_per_min=3,soak_s=300"`` (any subset).
+
+    Raises
+    ------
+    ValueError
+        Naming the part that is not ``key=value``, an unknown option, a value that is not a finite
+        number, or one out of range.
+    """
+    options: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in spec.split(","))):
+        key, sep, text = (x.strip() for x in part.partition("="))
+        if not sep:
+            raise ValueError(f"{part!r} is not key=value")
+        if key not in LOG_SWEEP_DEFAULTS:
+            raise ValueError(f"unknown chamber option {key!r}; known: {', '.join(LOG_SWEEP_DEFAULTS)}")
+        try:
+            options[key] = float(text)
+        except ValueError:
+            raise ValueError(f"chamber option {key}={text!r}: not a number") from None
+        if not np.isfinite(options[key]):
+            raise ValueError(f"chamber option {key}={text!r}: not a finite number")
+    return log_sweep(options)
+
+
 def board_sweep(imus: list[BoardImu], sweep: ChamberSweep, rate_hz: float = LOG_RATE_HZ,
                 seed: int = 0, temp_noise_degc: float = 0.02) -> list[ChamberRun]:
     """Each IMU through ``sweep`` lying level in FRD (z down), with its own self-heating.

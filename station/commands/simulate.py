@@ -18,6 +18,7 @@ from station.console.options import (
     SIM_ENCODERS,
     SIM_SCENARIOS,
     SPEED,
+    add_output_option,
     check_range,
 )
 from station.errors import ExitCode, StationError
@@ -28,6 +29,10 @@ if TYPE_CHECKING:
     from mocks.magnetometer import MagTruth
     from mocks.pty_server import PtyServer
     from mocks.truth import UnitTruth
+
+SERVED_RATE_HZ = 200
+LOG_RATE_HZ = 10  # mocks.autopilot_sweep.LOG_RATE_HZ (not imported: --help loads no numpy)
+LOG_FORMATS = ("ulog", "dataflash")  # mocks.autopilot_sweep.LOG_FORMATS
 
 NAME = "simulate"
 HELP = "serve a simulated unit on a pseudo-terminal (a serial port path any tool can open)"
@@ -55,6 +60,15 @@ sets the local Earth field (default 50 uT, dip 60 deg, declination 0).
 faults (probabilities per frame, comma separated): garbage=P, bitflip=P, truncate=P, drop=P,
 stall=P with stall_s=S, garbage_max=N, disconnect_bytes=N, disconnect_s=S, seed=N.
 
+--log-format ulog|dataflash -o FILE writes a flight controller's log instead of serving a port:
+a board of three IMU instances of different truths (instance 0 a cubic thermal bias, 1 a cubic with
+strong dT terms, 2 a cubic with a mild dT term; different biases and noise) taken through a chamber
+programme (--scenario chamber): from t_min up to t_max and back, with soaks, level in the autopilot's
+body frame (z down). ulog is PX4's (sensor_accel, sensor_gyro, sensor_baro, the board's parameters),
+dataflash ArduPilot's .bin (IMU and PARM messages). For logs the programme's defaults are
+t_min=-20,t_max=60,rate_c_per_min=3,soak_s=300 and --rate defaults to 10 Hz (ArduPilot's
+tempcal_IMU.py takes time growing with the square of the samples per IMU).
+
 --instruments also serves a simulated bench on loopback TCP, coupled to the unit, and prints each
 instrument's URL (votsch://, acutrol://, scpi:// on 127.0.0.1) for `imu-station instrument URL`,
 --chamber/--table/--supply and plans: a Voetsch simserv chamber whose air the unit sits in (a
@@ -70,6 +84,8 @@ examples:
   imu-station simulate --scenario twelve-position --speed 10
   imu-station simulate --scenario chamber --chamber t_min=0,t_max=40,rate_c_per_min=2 --speed 100
   imu-station simulate --mag field=48,dip=64 --scenario mag-desk
+  imu-station simulate --scenario chamber --log-format ulog -o sweep.ulg
+  imu-station simulate --scenario chamber --log-format dataflash --chamber rate_c_per_min=2 -o sweep.bin
   imu-station simulate --instruments --speed 20
   imu-station instrument votsch://127.0.0.1:PORT --setpoint 40 --start   (a URL it printed)
   imu-station capture --port /tmp/imu --duration 10 -o still.csv   (in another terminal)"""
@@ -78,13 +94,15 @@ examples:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the simulate command's options to ``parser``."""
     parser.add_argument("--seed", type=SEED, default=0, help="unit, noise and scenario seed (default: 0)")
-    parser.add_argument("--rate", type=int, default=200, metavar="HZ",
-                        help="sample rate at power-up (default: 200)")
+    parser.add_argument("--rate", type=int, default=None, metavar="HZ",
+                        help=f"sample rate at power-up (default: {SERVED_RATE_HZ}; {LOG_RATE_HZ} with "
+                             "--log-format)")
     parser.add_argument("--scenario", default="still", choices=SIM_SCENARIOS,
                         help="how the unit moves (default: still)")
     parser.add_argument("--chamber", default="", metavar="SPEC",
                         help="programme of --scenario chamber: t_min=C,t_max=C,rate_c_per_min=R,soak_s=S, "
-                             "any of them (default: t_min=-20,t_max=60,rate_c_per_min=1,soak_s=600)")
+                             "any of them (default: t_min=-20,t_max=60,rate_c_per_min=1,soak_s=600; "
+                             "with --log-format rate_c_per_min=3,soak_s=300)")
     parser.add_argument("--mag", nargs="?", const="mag=1", default="", metavar="SPEC",
                         help="a unit with a magnetometer; SPEC sets the local field and the rig's heading: "
                              "field=UT,dip=DEG,declination=DEG,heading=DEG, any of them (default: "
@@ -105,6 +123,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: 1)")
     parser.add_argument("--duration", type=DURATION_S, metavar="S",
                         help="stop after S seconds of wall clock (default: until Ctrl-C)")
+    parser.add_argument("--log-format", choices=LOG_FORMATS, default=None,
+                        help="write a flight controller's log of a three-IMU board (with --scenario chamber "
+                             "and -o) instead of serving a port: ulog (PX4) or dataflash (ArduPilot .bin)")
+    add_output_option(parser, metavar="FILE", help="with --log-format: the log to write (.ulg / .bin)")
     parser.add_argument("--instruments", nargs="?", const="all", default="", metavar="KINDS",
                         help="also serve a simulated chamber, rate table and bench supply coupled to the "
                              "unit, on loopback TCP, and print their URLs; KINDS picks some: "
@@ -121,6 +143,9 @@ def run(args: argparse.Namespace) -> int:
     from mocks.pty_server import PtyServer
     from mocks.truth import UnitTruth
 
+    if args.log_format is not None or args.output is not None:
+        return _write_log(args)
+    rate = SERVED_RATE_HZ if args.rate is None else args.rate
     try:
         faults = FaultSpec.parse(args.faults)
     except ValueError as exc:
@@ -133,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
             raise StationError(f"--chamber {args.chamber!r}: {exc}") from None
     elif args.chamber:
         raise StationError(f"--chamber applies to --scenario chamber only, not {args.scenario}")
-    check_range("--rate", args.rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")
+    check_range("--rate", rate, MIN_RATE_HZ, MAX_RATE_HZ, unit="Hz, the simulated unit's rates")
     kinds: tuple[str, ...] = ()
     if args.instruments:
         try:
@@ -149,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
     truth = UnitTruth.ideal() if args.ideal else UnitTruth.random(args.seed, grade=args.grade)
     truth.mag, heading = _magnetometer(args.mag, args.seed)
     truth.heading_deg = heading
-    device = SimDevice(truth, seed=args.seed, rate_hz=args.rate, scenario=args.scenario,
+    device = SimDevice(truth, seed=args.seed, rate_hz=rate, scenario=args.scenario,
                        loop=False if args.hold else None, encoder=args.protocol, chamber=chamber)
     server = PtyServer(device, faults=faults, link=args.link, speed=args.speed)
 
@@ -183,7 +208,8 @@ def _announce(args: argparse.Namespace, server: PtyServer, truth: UnitTruth, fau
     from station.common.text import printable
 
     speed = f", speed x{args.speed:g}" if args.speed != 1 else ""
-    print(f"simulated unit {printable(truth.serial)} ({printable(truth.model)}), {args.rate} Hz, "
+    rate = SERVED_RATE_HZ if args.rate is None else args.rate
+    print(f"simulated unit {printable(truth.serial)} ({printable(truth.model)}), {rate} Hz, "
           f"scenario {args.scenario}, faults {faults}{speed}")
     if chamber is not None:
         print(f"chamber: {describe_scenario(chamber)}")
@@ -200,6 +226,55 @@ def _announce(args: argparse.Namespace, server: PtyServer, truth: UnitTruth, fau
         print("instruments: coupled to the unit; open them by these URLs (sim://KIND names them only "
               "inside one process)")
     print("press Ctrl-C to stop", flush=True)
+
+
+# Options of a served unit that a written log has no use for, with the value that means "not given".
+_SERVING_ONLY = (("--faults", "faults", ""), ("--link", "link", None), ("--speed", "speed", 1.0),
+                 ("--duration", "duration", None), ("--instruments", "instruments", ""), ("--mag", "mag", ""),
+                 ("--hold", "hold", False), ("--protocol", "protocol", "native"),
+                 ("--grade", "grade", "mems"))
+MAX_LOG_RATE_HZ = 1000  # a chamber log at 1 kHz is already hundreds of MB
+
+
+def _write_log(args: argparse.Namespace) -> int:
+    """``--log-format``: simulate the three-IMU board through the chamber and write its log."""
+    from mocks.autopilot_sweep import LOG_SUFFIXES, parse_log_sweep, simulate_board_log
+    from mocks.chamber import describe_scenario
+    from station.common.text import PATH_CHARS, printable
+
+    if args.log_format is None or args.output is None:
+        raise StationError("a log needs both --log-format ulog|dataflash and -o FILE")
+    if args.scenario != "chamber":
+        raise StationError(f"--log-format writes a chamber sweep: give --scenario chamber, not "
+                           f"{args.scenario}")
+    given = [flag for flag, dest, unset in _SERVING_ONLY if getattr(args, dest) != unset]
+    if given:
+        raise StationError(f"{', '.join(given)}: for a served unit only, not with --log-format")
+    rate = LOG_RATE_HZ if args.rate is None else args.rate
+    check_range("--rate", rate, 1, MAX_LOG_RATE_HZ, unit="Hz, for a log")
+    try:
+        sweep = parse_log_sweep(args.chamber)
+    except ValueError as exc:
+        raise StationError(f"--chamber {args.chamber!r}: {exc}") from None
+    output = Path(args.output)
+    if output.is_dir():
+        raise StationError(f"-o {printable(output, PATH_CHARS)} is a directory; give a file name "
+                           f"(e.g. sweep{LOG_SUFFIXES[args.log_format]})")
+    try:
+        imus, runs = simulate_board_log(output, args.log_format, seed=args.seed, sweep=sweep, rate_hz=rate,
+                                        noise=not args.ideal)
+    except OSError as exc:
+        raise StationError(f"cannot write {printable(output, PATH_CHARS)}: {exc.strerror or exc}") from None
+    kind = "PX4 ULog" if args.log_format == "ulog" else "ArduPilot DataFlash log"
+    n = len(runs[0].recording.t)
+    print(f"wrote {printable(output, PATH_CHARS)}: {kind}, {len(imus)} IMU instances, {n} samples each at "
+          f"{rate:g} Hz{', noise-free' if args.ideal else ''}, seed {args.seed}")
+    print(f"chamber: {describe_scenario(sweep).split(', then held')[0]}")
+    for imu, run in zip(imus, runs, strict=True):
+        temp = run.recording.temp_true
+        print(f"  instance {imu.instance}: accel id {imu.accel_id}, gyro id {imu.gyro_id}, thermal truth "
+              f"{imu.kind}, {temp.min():.1f}..{temp.max():.1f} degC")
+    return ExitCode.OK
 
 
 def _magnetometer(spec: str, seed: int) -> tuple[MagTruth | None, float]:
