@@ -183,7 +183,8 @@ def test_inflate_multiplies_every_value_and_is_printed(fmt, tmp_path, capsys):
     assert "Kalibr's wiki" in stdout and "OpenVINS' docs" in stdout
     code, stdout, err = export([source, "-f", fmt, "-o", inflated, "--inflate", "12.5"], capsys)
     assert code == 0, err
-    assert "inflation: noise values inflated by a factor of 12.5 (--inflate 12.5, variances x156.25)" in stdout
+    assert "inflation: noise values inflated by a factor of 12.5 (--inflate 12.5, variances x156.25)" \
+        in stdout
     before, after = read_values(fmt, plain), read_values(fmt, inflated)
     assert set(before) == set(after) and len(after) == 4
     for name, value in before.items():
@@ -245,8 +246,8 @@ def test_the_reason_names_the_factor_and_the_sources() -> None:
 
 
 # allan writes the same files straight from a record
-GYRO = NoiseSpec(N=[3e-4, 4e-4, 5e-4], K=[2e-5, 2e-5, 2e-5])
-ACCEL = NoiseSpec(N=[2e-3, 2e-3, 3e-3], K=[3e-4, 3e-4, 3e-4])
+GYRO = NoiseSpec(N=np.array([3e-4, 4e-4, 5e-4]), K=np.array([2e-5, 2e-5, 2e-5]))
+ACCEL = NoiseSpec(N=np.array([2e-3, 2e-3, 3e-3]), K=np.array([3e-4, 3e-4, 3e-4]))
 
 
 @pytest.fixture(scope="module")
