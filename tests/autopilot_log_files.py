@@ -21,6 +21,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -86,6 +87,9 @@ def write_ulog(path: str | Path, topics: Mapping[tuple[str, int], np.ndarray], p
     head += _message(b"L", b"\x06" + struct.pack("<Q", 0) + b"logging started")
     # every data message: its time, its topic, its length; then the bytes scattered to their offsets
     keys = list(topics)
+    if not keys:
+        Path(path).write_bytes(bytes(head))
+        return Path(path)
     times = np.concatenate([topics[k]["timestamp"] for k in keys])
     which = np.concatenate([np.full(len(topics[k]), i) for i, k in enumerate(keys)])
     order = np.argsort(times, kind="stable")
@@ -167,3 +171,32 @@ def write_dataflash(path: str | Path, imu: list[np.ndarray], params: Mapping[str
     path = Path(path)
     path.write_bytes(bytes(out))
     return path
+
+
+# --- from simulated captures ----------------------------------------------------------------------------
+
+ACCEL_IDS = (1310988, 1310996, 1311004)  # PX4 SITL's three simulated IMUs
+GYRO_IDS = (2359308, 2359316, 2359324)
+
+
+def ulog_from_captures(path: str | Path, captures: Mapping[int, Any],
+                       params: Mapping[str, float] | None = None, dropout_ms: int = 0) -> Path:
+    """A ULog whose sensor_accel/sensor_gyro multi_id i hold capture i (float32 on disk)."""
+    topics = {}
+    for i, cap in captures.items():
+        t_us = np.rint(np.asarray(cap.t) * 1e6).astype(np.uint64)
+        temp = cap.temp if cap.temp is not None else np.zeros(len(t_us))
+        a, g = imu_records(t_us, np.asarray(cap.acc), np.asarray(cap.gyro), temp, ACCEL_IDS[i], GYRO_IDS[i])
+        topics["sensor_accel", i], topics["sensor_gyro", i] = a, g
+    return write_ulog(path, topics, dict(params or {}), dropout_ms=dropout_ms)
+
+
+def dataflash_from_captures(path: str | Path, captures: Mapping[int, Any],
+                            params: Mapping[str, float] | None = None) -> Path:
+    """A DataFlash log whose IMU instance i holds capture i as logged (no correction applied to it)."""
+    imu = []
+    for i, cap in captures.items():
+        t_us = np.rint(np.asarray(cap.t) * 1e6).astype(np.uint64)
+        temp = cap.temp if cap.temp is not None else np.zeros(len(t_us))
+        imu.append(imu_messages(t_us, i, np.asarray(cap.acc), np.asarray(cap.gyro), temp))
+    return write_dataflash(path, imu, dict(params or {}))

@@ -351,11 +351,10 @@ def _px4_applied(log: AutopilotLog, sensor: str, device_id: int | None) -> list[
     found: list[str] = []
     if device_id is None:
         return found
-    for k in range(4):
-        if p.get(f"TC_{letter}{k}_ID") == device_id and p.get(f"TC_{letter}_ENABLE") == 1:
-            found.append(f"TC_{letter}{k}")
-        if p.get(f"{cal}{k}_ID") == device_id:
-            found.append(f"{cal}{k}")
+    # in PX4's order: the thermal offset first, then the calibration
+    found += [f"TC_{letter}{k}" for k in range(4)
+              if p.get(f"TC_{letter}{k}_ID") == device_id and p.get(f"TC_{letter}_ENABLE") == 1]
+    found += [f"{cal}{k}" for k in range(4) if p.get(f"{cal}{k}_ID") == device_id]
     return found
 
 
