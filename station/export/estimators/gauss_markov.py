@@ -96,5 +96,6 @@ def gm_yaml(noise: dict[str, Any], rate_hz: float | None = None) -> str:
         doc[sensor] = {"units": {"N": units.get("N"), "K": units.get("K"), "sigma": units.get("B"),
                                  "tau_c": "s"}, **per_axis}
     header = (f"# Gauss-Markov process noise for an EKF at {rate:g} Hz, from imu-station allan.\n"
-              "# Continuous: dx/dt = -x/tau_c + w, q_c = 2 sigma^2/tau_c; discrete: see 'model'.\n")
+              "# Continuous: dx/dt = -x/tau_c + w, q_c = 2 sigma^2/tau_c; discrete: see 'model'.\n"
+              "# The measured model: --inflate, which scales the estimators' files, does not apply here.\n")
     return header + yaml.safe_dump(doc, sort_keys=False)
