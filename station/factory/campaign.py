@@ -537,7 +537,14 @@ class CampaignRun(UnitRun):
             phase.measurements += measure(plan, CALIBRATION_QUANTITIES, across, {})  # type: ignore[arg-type]
             phase.notes += list(across.warnings)
             phase.notes.append(f"fitted across {len(soaks)} soaks; orders {across.orders}")
-        hysteresis = bias_hysteresis(self._sweeps(steps)) if self.campaign.ramp_record else None
+        sweeps = self._sweeps(steps) if self.campaign.ramp_record else []
+        if across is not None and sweeps:
+            across = self._ramp_bias(phase, across, sweeps)
+        hysteresis = bias_hysteresis(sweeps) if sweeps else None
+        if hysteresis is not None and self.campaign.power_cycles:
+            phase.notes.append("the bias hysteresis compares ramps recorded after different power-ups (the "
+                               "soaks' power cycles): it includes the turn-on bias changes; a campaign with "
+                               "power_cycles: 0 measures the hysteresis alone")
         if hysteresis is not None:
             for triad, values, unit in (("accel", hysteresis.accel, "m/s^2"),
                                         ("gyro", hysteresis.gyro, "rad/s")):
@@ -547,6 +554,33 @@ class CampaignRun(UnitRun):
         if any(m.outcome == "FAIL" for m in phase.measurements):
             phase.outcome = "FAIL"
         return across, reports, turn_ons, hysteresis
+
+    def _ramp_bias(self, phase: Phase, across: Any, sweeps: list[Sweep]) -> Any:
+        """The thermal bias as a function of T and dT from the ramp records, relative to the fit at T_ref
+        (as ``imu-station thermal`` fits a sweep); the scale and misalignment polynomials the soaks'."""
+        from station.engines.thermal.fit import ThermalSettings, ThermalSweep, fit_thermal
+
+        # The ramps one after another on one time line: each starts where the soak before it settled.
+        ts, offset = [], 0.0
+        for sweep in sweeps:
+            t = sweep.t - sweep.t[0] + offset
+            ts.append(t)
+            offset = float(t[-1]) + float(np.median(np.diff(t))) if len(t) > 1 else offset + 1.0
+        reference = across.accel.extra.get("reference_temp")
+        try:
+            data = ThermalSweep(np.concatenate(ts), np.concatenate([w.temp for w in sweeps]),
+                                np.concatenate([w.acc for w in sweeps]),
+                                np.concatenate([w.gyro for w in sweeps]), None,
+                                accel_cal=across.accel, gyro_cal=across.gyro)
+            fit = fit_thermal(data, ThermalSettings(gravity=self._gravity(), reference_temp=reference))
+        except StationError as exc:
+            phase.notes.append(f"thermal bias from the soaks only: the ramp records could not be fitted "
+                               f"({exc})")
+            return across
+        phase.notes.append("thermal bias (T and dT terms) fitted on the ramp records; scale factor and "
+                           "misalignment as functions of T from the soaks")
+        phase.notes += [f"ramps: {w}" for w in fit.warnings]
+        return dataclasses.replace(across, thermal=fit.model.keeping_intrinsics(across.thermal))
 
     def _sweeps(self, steps: list[CampaignStep]) -> list[Sweep]:
         assert self.files is not None and self.journal is not None
@@ -558,7 +592,7 @@ class CampaignRun(UnitRun):
             capture = read_capture(self.files / step.file)
             direction = int(journaled.get(step.id, {}).get("results", {}).get("direction", 0))
             if capture.temp is not None and direction:
-                out.append(Sweep(direction, capture.temp, capture.acc, capture.gyro))
+                out.append(Sweep(direction, capture.temp, capture.acc, capture.gyro, capture.t))
         return out
 
     def _export_campaign(self, phase: Phase, across: Any, reports: list[Any], turn_ons: list[Any],

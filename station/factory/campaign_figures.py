@@ -15,7 +15,7 @@ per axis, for the accelerometer (m/s^2) and the gyroscope (rad/s).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,12 +25,13 @@ MIN_SAMPLES = 20
 
 @dataclass(frozen=True)
 class Sweep:
-    """One ramp's still record: its direction (+1 up, -1 down), temperature and readings."""
+    """One ramp's still record: its direction (+1 up, -1 down), temperature, readings and times (s)."""
 
     direction: int
     temp: np.ndarray
     acc: np.ndarray
     gyro: np.ndarray
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True)
