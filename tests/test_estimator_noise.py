@@ -224,6 +224,15 @@ def test_a_term_the_record_does_not_show_is_refused(tmp_path, capsys):
     assert code == 4 and "gyro K is unknown" in err and "Traceback" not in err
 
 
+@pytest.mark.parametrize("topic", ["/imu0\nupdate_rate: 1", "imu: x", ""])
+def test_a_topic_that_is_not_a_ros_name_is_refused(topic, tmp_path, capsys):
+    source = save_params(tmp_path / "unit.yaml", noise_section())
+    args = [source, "-f", "openvins", "-o", tmp_path / "x.yaml", "--rostopic", topic]
+    code, out, err = export(args, capsys)
+    assert code == 4 and "is not a ROS topic name" in err and "Traceback" not in err
+    assert not (tmp_path / "x.yaml").exists()
+
+
 def test_values_outside_the_documented_range_are_written_and_named(tmp_path, capsys):
     source = save_params(tmp_path / "unit.yaml", noise_section())
     code, out, err = export([source, "-f", "ekf3", "-o", tmp_path / "x.param", "--inflate", "10"], capsys)

@@ -20,6 +20,7 @@ ekf3        ArduPilot ``.param``                   F N / sqrt(dt), F K / sqrt(dt
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,6 +36,8 @@ ESTIMATORS = {"kalibr": "Kalibr", "vins": "VINS-Fusion", "orbslam3": "ORB-SLAM3"
 DEFAULT_NAMES = {"kalibr": "kalibr_imu.yaml", "vins": "vins_imu.yaml", "orbslam3": "orbslam3_imu.yaml",
                  "openvins": "kalibr_imu_chain.yaml", "ekf2": "ekf2_noise.params", "ekf3": "ekf3_noise.param"}
 """The file each format writes into a directory."""
+ROS_NAME = re.compile(r"[~/]?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*")
+"""A ROS graph resource name (wiki.ros.org/Names), so a topic cannot add lines or keys to the YAML."""
 _CONTINUOUS_KEYS = {
     "kalibr": dict(kalibr.KEYS),
     "openvins": dict(kalibr.KEYS),
@@ -200,8 +203,8 @@ def build_noise_export(fmt: str, noise: dict[str, Any] | None, device: dict[str,
     Raises
     ------
     EngineInputError
-        No noise section, a term the record does not show, a factor below 1, a rate not above 0, an
-        unknown format.
+        No noise section, a term the record does not show, a factor below 1, a rate not above 0, a topic
+        that is not a ROS name, an unknown format.
     """
     if fmt not in NOISE_FORMATS:
         raise EngineInputError(f"unknown estimator format {fmt!r}; known: {', '.join(NOISE_FORMATS)}")
@@ -209,6 +212,9 @@ def build_noise_export(fmt: str, noise: dict[str, Any] | None, device: dict[str,
         raise EngineInputError(f"{source}: has no noise section, so there are no noise values for "
                                f"{ESTIMATORS[fmt]}; run 'imu-station allan STILL_RECORD -o {source}' first")
     factor = inflation.check_factor(factor)
+    if fmt in ("kalibr", "openvins") and not ROS_NAME.fullmatch(rostopic):
+        raise EngineInputError(f"rostopic {rostopic!r} is not a ROS topic name: give letters, digits, "
+                               "'_' and '/' (e.g. /imu0)")
     _check_rate(ekf_rate_hz, "--ekf-rate")
     _check_rate(update_rate, "the IMU rate")
     target = autopilot_ekf.TARGETS.get(fmt)
