@@ -206,10 +206,12 @@ def export_time() -> int:
 
 def _nothing_to_export(source: str, fmt: str, held: list[str]) -> StationError:
     holds = f"holds only {', '.join(held)}" if held else "holds no section"
+    noise = (f" (its noise values for an estimator: --format {', '.join(NOISE_FORMATS)})" if "noise" in held
+             else "")
     return StationError(f"{source}: {holds}; --format {fmt} writes the accel, gyro, thermal and mag "
                         "sections, so there is nothing to export; run 'imu-station calibrate' (--method mag "
                         "for the magnetometer) or 'imu-station thermal' first, or export it with --format "
-                        "json or yaml")
+                        f"json or yaml{noise}")
 
 
 def _file_target(out: Path, fmt: str) -> Path:
