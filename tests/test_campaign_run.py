@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from mocks.truth import UnitTruth
+from station.export.params.file import ParamsFile
 from station.factory.campaign import campaign_steps
 from station.factory.plan import load_plan
 from station.factory.records import RecordStore
@@ -272,3 +273,30 @@ def test_killed_at_many_points_resumes_to_one_record(uninterrupted: Path, tmp_pa
             sigma = np.hypot(a[triad]["stddev"][key], b[triad]["stddev"][key])
             diff = np.abs(np.subtract(a[triad][key], b[triad][key]))
             assert np.all(diff <= 6 * sigma + 1e-9), (triad, key, diff, sigma)
+
+
+def test_campaign_turn_on_and_thermal_bias_against_truth(uninterrupted: Path) -> None:
+    """The pooled turn-on repeatability against the simulated unit's turn-on sigma (3 power-ups at 3 soaks:
+    s^2/sigma^2 ~ chi2(6)/6, within 0.09..4 at 99.9 %, so sigma within 0.3..2 times), and the thermal bias
+    model's change from the first to the last soak against the truth's, within what the power-ups between
+    the ramps allow (4 sqrt(2) turn-on sigma)."""
+    truth = UnitTruth.random(0, "mems", thermal_intrinsics=True)
+    params = ParamsFile.load(uninterrupted / "params.yaml")
+    record = json.loads((uninterrupted / "record.json").read_text())
+    values = {m["name"]: m["value"] for p in record["phases"] for m in p["measurements"]}
+    temps = np.array([values["soak-1.temperature_c"], values["soak-3.temperature_c"]])
+    character = params.other["characterisation"]
+    thermal = params.thermal
+    assert thermal is not None
+    for triad in ("accel", "gyro"):
+        sensor = getattr(truth, triad)
+        ratio = np.asarray(character[f"{triad}_bias_repeatability"]) / sensor.turn_on_sigma
+        assert np.all((ratio > 0.3) & (ratio < 2.0)), (triad, ratio)
+        model = getattr(thermal, triad).evaluate(temps, np.zeros(2), thermal.reference_temp)
+        true = sensor.thermal.bias(temps, np.zeros(2))
+        change, true_change = model[1] - model[0], true[1] - true[0]
+        assert np.all(np.abs(change - true_change) <= 4 * np.sqrt(2) * sensor.turn_on_sigma), \
+            (triad, change, true_change)
+    calibrate = next(p for p in record["phases"] if p["name"] == "calibrate")
+    assert any(n.startswith("thermal bias (T and dT terms) fitted on the ramp records")
+               for n in calibrate["notes"])

@@ -54,6 +54,7 @@ from station.acquisition.settle import Settle, SettleWatch
 from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.engines.characterisation.turn_on import reduce_record, turn_on_repeatability
 from station.engines.shared.earth import normal_gravity
+from station.engines.thermal.intrinsics import matrices_at
 from station.errors import StationError
 from station.export.params.file import ParamsFile
 from station.export.writers import DEFAULT_NAMES, write_export
@@ -566,11 +567,24 @@ class CampaignRun(UnitRun):
             t = sweep.t - sweep.t[0] + offset
             ts.append(t)
             offset = float(t[-1]) + float(np.median(np.diff(t))) if len(t) > 1 else offset + 1.0
-        reference = across.accel.extra.get("reference_temp")
+        reference = float(across.thermal.reference_temp)
+        temp = np.concatenate([w.temp for w in sweeps])
+        # The scale and misalignment's own change with T taken out first, so the bias fit does not take
+        # it in (gravity along the mount axis would read as bias): raw' = M(T_ref) M(T)^-1 raw, eq. (1) of
+        # station.engines.thermal.intrinsics, to first order in b.
+        at = np.where(np.isfinite(temp), temp, reference)
+        readings = {}
+        for triad in ("accel", "gyro"):
+            raw = np.concatenate([getattr(w, "acc" if triad == "accel" else "gyro") for w in sweeps])
+            cal = getattr(across, triad)
+            if cal is None:
+                readings[triad] = raw
+                continue
+            m_t = matrices_at(cal.matrix, at, reference, across.thermal.scale.get(triad),
+                              across.thermal.misalignment.get(triad))
+            readings[triad] = np.linalg.solve(m_t, raw[:, :, None])[:, :, 0] @ np.asarray(cal.matrix).T
         try:
-            data = ThermalSweep(np.concatenate(ts), np.concatenate([w.temp for w in sweeps]),
-                                np.concatenate([w.acc for w in sweeps]),
-                                np.concatenate([w.gyro for w in sweeps]), None,
+            data = ThermalSweep(np.concatenate(ts), temp, readings["accel"], readings["gyro"], None,
                                 accel_cal=across.accel, gyro_cal=across.gyro)
             fit = fit_thermal(data, ThermalSettings(gravity=self._gravity(), reference_temp=reference))
         except StationError as exc:
