@@ -110,7 +110,30 @@ def _walk_kernel():
             for j in range(width):
                 out[i, j] = buf[s + j]
 
-    return walk, gather
+    @numba.njit(nogil=True, cache=True, boundscheck=False)
+    def scatter(buf, pos, ids, slot_of, widths, bases, rows, out):  # pragma: no cover - compiled
+        # one pass over the data messages in file order, each payload appended to its topic's rows
+        short = 0
+        for k in range(len(pos)):
+            msg_id = ids[k]
+            if msg_id == 0xFFFF:
+                continue
+            slot = slot_of[msg_id]
+            if slot < 0:
+                continue
+            p = pos[k]
+            size = np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8)
+            width = widths[slot]
+            if size - 2 < width:
+                short += 1
+                continue
+            at = bases[slot] + rows[slot] * width
+            for j in range(width):
+                out[at + j] = buf[p + 5 + j]
+            rows[slot] += 1
+        return short
+
+    return walk, gather, scatter
 
 
 _KERNELS: tuple | None = None
@@ -139,7 +162,7 @@ def gather_rows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     -------
     ndarray of uint8, (len(starts), width), C-contiguous (view it with the rows' dtype).
     """
-    _, gather = _kernels()
+    _, gather, _ = _kernels()
     out = np.empty((len(starts), width), np.uint8)
     gather(buf, np.ascontiguousarray(starts, dtype=np.int64), width, out)
     return out
@@ -147,7 +170,7 @@ def gather_rows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
 
 def _walk(buf: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool]:
     """Every message's offset, type and (``D``) msg_id from ``start``; bytes skipped as corrupt; cut end."""
-    walk, _ = _kernels()
+    walk, _, _ = _kernels()
     valid = np.zeros(256, np.bool_)
     valid[np.frombuffer(KNOWN_TYPES, np.uint8)] = True
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -319,22 +342,29 @@ def read_ulog(path: str | Path, topics: Iterable[str] | None = ("sensor_accel", 
             raise InputFileError(path, f"its '{letter}' message at byte {p} cannot be read ({exc}); the log "
                                  "is damaged") from None
     wanted = None if topics is None else set(topics)
-    out: dict[tuple[str, int], np.ndarray] = {}
-    short = 0
-    data = kind == D
+    chosen: list[tuple[int, tuple[str, int], np.dtype]] = []
     for msg_id, (name, multi_id) in subs.items():
         if (wanted is not None and name not in wanted) or name not in formats:
             continue
         try:
-            dtype = topic_dtype(name, formats)
+            chosen.append((msg_id, (name, multi_id), topic_dtype(name, formats)))
         except ValueError as exc:
             raise InputFileError(path, f"the format of topic {name!r} cannot be read: {exc}") from None
-        starts = pos[data & (ids == msg_id)]
-        sizes = buf[starts].astype(np.int64) | buf[starts + 1].astype(np.int64) << 8
-        whole = sizes - 2 >= dtype.itemsize
-        short += int(np.count_nonzero(~whole))
-        starts = starts[whole] + 5
-        block = gather_rows(buf, starts, dtype.itemsize)
-        out[name, multi_id] = (block.reshape(-1).view(dtype) if dtype.itemsize
-                               else np.zeros(len(starts), dtype))
+    # every chosen topic's payloads copied in one pass over the file, into one buffer cut per topic
+    slot_of = np.full(1 << 16, -1, np.int64)
+    for slot, (msg_id, _, _) in enumerate(chosen):
+        slot_of[msg_id] = slot
+    data_ids = ids[kind == D]
+    counts = np.bincount(slot_of[data_ids][slot_of[data_ids] >= 0], minlength=len(chosen))
+    widths = np.array([dtype.itemsize for _, _, dtype in chosen], np.int64)
+    bases = np.concatenate([[0], np.cumsum(counts * widths)])
+    rows = np.zeros(len(chosen), np.int64)
+    block = np.empty(int(bases[-1]), np.uint8)
+    _, _, scatter = _kernels()
+    short = int(scatter(buf, pos, ids, slot_of, widths, bases[:-1].astype(np.int64), rows, block))
+    out: dict[tuple[str, int], np.ndarray] = {}
+    for slot, (_, key, dtype) in enumerate(chosen):
+        n = int(rows[slot])
+        part = block[bases[slot]:bases[slot] + n * dtype.itemsize]
+        out[key] = part.view(dtype) if dtype.itemsize else np.zeros(n, dtype)
     return UlogData(path, out, params, info, dropouts, corrupt, truncated, short, subscriptions)
