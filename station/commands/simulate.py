@@ -63,9 +63,9 @@ stall=P with stall_s=S, garbage_max=N, disconnect_bytes=N, disconnect_s=S, seed=
 --log-format ulog|dataflash -o FILE writes a flight controller's log instead of serving a port:
 a board of three IMU instances of different truths (instance 0 a cubic thermal bias, 1 a cubic with
 strong dT terms, 2 a cubic with a mild dT term; different biases and noise) taken through a chamber
-programme (--scenario chamber): from t_min up to t_max and back, with soaks, level in the autopilot's
-body frame (z down). ulog is PX4's (sensor_accel, sensor_gyro, sensor_baro, the board's parameters),
-dataflash ArduPilot's .bin (IMU and PARM messages). For logs the programme's defaults are
+programme (--scenario chamber): from t_min up to t_max and back, with soaks, still and z up.
+ulog is PX4's (sensor_accel, sensor_gyro, sensor_baro, the board's parameters), dataflash
+ArduPilot's .bin (IMU and PARM messages). For logs the programme's defaults are
 t_min=-20,t_max=60,rate_c_per_min=3,soak_s=300 and --rate defaults to 10 Hz (ArduPilot's
 tempcal_IMU.py takes time growing with the square of the samples per IMU).
 
