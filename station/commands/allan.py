@@ -46,7 +46,8 @@ EPILOG = """\
 examples:
   imu-station allan still.csv -o unit.yaml --plot allan.png --curve allan.csv
   imu-station allan imu.bag --topic /imu/data --kalibr imu.yaml --vins vins.yaml --json
-  imu-station allan still.csv --gm gm.yaml --gm-rate 200 --horizon 600"""
+  imu-station allan still.csv --gm gm.yaml --gm-rate 200 --horizon 600
+  imu-station allan bench.ulg --instance 1 --kalibr imu.yaml"""
 
 
 MAX_PER_DECADE = 1000  # beyond this the cluster sizes repeat: every integer m is already there

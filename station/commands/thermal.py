@@ -48,7 +48,8 @@ exit codes: 0 done, 4 unreadable input or data that cannot determine the model."
 EPILOG = """\
 examples:
   imu-station thermal sweep.csv -o unit42.yaml --plot thermal.png
-  imu-station thermal sweep.h5 -o unit42.yaml --segments 2 --json"""
+  imu-station thermal sweep.h5 -o unit42.yaml --segments 2 --json
+  imu-station thermal sweep.ulg --instance 1 -o board.yaml"""
 
 
 # The parameter file holds at most 64 thermal segments (specs/params-file.md).
