@@ -323,7 +323,7 @@ class CampaignRun(UnitRun):
         settle = Settle(c.settle_rate_c_per_min, c.settle_hold_s, c.settle_timeout_s)
         watch = SettleWatch(settle)
         first_t: float | None = None
-        air_near, next_air, next_log = False, 0.0, time.monotonic() + PROGRESS_S
+        air_near, next_air, next_log, next_event = False, 0.0, time.monotonic() + PROGRESS_S, 0.0
         air = math.nan
         while True:
             if time.monotonic() > self.deadline:
@@ -353,8 +353,10 @@ class CampaignRun(UnitRun):
                                 f"{float(np.nanmean(batch['temp'])):.2f} degC"
                                 + (f", moving {slope:+.3f} degC/min" if slope is not None else "")
                                 + "); lengthen campaign.settle.timeout_s or check the chamber")
-                self._event(event="temperature", unit_c=float(np.nanmean(batch["temp"])), air_c=air,
-                            target_c=target, slope=watch.slope())
+                if now >= next_event:  # a reading a second is enough for a live line or run-many
+                    self._event(event="temperature", unit_c=float(np.nanmean(batch["temp"])), air_c=air,
+                                target_c=target, slope=watch.slope())
+                    next_event = now + 1.0
             if recorder is not None:
                 recorder.tick()
             if now >= next_log:
