@@ -31,8 +31,11 @@ matplotlib), with ``MPLBACKEND=Agg`` and ArduPilot's ``--no-graph``; their wall 
 beside ours (thermal + both exports, all three instances, each command a fresh process as theirs
 are) with the machine's load.
 
-Run: ``.venv/bin/python benchmarks/autopilot_thermal.py [--peers DIR] [--seed N] [--keep DIR]``
-(about 2 minutes on 2 cores, most of it ArduPilot's script).
+Three boards (seeds 1..3) by default: the medians are over boards, instances and axes, so that one
+board's luck does not decide between methods whose models are the same cubic.
+
+Run: ``.venv/bin/python benchmarks/autopilot_thermal.py [--peers DIR] [--seeds N] [--keep DIR]``
+(about 2 minutes on 2 cores for 3 boards, most of it ArduPilot's script).
 """
 
 from __future__ import annotations
@@ -153,38 +156,31 @@ def residual_stats(truth: np.ndarray, subtracted: np.ndarray, unit: float) -> tu
     return left.std(axis=0), np.ptp(left, axis=0)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Make the logs, run the peers and ours, score on the validation sweep, print the tables."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--peers", type=Path, default=PEERS, help=f"the peers' folder (default: {PEERS})")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--keep", type=Path, help="work in this folder and keep its files")
-    args = parser.parse_args(argv)
-    work = args.keep or Path(tempfile.mkdtemp(prefix="autopilot-thermal-"))
-    work.mkdir(parents=True, exist_ok=True)
-    load = [os.getloadavg()[0]]
-    times: dict[str, float] = {}
+Stats = dict[str, dict[str, list[tuple[np.ndarray, np.ndarray]]]]  # method -> sensor -> per IMU (std, p2p)
 
+
+def one_board(seed: int, work: Path, peers: Path, times: dict[str, list[float]],
+              skipped: dict[str, str]) -> Stats:
+    """One simulated board: its training logs, the peers' and our fits, scored on its validation sweep.
+    Wall times are appended to ``times``; a peer that cannot run is named in ``skipped``."""
+    work.mkdir(parents=True, exist_ok=True)
     train_ulg, train_bin = work / "train.ulg", work / "train.bin"
-    times["simulate"] = run(station("simulate", "--scenario", "chamber", "--log-format", "ulog", "--seed",
-                                    str(args.seed), "-o", str(train_ulg)), work)
-    run(station("simulate", "--scenario", "chamber", "--log-format", "dataflash", "--seed", str(args.seed),
-                "-o", str(train_bin)), work)
-    imus = board_imus(args.seed)
-    n_train = int(log_sweep().duration_s * RATE_HZ)
+    simulate = ["simulate", "--scenario", "chamber", "--seed", str(seed), "--log-format"]
+    times["simulate"].append(run(station(*simulate, "ulog", "-o", str(train_ulg)), work))
+    run(station(*simulate, "dataflash", "-o", str(train_bin)), work)
+    imus = board_imus(seed)
 
     peer_env = {**os.environ, "MPLBACKEND": "Agg"}
-    skipped: dict[str, str] = {}
     for kind, script, cmd in (("px4", PX4_SCRIPT, [str(train_ulg)]),
                               ("ardupilot", ARDUPILOT_SCRIPT, ["--no-graph", "--outfile", "tcal.parm",
                                                                str(train_bin)])):
         missing = missing_modules(kind)
-        if not (args.peers / script).exists():
-            skipped[kind] = f"{args.peers / script} not found"
+        if not (peers / script).exists():
+            skipped[kind] = f"{peers / script} not found"
         elif missing:
             skipped[kind] = f"{sys.executable} lacks {', '.join(missing)}"
         else:
-            times[kind] = run([sys.executable, str(args.peers / script), *cmd], work, peer_env)
+            times[kind].append(run([sys.executable, str(peers / script), *cmd], work, peer_env))
 
     ours_thermal = ours_export = 0.0
     for imu in imus:
@@ -194,30 +190,28 @@ def main(argv: list[str] | None = None) -> int:
         for fmt, out in (("px4", f"ours{i}.params"), ("ardupilot", f"ours{i}.param")):
             command = station("export", f"board{i}.yaml", "-f", fmt, "--instance", i, "-o", out, *ids)
             ours_export += run(command, work)
-    times["ours thermal"], times["ours export"] = ours_thermal, ours_export
+    times["ours thermal"].append(ours_thermal)
+    times["ours export"].append(ours_export)
 
     # the validation sweep: the same IMUs (noise-free), another programme, another seed
-    val_imus = board_imus(args.seed, noise=False)
-    val_runs = board_sweep(val_imus, scenario_sweep(**VALIDATION), rate_hz=RATE_HZ, seed=args.seed + 100,
+    val_imus = board_imus(seed, noise=False)
+    val_runs = board_sweep(val_imus, scenario_sweep(**VALIDATION), rate_hz=RATE_HZ, seed=seed + 100,
                            temp_noise_degc=0.0)
     val_ulg = work / "validation.ulg"
-    write_board_log(val_ulg, "ulog", val_imus, val_runs, RATE_HZ, args.seed + 100)
+    write_board_log(val_ulg, "ulog", val_imus, val_runs, RATE_HZ, seed + 100)
     start = time.perf_counter()
     for imu in val_imus:
         i = str(imu.instance)
         run(station("apply", f"board{i}.yaml", str(val_ulg), "--instance", i, "-o", f"applied{i}.csv"), work)
-    times["ours apply"] = time.perf_counter() - start
-    load.append(os.getloadavg()[0])
+    times["ours apply"].append(time.perf_counter() - start)
 
     from station.acquisition.autopilot_log import open_log
     from station.acquisition.capture import read_capture
 
     log = open_log(val_ulg)
-    px4_peer = read_qgc_params(work / "train.ulg.params") if "px4" in times else None
-    ap_peer = read_ardupilot_params(work / "tcal.parm") if "ardupilot" in times else None
-    # stats[method][sensor] -> (instances, 3) std and p2p
-    stats: dict[str, dict[str, list[tuple[np.ndarray, np.ndarray]]]] = {m: {"gyro": [], "accel": []}
-                                                                         for m in METHODS}
+    px4_peer = read_qgc_params(work / "train.ulg.params") if "px4" not in skipped else None
+    ap_peer = read_ardupilot_params(work / "tcal.parm") if "ardupilot" not in skipped else None
+    stats: Stats = {m: {"gyro": [], "accel": []} for m in METHODS}
     for imu, run_ in zip(imus, val_runs, strict=True):
         k = imu.instance
         raw = log.capture(k)
@@ -239,37 +233,70 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             stats[method]["accel"].append(residual_stats(run_.thermal_accel, pair[0], MG))
             stats[method]["gyro"].append(residual_stats(run_.thermal_gyro, pair[1], DEG_H))
+    return stats
 
-    print(f"training log: {len(imus)} IMUs x {n_train} samples at {RATE_HZ:g} Hz, "
-          f"{train_ulg.stat().st_size / 1e6:.1f} MB ULog, {train_bin.stat().st_size / 1e6:.1f} MB DataFlash; "
-          f"validation: {VALIDATION['t_min']:g} -> {VALIDATION['t_max']:g} degC and back at "
+
+def main(argv: list[str] | None = None) -> int:
+    """Make the logs, run the peers and ours, score on the validation sweeps, print the tables."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--peers", type=Path, default=PEERS, help=f"the peers' folder (default: {PEERS})")
+    parser.add_argument("--seeds", type=int, default=3, help="boards simulated (seeds 1..N; default 3)")
+    parser.add_argument("--keep", type=Path, help="work in this folder and keep its files")
+    args = parser.parse_args(argv)
+    work = args.keep or Path(tempfile.mkdtemp(prefix="autopilot-thermal-"))
+    load = [os.getloadavg()[0]]
+    times: dict[str, list[float]] = {k: [] for k in ("simulate", "px4", "ardupilot", "ours thermal",
+                                                     "ours export", "ours apply")}
+    skipped: dict[str, str] = {}
+    boards = [one_board(seed, work / f"seed{seed}", args.peers, times, skipped)
+              for seed in range(1, args.seeds + 1)]
+    load.append(os.getloadavg()[0])
+    kinds = [imu.kind for imu in board_imus(1)]
+    n_train = int(log_sweep().duration_s * RATE_HZ)
+
+    def values(method: str, sensor: str, which: int, instance: int | None = None) -> np.ndarray:
+        """std (which 0) or p2p (1) of every board, instance (or the one given) and axis."""
+        return np.array([b[method][sensor][k][which] for b in boards for k in range(len(kinds))
+                         if instance is None or k == instance])
+
+    ulg = work / "seed1" / "train.ulg"
+    print(f"{args.seeds} boards (seeds 1..{args.seeds}), each {len(kinds)} IMUs x {n_train} samples at "
+          f"{RATE_HZ:g} Hz ({ulg.stat().st_size / 1e6:.1f} MB ULog, "
+          f"{(work / 'seed1' / 'train.bin').stat().st_size / 1e6:.1f} MB DataFlash); validation: "
+          f"{VALIDATION['t_min']:g} -> {VALIDATION['t_max']:g} degC and back at "
           f"{VALIDATION['rate_c_per_min']:g} degC/min, {VALIDATION['soak_s']:g} s soaks, noise-free")
-    print("residual bias variation on the validation sweep, median over 3 instances x 3 axes:")
+    print(f"residual bias variation on the validation sweeps, median over {args.seeds} boards x "
+          f"{len(kinds)} instances x 3 axes:")
     print(f"  {'method':46s} {'gyro std':>10s} {'gyro p2p':>10s} {'accel std':>10s} {'accel p2p':>10s}")
     print(f"  {'':46s} {'deg/h':>10s} {'deg/h':>10s} {'mg':>10s} {'mg':>10s}")
     for method, label in METHODS.items():
-        s = stats[method]
-        if not s["gyro"]:
-            print(f"  {label:46s} {'skipped: ' + skipped.get('px4' if method == 'a' else 'ardupilot', '')}")
+        if not boards[0][method]["gyro"]:
+            print(f"  {label:46s} skipped: {skipped.get('px4' if method == 'a' else 'ardupilot', '')}")
             continue
-        g_std, g_p2p = (np.median([x[i] for x in s["gyro"]]) for i in (0, 1))
-        a_std, a_p2p = (np.median([x[i] for x in s["accel"]]) for i in (0, 1))
-        print(f"  {label:46s} {g_std:10.3g} {g_p2p:10.3g} {a_std:10.3g} {a_p2p:10.3g}")
-    print("per instance (gyro std deg/h | accel std mg, median over axes):")
-    print("  " + f"{'method':46s}" + "".join(f" {f'{imu.instance} {imu.kind}':>20s}" for imu in imus))
+        cells = [np.median(values(method, sensor, which)) for sensor in ("gyro", "accel") for which in (0, 1)]
+        print(f"  {label:46s}" + "".join(f" {c:10.3g}" for c in cells))
+    print(f"per instance: std, gyro deg/h | accel mg, median over {args.seeds} boards x 3 axes:")
+    print("  " + f"{'method':46s}" + "".join(f" {f'{k} {kind}':>20s}" for k, kind in enumerate(kinds)))
     for method, label in METHODS.items():
-        s = stats[method]
-        if not s["gyro"]:
+        if not boards[0][method]["gyro"]:
             continue
-        cells = [f"{np.median(g[0]):8.3g} | {np.median(a[0]):7.3g}" for g, a in zip(s["gyro"], s["accel"],
-                                                                                    strict=True)]
+        cells = [f"{np.median(values(method, 'gyro', 0, k)):8.3g} | "
+                 f"{np.median(values(method, 'accel', 0, k)):7.3g}" for k in range(len(kinds))]
         print(f"  {label:46s}" + "".join(f" {c:>20s}" for c in cells))
+    for theirs, ours in (("a", "b"), ("c", "d")):
+        if boards[0][theirs]["gyro"]:
+            ratio = [np.median(values(ours, s, 0)) / np.median(values(theirs, s, 0))
+                     for s in ("gyro", "accel")]
+            print(f"{METHODS[ours]} / {METHODS[theirs]}: gyro std x{ratio[0]:.3f}, accel std x{ratio[1]:.3f}")
     for kind, reason in skipped.items():
         print(f"{kind} peer skipped: {reason}")
-    print(f"wall times: PX4 script {times.get('px4', float('nan')):.1f} s, ArduPilot script "
-          f"{times.get('ardupilot', float('nan')):.1f} s, ours {times['ours thermal']:.1f} s thermal (3 "
-          f"instances) + {times['ours export']:.1f} s export (6 files) "
-          f"+ {times['ours apply']:.1f} s apply on the validation sweep; simulate {times['simulate']:.1f} s "
+
+    def wall(key: str) -> str:
+        return f"{np.median(times[key]):.1f} s" if times[key] else "not run"
+
+    print(f"wall times, median over boards: PX4 script {wall('px4')}, ArduPilot script {wall('ardupilot')}; "
+          f"ours {wall('ours thermal')} thermal (3 instances, 3 processes) + {wall('ours export')} export "
+          f"(6 files) + {wall('ours apply')} apply on the validation sweep; simulate {wall('simulate')} "
           "a log")
     print(f"load average {load[0]:.2f} at the start, {load[1]:.2f} at the end, on {os.cpu_count()} cores; "
           f"python {sys.version.split()[0]} ({sys.executable})")
