@@ -36,6 +36,11 @@ GYRO_FORMAT = ("uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;
 ACCEL_DTYPE = np.dtype([("timestamp", "<u8"), ("timestamp_sample", "<u8"), ("device_id", "<u4"), ("x", "<f4"),
                         ("y", "<f4"), ("z", "<f4"), ("temperature", "<f4"), ("error_count", "<u4"),
                         ("clip_counter", "u1", 3), ("samples", "u1")])
+MAG_FORMAT = ("uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;"
+              "float temperature;uint32_t error_count;bool is_external;uint8_t[7] _padding0;")
+MAG_DTYPE = np.dtype([("timestamp", "<u8"), ("timestamp_sample", "<u8"), ("device_id", "<u4"), ("x", "<f4"),
+                      ("y", "<f4"), ("z", "<f4"), ("temperature", "<f4"), ("error_count", "<u4"),
+                      ("is_external", "?")])
 GYRO_DTYPE = np.dtype([("timestamp", "<u8"), ("timestamp_sample", "<u8"), ("device_id", "<u4"), ("x", "<f4"),
                        ("y", "<f4"), ("z", "<f4"), ("temperature", "<f4"), ("error_count", "<u4"),
                        ("samples", "u1")])
@@ -68,7 +73,8 @@ def write_ulog(path: str | Path, topics: Mapping[tuple[str, int], np.ndarray], p
     ``_ENABLE``, ``_ROT`` or ``_EN`` are written as int32_t, the others as float. A dropout message of
     ``dropout_ms`` is put halfway through the data when it is non-zero.
     """
-    formats = dict(formats or {"sensor_accel": ACCEL_FORMAT, "sensor_gyro": GYRO_FORMAT})
+    formats = dict(formats or {"sensor_accel": ACCEL_FORMAT, "sensor_gyro": GYRO_FORMAT,
+                               "sensor_mag": MAG_FORMAT})
     head = bytearray(ULOG_MAGIC + bytes([1]) + struct.pack("<Q", 0))
     head += _message(b"B", bytes(16) + bytes(24))
     for key, value in (("char[3] sys_name", b"PX4"), ("char[6] ver_hw", b"TESTHW")):
@@ -134,6 +140,39 @@ IMU_DTYPE = np.dtype([("head", "u1", 2), ("type", "u1"), ("TimeUS", "<u8"), ("I"
                       ("AHz", "<u2")])
 
 
+MAG_COLUMNS = "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S"
+MAG_FORMAT_DF = "QBhhhhhhhhhBI"  # ArduPilot logs the field in whole milligauss
+MAG_DF_DTYPE = np.dtype([("head", "u1", 2), ("type", "u1"), ("TimeUS", "<u8"), ("I", "u1"), ("MagX", "<i2"),
+                         ("MagY", "<i2"), ("MagZ", "<i2"), ("OfsX", "<i2"), ("OfsY", "<i2"), ("OfsZ", "<i2"),
+                         ("MOX", "<i2"), ("MOY", "<i2"), ("MOZ", "<i2"), ("Health", "u1"), ("S", "<u4")])
+
+
+def mag_records(t_us: np.ndarray, field_gauss: np.ndarray, device_id: int) -> np.ndarray:
+    """sensor_mag records (gauss) at ``t_us``."""
+    rec = np.zeros(len(t_us), MAG_DTYPE)
+    rec["timestamp_sample"] = t_us
+    rec["timestamp"] = t_us + 300
+    rec["device_id"] = device_id
+    rec["x"], rec["y"], rec["z"] = field_gauss[:, 0], field_gauss[:, 1], field_gauss[:, 2]
+    return rec
+
+
+def mag_messages(t_us: np.ndarray, instance: int, field_mgauss: np.ndarray,
+                 motor_mgauss: np.ndarray | None = None, mag_type: int = 131) -> np.ndarray:
+    """MAG messages of one compass (header included), field rounded to whole milligauss as logged."""
+    rec = np.zeros(len(t_us), MAG_DF_DTYPE)
+    rec["head"] = (0xA3, 0x95)
+    rec["type"] = mag_type
+    rec["TimeUS"] = t_us
+    rec["I"] = instance
+    for j, axis in enumerate("XYZ"):
+        rec[f"Mag{axis}"] = np.rint(field_mgauss[:, j])
+        if motor_mgauss is not None:
+            rec[f"MO{axis}"] = np.rint(motor_mgauss[:, j])
+    rec["Health"] = 1
+    return rec
+
+
 def _fmt(msg_type: int, length: int, name: str, fmt: str, columns: str) -> bytes:
     return HEAD + struct.pack("<BBB4s16s64s", FMT_TYPE, msg_type, length, name.encode(), fmt.encode(),
                               columns.encode())
@@ -156,18 +195,22 @@ def imu_messages(t_us: np.ndarray, instance: int, acc: np.ndarray, gyro: np.ndar
     return rec
 
 
-def write_dataflash(path: str | Path, imu: list[np.ndarray], params: Mapping[str, float]) -> Path:
-    """Write a DataFlash log: FMT of FMT, PARM and IMU, the parameters, then the IMU messages of every
-    instance in ``imu`` interleaved by TimeUS."""
-    parm_type, imu_type = 129, 130
+def write_dataflash(path: str | Path, imu: list[np.ndarray], params: Mapping[str, float],
+                    mag: list[np.ndarray] = ()) -> Path:
+    """Write a DataFlash log: FMT of FMT, PARM, IMU and MAG, the parameters, then the IMU messages of every
+    instance in ``imu`` interleaved by TimeUS, then the MAG messages of ``mag``."""
+    parm_type, imu_type, mag_type = 129, 130, 131
     out = bytearray(_fmt(FMT_TYPE, 89, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
     out += _fmt(parm_type, 31, "PARM", "QNf", "TimeUS,Name,Value")
     out += _fmt(imu_type, IMU_DTYPE.itemsize, "IMU", IMU_FORMAT, IMU_COLUMNS)
+    out += _fmt(mag_type, MAG_DF_DTYPE.itemsize, "MAG", MAG_FORMAT_DF, MAG_COLUMNS)
     for name, value in params.items():
         out += HEAD + struct.pack("<BQ16sf", parm_type, 0, name.encode(), value)
     records = np.concatenate(imu) if imu else np.zeros(0, IMU_DTYPE)
     records = records[np.argsort(records["TimeUS"], kind="stable")]
     out += records.tobytes()
+    for rec in mag:
+        out += rec.tobytes()
     path = Path(path)
     path.write_bytes(bytes(out))
     return path
@@ -188,6 +231,8 @@ def ulog_from_captures(path: str | Path, captures: Mapping[int, Any],
         temp = cap.temp if cap.temp is not None else np.zeros(len(t_us))
         a, g = imu_records(t_us, np.asarray(cap.acc), np.asarray(cap.gyro), temp, ACCEL_IDS[i], GYRO_IDS[i])
         topics["sensor_accel", i], topics["sensor_gyro", i] = a, g
+        if cap.mag is not None:  # microtesla to PX4's gauss, at the IMU's times
+            topics["sensor_mag", i] = mag_records(t_us, np.asarray(cap.mag) / 100.0, 396825 + 8 * i)
     return write_ulog(path, topics, dict(params or {}), dropout_ms=dropout_ms)
 
 

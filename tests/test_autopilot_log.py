@@ -21,6 +21,8 @@ from tests.autopilot_log_files import (
     ACCEL_IDS,
     imu_messages,
     imu_records,
+    mag_messages,
+    mag_records,
     ulog_from_captures,
     write_dataflash,
     write_ulog,
@@ -31,7 +33,7 @@ SAMPLES = sorted(DATA.glob("*.ulg"))
 
 
 def _pyulog_topics(path: Path) -> dict[tuple[str, int], dict[str, np.ndarray]]:
-    log = ULog(str(path), ["sensor_accel", "sensor_gyro"])
+    log = ULog(str(path), ["sensor_accel", "sensor_gyro", "sensor_mag"])
     return {(d.name, d.multi_id): d.data for d in log.data_list}
 
 
@@ -39,7 +41,7 @@ def _pyulog_topics(path: Path) -> dict[tuple[str, int], dict[str, np.ndarray]]:
 def test_pyulogs_samples_decode_to_exactly_what_pyulog_reads(path: Path) -> None:
     reference = _pyulog_topics(path)
     ours = read_ulog(path)
-    assert set(ours.topics) == set(reference) and len(reference) == 6
+    assert set(ours.topics) == set(reference) and len(reference) == 8  # three IMUs, two magnetometers
     for key, fields in reference.items():
         decoded = ours.topics[key]
         assert len(decoded) == len(fields["timestamp"])
@@ -272,3 +274,58 @@ def test_what_is_not_a_log_is_refused_clearly(tmp_path: Path) -> None:
     empty = write_ulog(tmp_path / "empty.ulg", {}, {})
     with pytest.raises(InputFileError, match="has no sensor_accel and sensor_gyro topics"):
         read_capture(empty)
+
+
+# --- magnetometers --------------------------------------------------------------------------------
+
+def test_px4s_first_magnetometer_at_the_imus_times(tmp_path: Path) -> None:
+    t_us, acc, gyro, temp = _sweep(n=2000, rate=200.0)
+    a, g = imu_records(t_us, acc, gyro, temp, ACCEL_IDS[0], 2359308)
+    rng = np.random.default_rng(8)
+    t_mag = t_us[3::4] + 1700  # 50 Hz, starting after the IMU
+    gauss = (rng.normal(0, 0.3, (len(t_mag), 3)) + [0.2, 0.0, 0.4]).astype(np.float32)
+    topics = {("sensor_accel", 0): a, ("sensor_gyro", 0): g,
+              ("sensor_mag", 0): mag_records(t_mag, gauss, 396825),
+              ("sensor_mag", 1): mag_records(t_mag, gauss * 2, 396826)}
+    capture = read_capture(write_ulog(tmp_path / "mag.ulg", topics, {}))
+    expected = np.column_stack([np.interp(t_us * 1e-6, t_mag * 1e-6, gauss[:, j].astype(float) * 100.0)
+                                for j in range(3)])
+    np.testing.assert_allclose(capture.mag, expected, rtol=0, atol=1e-12)
+    note = next(n for n in log_notes(capture) if n.startswith("magnetometer"))
+    assert "sensor_mag 0 (device 396825), raw" in note and "50 Hz, linearly interpolated" in note
+    assert "(4 IMU samples outside its span take its first or last value)" in note
+    assert note.endswith("magnetometers [1] not read")
+    sample = read_capture(DATA / "sample_log_small.ulg", 0)
+    reference = _pyulog_topics(DATA / "sample_log_small.ulg")["sensor_mag", 0]
+    field = np.column_stack([np.interp(sample.t, reference["timestamp_sample"] * 1e-6,
+                                       reference[a].astype(float) * 100.0) for a in "xyz"])
+    np.testing.assert_allclose(sample.mag, field, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("external", [False, True])
+def test_ardupilots_compass_correction_comes_out_in_closed_form(tmp_path: Path, external: bool) -> None:
+    t_us, acc, gyro, temp = _sweep(n=1200, rate=100.0, seed=4)
+    rng = np.random.default_rng(9)
+    raw_ut = rng.normal(0, 30.0, (len(t_us), 3)) + [10.0, -5.0, 40.0]
+    offsets, scale = np.array([120.0, -80.0, 40.0]), 1.05  # COMPASS_OFS (mG, added), COMPASS_SCALE
+    w = np.array([[1.02, 0.01, -0.02], [0.01, 0.97, 0.015], [-0.02, 0.015, 1.01]])  # DIA / ODI
+    motor = rng.normal(0, 5.0, (len(t_us), 3))
+    params = {"COMPASS_OFS_X": offsets[0], "COMPASS_OFS_Y": offsets[1], "COMPASS_OFS_Z": offsets[2],
+              "COMPASS_SCALE": scale,
+              "COMPASS_DIA_X": w[0, 0], "COMPASS_DIA_Y": w[1, 1], "COMPASS_DIA_Z": w[2, 2],
+              "COMPASS_ODI_X": w[0, 1], "COMPASS_ODI_Y": w[0, 2], "COMPASS_ODI_Z": w[1, 2],
+              "AHRS_ORIENTATION": 2.0, "COMPASS_EXTERNAL": float(external), "COMPASS_ORIENT": 8.0}
+    w, offsets, scale = (np.float32(v).astype(float) for v in (w, offsets, scale))  # as PARM holds them
+    # eq. (1) of station.acquisition.log_magnetometer, written out: logged = W ((R raw + OFS) s) + motor
+    rotation = np.diag([1.0, -1, -1]) if external else np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    logged = ((raw_ut * 10.0) @ rotation.T + offsets) * scale @ w.T + np.rint(motor)
+    path = write_dataflash(tmp_path / "mag.bin", [imu_messages(t_us, 0, acc, gyro, temp)], params,
+                           [mag_messages(t_us, 0, logged, motor)])
+    capture = read_capture(path)
+    # whole milligauss in the log: 0.05 uT of rounding, through W^-1 / s
+    np.testing.assert_allclose(capture.mag, raw_ut, rtol=0, atol=0.06)
+    assert np.abs(capture.mag - raw_ut).mean() < 0.03
+    note = next(n for n in log_notes(capture) if n.startswith("magnetometer"))
+    orientation = "COMPASS_ORIENT 8" if external else "AHRS_ORIENTATION 2"
+    assert (f"MAG 0, COMPASS_OFS, COMPASS_DIA/COMPASS_ODI, COMPASS_SCALE, the motor compensation (MOX..MOZ), "
+            f"{orientation} taken out") in note

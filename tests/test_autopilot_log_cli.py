@@ -135,10 +135,31 @@ def test_calibrate_hand_held_from_a_log_and_mag_refused(tmp_path, capsys) -> Non
     np.testing.assert_allclose(result["accel"]["matrix"], reference["accel"]["matrix"], rtol=0, atol=1e-8)
     np.testing.assert_allclose(result["gyro"]["bias"], reference["gyro"]["bias"], rtol=0, atol=1e-9)
     assert "nothing taken out" in err and "low-pass filtered" in err
-    code, _, err = run(["calibrate", log, "--instance", "1", "--method", "mag"], capsys)
+    code, _, err = run(["calibrate", log, "--instance", "1", "--method", "mag"], capsys)  # no MAG messages
     assert code == 4 and "has no magnetometer columns (mx, my, mz)" in err and "Traceback" not in err
     code, _, err = run(["calibrate", log], capsys)
     assert code == 4 and "choose one with --instance N" in err
+
+
+def test_calibrate_mag_from_a_ulog_is_the_csvs_calibration(tmp_path, capsys) -> None:
+    from mocks.mag_sessions import mag_capture
+
+    cap, _ = mag_capture("sphere", 1, initial_still_s=10.0, n_poses=40)
+    cap = Capture(t=np.rint(cap.t * 1e6) * 1e-6, acc=cap.acc, gyro=cap.gyro, temp=cap.temp,
+                  mag=np.float32(np.float32(cap.mag / 100.0) * np.float32(100.0)).astype(float))
+    csv = tmp_path / "sphere.csv"
+    write_csv(csv, cap)
+    log = ulog_from_captures(tmp_path / "sphere.ulg", {0: cap})
+    code, out, err = run(["calibrate", csv, "--method", "mag", "--json"], capsys)
+    assert code == 0, err
+    reference = json.loads(out)
+    code, out, err = run(["calibrate", log, "--method", "mag", "--json"], capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    # the log holds gauss in float32: microtesla a few 1e-6 apart from the CSV's
+    np.testing.assert_allclose(result["bias"], reference["bias"], rtol=0, atol=1e-3)
+    np.testing.assert_allclose(result["matrix"], reference["matrix"], rtol=0, atol=1e-5)
+    assert "magnetometer: sensor_mag 0 (device 396825), raw" in err
 
 
 def test_apply_and_report_read_a_vendored_ulog(tmp_path, capsys) -> None:

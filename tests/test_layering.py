@@ -88,7 +88,9 @@ RULES = (
          "acquisition imports drivers (through their interface) and protocols",
          # Taking ArduPilot's own correction out of a log's IMU messages evaluates the formula the
          # ArduPilot export documents and checks (ardupilot_offsets, names): one implementation of it.
-         exceptions=(("station/acquisition/autopilot_log.py", "station.export.autopilot.ardupilot"),)),
+         exceptions=(("station/acquisition/autopilot_log.py", "station.export.autopilot.ardupilot"),
+                     ("station/acquisition/log_magnetometer.py", "station.export.autopilot.ardupilot"),
+                     ("station/acquisition/log_magnetometer.py", "station.export.autopilot.shared"))),
     # Engines: their result types and the pure functions that evaluate them (the error an autopilot
     # leaves is computed with the station's own correction); protocols.crc: the blob's CRC-32 is
     # the protocols' one implementation; matplotlib draws the PNGs written beside an export.

@@ -24,6 +24,10 @@ degC, s) in the board's own axes, with what the autopilot had done to the sample
   ``P(T) - P(T_cal)`` evaluated by the ArduPilot export's own functions
   (:func:`station.export.autopilot.ardupilot.ardupilot_offsets`), so the model is written once.
 
+The log's first magnetometer comes with each IMU as the capture's ``mag`` (microtesla, at the IMU's
+times; PX4 ``sensor_mag`` raw, ArduPilot ``MAG`` with its compass correction taken out):
+:mod:`station.acquisition.log_magnetometer`.
+
 Timing: the rate is the median timestamp step (the true rate, not the configured one); a step over 1.5
 median steps is a gap. Both are in :class:`LogImu` and in the notes each command prints.
 
@@ -97,6 +101,7 @@ class AutopilotLog:
     _raw: dict[int, dict[str, np.ndarray]] = field(default_factory=dict, repr=False)
     _log_notes: list[str] = field(default_factory=list, repr=False)
     _notes: list[str] = field(default_factory=list, repr=False)
+    _mags: dict[int, Any] = field(default_factory=dict, repr=False)  # log_magnetometer.MagSeries by instance
 
     def imu(self, instance: int) -> LogImu:
         """The IMU ``instance``.
@@ -174,11 +179,20 @@ class AutopilotLog:
         InputFileError
             No such instance, or a board rotation the station cannot undo.
         """
+        from station.acquisition.log_magnetometer import field_at
+
         imu = self.imu(instance)
         if self.kind == "ulog":
             capture, notes = _ulog_capture(self, imu)
         else:
             capture, notes = _dataflash_capture(self, imu, remove_autopilot_correction)
+        try:
+            capture.mag, mag_notes = field_at(self._mags, capture.t, self.kind, self.params,
+                                              remove_autopilot_correction)
+        except ValueError as exc:
+            raise InputFileError(self.path, f"its magnetometer's correction cannot be taken out: {exc}",
+                                 column="COMPASS_ORIENT") from None
+        notes += mag_notes
         timing = f"{imu.describe()} (rate from the timestamps)"
         notes = [timing, *notes]
         capture.link = {NOTES_KEY: [*self._log_notes, *notes], "gaps": imu.gaps, "rate_hz": imu.rate_hz}
@@ -311,7 +325,10 @@ def _open_ulog(path: Path) -> AutopilotLog:
     alone = sorted(set(accel) ^ set(gyro))
     if alone:
         log_notes.append(f"sensor_accel/sensor_gyro instance(s) {alone} have no partner topic: left out")
-    return AutopilotLog(path, "ulog", imus, dict(data.params), dict(data.info), raw, log_notes)
+    from station.acquisition.log_magnetometer import px4_mags
+
+    return AutopilotLog(path, "ulog", imus, dict(data.params), dict(data.info), raw, log_notes,
+                        _mags=px4_mags(data.topics))
 
 
 def _pair(t_a: np.ndarray, t_g: np.ndarray, gyro: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
@@ -420,35 +437,14 @@ def _open_dataflash(path: Path) -> AutopilotLog:
         log_notes.append("IMU messages are ArduPilot's low-pass filtered samples"
                          + (f" ({', '.join(filters)})" if filters else "")
                          + ": noise above the filter is not the sensor's")
-    return AutopilotLog(path, "dataflash", imus, dict(data.params), {}, data.imus, log_notes)
+    from station.acquisition.log_magnetometer import dataflash_mags
 
-
-def board_rotation(orientation: int) -> np.ndarray:
-    """ArduPilot's board rotation R (body = R board) of ``AHRS_ORIENTATION``, from pymavlink's table.
-
-    Parameters
-    ----------
-    orientation : int
-        ``AHRS_ORIENTATION`` (ArduPilot's ``enum Rotation``).
-
-    Returns
-    -------
-    ndarray, (3, 3)
-
-    Raises
-    ------
-    ValueError
-        A value the table does not hold (a custom rotation, 100 and up).
-    """
-    from pymavlink.rotmat import rotations
-
-    if not 0 <= orientation < len(rotations):
-        raise ValueError(f"rotation {orientation} is not one of ArduPilot's 0..{len(rotations) - 1}")
-    r = rotations[orientation].r
-    return np.array([[r.a.x, r.a.y, r.a.z], [r.b.x, r.b.y, r.b.z], [r.c.x, r.c.y, r.c.z]])
+    return AutopilotLog(path, "dataflash", imus, dict(data.params), {}, data.imus, log_notes,
+                        _mags=dataflash_mags(data.mags))
 
 
 def _dataflash_capture(log: AutopilotLog, imu: LogImu, remove: bool) -> tuple[Capture, list[str]]:
+    from station.acquisition.dataflash_reader import board_rotation
     from station.export.autopilot import ardupilot
 
     cols = log._raw[imu.instance]

@@ -16,7 +16,7 @@ of firmware before 4.1 write ``IMU``, ``IMU2``, ``IMU3`` without it. pymavlink i
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,16 +25,18 @@ from station.errors import InputFileError
 
 HEAD = b"\xa3\x95\x80"
 IMU_NAMES = ("IMU", "IMU2", "IMU3")
+MAG_NAMES = ("MAG", "MAG2", "MAG3")
 
 
 @dataclass
 class DataflashData:
-    """What :func:`read_dataflash` found: IMU records (float64 columns by name) per instance."""
+    """What :func:`read_dataflash` found: IMU and MAG records (float64 columns by name) per instance."""
 
     path: Path
     imus: dict[int, dict[str, np.ndarray]]
     params: dict[str, float]
     messages: dict[str, int]  # message counts by name
+    mags: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 def is_dataflash(path: str | Path) -> bool:
@@ -68,6 +70,31 @@ def _dtype(fmt) -> tuple[np.dtype, dict[str, float]]:
         if mult is not None:
             mults[column] = mult
     return np.dtype({"names": names, "formats": kinds}), mults
+
+
+def board_rotation(orientation: int) -> np.ndarray:
+    """ArduPilot's board rotation R (body = R board) of ``AHRS_ORIENTATION``, from pymavlink's table.
+
+    Parameters
+    ----------
+    orientation : int
+        ``AHRS_ORIENTATION`` (ArduPilot's ``enum Rotation``).
+
+    Returns
+    -------
+    ndarray, (3, 3)
+
+    Raises
+    ------
+    ValueError
+        A value the table does not hold (a custom rotation, 100 and up).
+    """
+    from pymavlink.rotmat import rotations
+
+    if not 0 <= orientation < len(rotations):
+        raise ValueError(f"rotation {orientation} is not one of ArduPilot's 0..{len(rotations) - 1}")
+    r = rotations[orientation].r
+    return np.array([[r.a.x, r.a.y, r.a.z], [r.b.x, r.b.y, r.b.z], [r.c.x, r.c.y, r.c.z]])
 
 
 def read_dataflash(path: str | Path) -> DataflashData:
@@ -128,18 +155,22 @@ def _read(reader, path: Path) -> DataflashData:
         parm, _ = records("PARM")
         for name, value in zip(parm["Name"], parm["Value"], strict=True):
             params.setdefault(name.rstrip(b"\x00").decode("ascii", "replace"), float(value))
-    imus: dict[int, dict[str, np.ndarray]] = {}
-    for number, name in enumerate(IMU_NAMES):
-        if name not in by_name or not reader.offsets[by_name[name]]:
-            continue
-        rec, mults = records(name)
-        columns = {c: rec[c] if rec.dtype[c].kind == "S" else rec[c].astype(np.float64) * mults.get(c, 1.0)
-                   for c in rec.dtype.names or ()}
-        if "I" in columns and name == "IMU":
-            instance = rec["I"]
-            for i in np.unique(instance):
-                keep = instance == i
-                imus[int(i)] = {c: v[keep] for c, v in columns.items()}
-        else:
-            imus[number] = columns
-    return DataflashData(path, imus, params, counts)
+    def by_instance(names: tuple[str, ...]) -> dict[int, dict[str, np.ndarray]]:
+        # one message with an instance field I, or (firmware before 4.1) one message name per instance
+        out: dict[int, dict[str, np.ndarray]] = {}
+        for number, name in enumerate(names):
+            if name not in by_name or not reader.offsets[by_name[name]]:
+                continue
+            rec, mults = records(name)
+            columns = {c: rec[c] if rec.dtype[c].kind == "S"
+                       else rec[c].astype(np.float64) * mults.get(c, 1.0) for c in rec.dtype.names or ()}
+            if "I" in columns and number == 0:
+                instance = rec["I"]
+                for i in np.unique(instance):
+                    keep = instance == i
+                    out[int(i)] = {c: v[keep] for c, v in columns.items()}
+            else:
+                out[number] = columns
+        return out
+
+    return DataflashData(path, by_instance(IMU_NAMES), params, counts, by_instance(MAG_NAMES))

@@ -37,7 +37,7 @@ WALK_ROWS = 1 << 20
 
 BASE_TYPES = {"int8_t": "i1", "uint8_t": "u1", "int16_t": "<i2", "uint16_t": "<u2", "int32_t": "<i4",
               "uint32_t": "<u4", "int64_t": "<i8", "uint64_t": "<u8", "float": "<f4", "double": "<f8",
-              "bool": "?", "char": "S1"}
+              "bool": "i1", "char": "S1"}  # bool as a byte 0/1, as pyulog gives it
 
 
 @dataclass
@@ -275,7 +275,8 @@ def _key_value(payload: bytes) -> tuple[str, object]:
     return name, raw
 
 
-def read_ulog(path: str | Path, topics: Iterable[str] | None = ("sensor_accel", "sensor_gyro")) -> UlogData:
+def read_ulog(path: str | Path, topics: Iterable[str] | None = ("sensor_accel", "sensor_gyro", "sensor_mag")
+              ) -> UlogData:
     """Decode a ULog: its initial parameters, info, dropouts and the data of ``topics``.
 
     Parameters
@@ -365,6 +366,8 @@ def read_ulog(path: str | Path, topics: Iterable[str] | None = ("sensor_accel", 
     out: dict[tuple[str, int], np.ndarray] = {}
     for slot, (_, key, dtype) in enumerate(chosen):
         n = int(rows[slot])
+        if n == 0:  # subscribed, never logged: absent, as pyulog has it
+            continue
         part = block[bases[slot]:bases[slot] + n * dtype.itemsize]
         out[key] = part.view(dtype) if dtype.itemsize else np.zeros(n, dtype)
     return UlogData(path, out, params, info, dropouts, corrupt, truncated, short, subscriptions)
