@@ -54,6 +54,8 @@ CASES = [
     (["simulate"], "--rate", "0"),
     (["simulate"], "--speed", "0"),
     (["simulate"], "--duration", "-5"),
+    (["simulate", "--scenario", "chamber", "--log-format", "ulog", "-o", "{tmp}/x.ulg"], "--rate", "5000"),
+    (["simulate", "--scenario", "chamber", "--log-format", "dataflash", "-o", "{tmp}/x.bin"], "--rate", "0"),
     (["calibrate", "{tmp}/absent.csv"], "--gravity", "5"),
     (["calibrate", "{tmp}/absent.csv"], "--latitude", "100"),
     (["calibrate", "{tmp}/absent.csv"], "--height", "1e7"),
