@@ -22,6 +22,7 @@ line and exits with the error's ``exit_code`` (an :class:`ExitCode`)::
      ├── RecordStoreError                 the record database is damaged, foreign or unreachable (factory)
      │    └── RecordsUnavailable          locked or read-only now: a run's record waits, pending
      ├── BadRecord                        a stored record that is not one: its row is refused (factory)
+ ├── JournalError                     a run folder that cannot be resumed from its journal (factory)
      └── DriverError                      exit 3: device or link (drivers, see drivers.errors)
           ├── PortError                   opening the port failed
           │    ├── PortNotFound

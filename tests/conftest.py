@@ -13,7 +13,8 @@ PACED = ("test_tui", "test_capture", "test_multi_capture", "test_e2e", "test_fac
          "test_docs", "test_report", "test_pdf", "test_run", "test_demo", "test_firmware", "test_c_",
          "test_imu_link", "test_records", "test_turn_on", "test_characteris", "test_device_text",
          "test_contract", "test_hostile_text", "test_output_sets", "test_paced_port", "test_polled_port",
-         "test_serial", "test_simulat", "test_table", "test_chamber", "test_supply", "test_mag_acquisition")
+         "test_serial", "test_simulat", "test_table", "test_chamber", "test_supply", "test_mag_acquisition",
+         "test_campaign_run")
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

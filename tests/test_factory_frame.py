@@ -107,7 +107,8 @@ def test_refused_before_any_port_opens(work: Path, capsys: pytest.CaptureFixture
 
 
 def test_the_python_api_refuses_a_run_it_cannot_name(work: Path) -> None:
-    from station.factory.run import RunRequest, run_unit
+    from station.factory.run import RunRequest
+    from station.factory.unit import run_unit
 
     plan = load_plan(work / "plan.yaml")
     with pytest.raises(StationError, match="give --serial SN"):

@@ -149,10 +149,11 @@ def run(args: argparse.Namespace) -> int:
     """Run the plan on the unit, store the record, print it; exit with the run's outcome."""
     from station.factory.plan import load_plan, with_instruments, with_protocol
     from station.factory.records import READ_WAIT_S, RecordStore
-    from station.factory.run import RunRequest, check_serial, configure_logging, run_unit
+    from station.factory.run import RunRequest, check_serial, configure_logging
     from station.factory.simrig import SimulatedUnit
     from station.factory.spool import keep
     from station.factory.store_errors import RecordsUnavailable, wait_s
+    from station.factory.unit import run_unit
 
     _check(args)
     resumed = resume_arguments(args)

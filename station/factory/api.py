@@ -33,8 +33,9 @@ from types import TracebackType
 from station.acquisition.operator import Operator, ScriptedOperator
 from station.factory.plan import Plan, load_plan
 from station.factory.records import RecordStore, RunRecord
-from station.factory.run import EventSink, RunRequest, run_unit
+from station.factory.run import EventSink, RunRequest
 from station.factory.simrig import SimulatedUnit
+from station.factory.unit import run_unit
 
 __all__ = ["FactoryStation", "RunRecord", "ScriptedOperator", "SimulatedUnit"]
 

@@ -34,8 +34,9 @@ from typing import TYPE_CHECKING
 
 import yaml
 
+from station.factory.plan_reader import PlanReader
+
 if TYPE_CHECKING:
-    from station.factory.plan import _Reader
     from station.instruments.bench import InstrumentPlan
 
 _CAMPAIGN = {"soaks_c", "ramp_c_per_min", "end_c", "settle", "soak", "ramp", "simulate"}
@@ -75,12 +76,12 @@ class CampaignPlan:
         return out
 
 
-def read_campaign(r: _Reader, node: yaml.Node, instruments: InstrumentPlan | None) -> CampaignPlan:
+def read_campaign(r: PlanReader, node: yaml.Node, instruments: InstrumentPlan | None) -> CampaignPlan:
     """Read and check ``campaign:`` against the plan's instruments (a chamber is needed).
 
     Parameters
     ----------
-    r : plan._Reader
+    r : PlanReader
         The plan's walker (names the file and line of a refusal).
     node : yaml.Node
         The section.
@@ -142,7 +143,7 @@ def read_campaign(r: _Reader, node: yaml.Node, instruments: InstrumentPlan | Non
     return CampaignPlan(**fields)  # type: ignore[arg-type]  # each key read with its type above
 
 
-def _within(r: _Reader, node: yaml.Node, key: str, instruments: InstrumentPlan) -> float:
+def _within(r: PlanReader, node: yaml.Node, key: str, instruments: InstrumentPlan) -> float:
     value = r.number(node, key, positive=False)
     low, high = instruments.limits.min_c, instruments.limits.max_c
     if (low is not None and value < low) or (high is not None and value > high):
@@ -152,7 +153,7 @@ def _within(r: _Reader, node: yaml.Node, key: str, instruments: InstrumentPlan) 
     return value
 
 
-def _soaks(r: _Reader, node: yaml.Node, instruments: InstrumentPlan) -> tuple[float, ...]:
+def _soaks(r: PlanReader, node: yaml.Node, instruments: InstrumentPlan) -> tuple[float, ...]:
     if not isinstance(node, yaml.SequenceNode) or not node.value:
         raise r.fail(node, "'soaks_c' must be a list of temperatures in degC, e.g. [-20, 0, 20, 40, 60]",
                      column="soaks_c")
@@ -164,7 +165,7 @@ def _soaks(r: _Reader, node: yaml.Node, instruments: InstrumentPlan) -> tuple[fl
     return out
 
 
-def _soak(r: _Reader, node: yaml.Node, instruments: InstrumentPlan) -> dict[str, object]:
+def _soak(r: PlanReader, node: yaml.Node, instruments: InstrumentPlan) -> dict[str, object]:
     soak = r.mapping(node, _SOAK, "'campaign.soak'")
     out: dict[str, object] = {}
     if "sequence" in soak:

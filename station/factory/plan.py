@@ -39,7 +39,7 @@ then sends it nothing, the serial is given to the run, and the rate is the descr
 the plan, before any port is opened.
 
 Why this module is long: the plan is one schema read by one walker over the composed YAML nodes
-(``_Reader``), so that every refusal names its line; each section's reader is a short function of
+(``PlanReader``), so that every refusal names its line; each section's reader is a short function of
 that walker, and splitting them into modules would pass the walker's private state across them.
 """
 
@@ -57,10 +57,10 @@ import yaml
 from protocols.units import STANDARD_GRAVITY
 from station.acquisition import sequences
 from station.acquisition.sequences import Sequence
-from station.common.text import printable
 from station.common.yaml_file import read_yaml
 from station.errors import InputFileError, StationError
 from station.factory.campaign_plan import CampaignPlan, read_campaign
+from station.factory.plan_reader import PlanReader, shown
 from station.instruments.bench import InstrumentPlan, OnAbort, check_on_abort
 from station.instruments.limits import Limits
 
@@ -168,78 +168,12 @@ class Plan:
         return None
 
 
-KEY_CHARS = 60
-"""The most of a key or value of the file an error message shows."""
-
-
-def _shown(text: str) -> str:
-    """A key or value of the file in an error message: quoted, escaped and cut (a key may be anything)."""
-    return f"'{printable(text, KEY_CHARS)}'"
-
-
-class _Reader:
-    """Walks the composed YAML nodes so every refusal can name its line."""
-
-    def __init__(self, path: Path):
-        self.path = path
-
-    def fail(self, node: yaml.Node | None, problem: str, column: str | None = None) -> InputFileError:
-        line = node.start_mark.line + 1 if node is not None else None
-        # a key is the file's text: escaped and cut here, as the repr() of a key in a problem is
-        return InputFileError(self.path, problem, line=line,
-                              column=None if column is None else printable(column, KEY_CHARS))
-
-    def mapping(self, node: yaml.Node, known: set[str], what: str) -> dict[str, yaml.Node]:
-        if not isinstance(node, yaml.MappingNode):
-            raise self.fail(node, f"{what} must be a mapping (key: value lines)")
-        out: dict[str, yaml.Node] = {}
-        for key_node, value_node in node.value:
-            key = self.scalar(key_node, "a key")
-            if known and key not in known:
-                raise self.fail(key_node, f"unknown key {_shown(key)} in {what}; known keys are "
-                                f"{', '.join(sorted(known))}", column=key)
-            if key in out:
-                raise self.fail(key_node, f"key {_shown(key)} appears twice in {what}", column=key)
-            out[key] = value_node
-        return out
-
-    def scalar(self, node: yaml.Node, what: str) -> str:
-        if not isinstance(node, yaml.ScalarNode):
-            raise self.fail(node, f"{what} must be a plain value")
-        return str(node.value)
-
-    def value(self, node: yaml.Node) -> Any:
-        if isinstance(node, yaml.ScalarNode) and node.style is None:
-            return yaml.safe_load(node.value)
-        return self.scalar(node, "a value")
-
-    def number(self, node: yaml.Node, key: str, positive: bool = True) -> float:
-        value = self.value(node)
-        good = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-        if not good or (positive and value <= 0):
-            kind = "a positive number" if positive else "a number"
-            raise self.fail(node, f"'{key}' must be {kind}, not {getattr(node, 'value', '?')!r}", column=key)
-        return float(value)
-
-    def integer(self, node: yaml.Node, key: str) -> int:
-        value = self.value(node)
-        if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-            raise self.fail(node, f"'{key}' must be a positive whole number, not {node.value!r}", column=key)
-        return value
-
-    def boolean(self, node: yaml.Node, key: str) -> bool:
-        value = self.value(node)
-        if not isinstance(value, bool):
-            raise self.fail(node, f"'{key}' must be true or false, not {node.value!r}", column=key)
-        return value
-
-
 def load_plan(path: str | Path) -> Plan:
     """Read and check a plan file (schema ``imu-station/plan/1``)."""
     path = Path(path)
     document = read_yaml(path, "does not exist; give the plan YAML (see examples/plan.yaml)")
     raw, root = document.raw, document.root
-    r = _Reader(path)
+    r = PlanReader(path)
     if root is None:
         raise InputFileError(path, "is empty; a plan needs at least 'schema', 'name' and 'sequence'")
     top = r.mapping(root, _TOP, "the plan")
@@ -368,7 +302,7 @@ def with_protocol(plan: Plan, protocol: str) -> Plan:
     return dataclasses.replace(plan, protocol=chosen, rate_hz=rate or plan.rate_hz)
 
 
-def _sequence(r: _Reader, node: yaml.Node) -> Sequence:
+def _sequence(r: PlanReader, node: yaml.Node) -> Sequence:
     if isinstance(node, yaml.ScalarNode):
         spec: dict[str, yaml.Node] = {"name": node}
     else:
@@ -396,7 +330,7 @@ def _sequence(r: _Reader, node: yaml.Node) -> Sequence:
     return sequences.builtin(name, rotations, hold, rate, settle)
 
 
-def _engine(r: _Reader, node: yaml.Node) -> dict[str, Any]:
+def _engine(r: PlanReader, node: yaml.Node) -> dict[str, Any]:
     eng = r.mapping(node, _ENGINE, "'engine'")
     out: dict[str, Any] = {}
     if "method" in eng:
@@ -428,20 +362,20 @@ def _engine(r: _Reader, node: yaml.Node) -> dict[str, Any]:
     return out
 
 
-def _limits(r: _Reader, node: yaml.Node) -> tuple[LimitSpec, ...]:
+def _limits(r: PlanReader, node: yaml.Node) -> tuple[LimitSpec, ...]:
     entries = r.mapping(node, set(), "'limits'")
     out = []
     for quantity, value_node in entries.items():
         key_node = next(k for k, v in node.value if v is value_node)
         if quantity not in QUANTITIES:
-            raise r.fail(key_node, f"unknown quantity {_shown(quantity)}; limits can be set on "
+            raise r.fail(key_node, f"unknown quantity {shown(quantity)}; limits can be set on "
                          f"{', '.join(QUANTITIES)}", column=quantity)
         dimension = QUANTITIES[quantity][0]
         spec = r.mapping(value_node, _LIMIT, f"the limit of {quantity}")
         unit = r.scalar(spec["unit"], "'unit'") if "unit" in spec else SI_UNIT[dimension]
         allowed = [u for u, (d, _) in UNITS.items() if d == dimension]
         if unit not in UNITS or UNITS[unit][0] != dimension:
-            raise r.fail(spec.get("unit", value_node), f"unit {_shown(unit)} is not a unit of {quantity} "
+            raise r.fail(spec.get("unit", value_node), f"unit {shown(unit)} is not a unit of {quantity} "
                          f"({dimension}); use one of {', '.join(repr(u) for u in allowed)}", column="unit")
         if "max_abs" in spec and ("min" in spec or "max" in spec):
             raise r.fail(spec["max_abs"], "give either 'max_abs' or 'min'/'max', not both", column="max_abs")
@@ -461,7 +395,7 @@ def _limits(r: _Reader, node: yaml.Node) -> tuple[LimitSpec, ...]:
     return tuple(out)
 
 
-def _export(r: _Reader, node: yaml.Node) -> tuple[str, ...]:
+def _export(r: PlanReader, node: yaml.Node) -> tuple[str, ...]:
     if not isinstance(node, yaml.SequenceNode):
         raise r.fail(node, f"'export' must be a list of formats, e.g. [c, json]; formats are "
                      f"{', '.join(EXPORT_FORMATS)}", column="export")
@@ -477,7 +411,7 @@ def _export(r: _Reader, node: yaml.Node) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _instruments(r: _Reader, node: yaml.Node) -> InstrumentPlan:
+def _instruments(r: PlanReader, node: yaml.Node) -> InstrumentPlan:
     """``instruments:``: each kind's URL and limits, and ``on_abort``."""
     section = r.mapping(node, _INSTRUMENTS, "'instruments'")
     urls: dict[str, str] = {}

@@ -68,13 +68,11 @@ from station.factory.records import (
     Attachment,
     Measurement,
     Phase,
-    RecordStore,
     RunRecord,
     sha256_file,
     utc_now,
 )
 from station.factory.simrig import SimulatedUnit, simulated_rig
-from station.factory.spool import keep
 from station.instruments.bench import Bench, open_bench
 from station.instruments.mounted_table import MountedTable, PoseTable
 from station.report.attachments import CERTIFICATE_NAME, PARAMS_ATTACHMENT, RAW_CAPTURE
@@ -662,35 +660,6 @@ def check_serial(request: RunRequest) -> None:
     if request.serial == "auto" and not request.plan.asks_serial and request.simulate is None:
         raise StationError(f"a unit read through {request.plan.protocol} cannot be asked its serial number: "
                            "give --serial SN")
-
-
-def run_unit(request: RunRequest, store: RecordStore | None = None) -> RunRecord:
-    """Run one unit and save its record in ``store`` (when given); a record the store does not take
-    is kept pending in ``files_root`` (``station.factory.spool``), logged, and the record returned.
-
-    Parameters
-    ----------
-    request : RunRequest
-        The unit, the plan and how to reach them.
-    store : RecordStore, optional
-        Where the record is saved.
-
-    Returns
-    -------
-    RunRecord
-        The run's record (outcome, exit code, phases, measurements, attachments).
-    """
-    if request.plan.campaign is not None or request.resume is not None:
-        from station.factory.campaign import CampaignRun  # the campaign is a UnitRun: imported here
-
-        record = CampaignRun(request).execute()
-    else:
-        record = UnitRun(request).execute()
-    if store is not None:
-        pending = keep(record, store, request.files_root)
-        if pending is not None:
-            log.warning("record %s pending in %s: %s", record.run_id, pending.path, pending.reason)
-    return record
 
 
 class _UnitField(logging.Filter):
