@@ -24,7 +24,7 @@ with 10 min soaks, noise-free (so the figures measure the models, not the noise)
 variation is the true thermal bias (``mocks.truth`` eq. (3) at the true T and dT) minus what the
 method subtracts, per IMU and axis: its standard deviation and its peak-to-peak over the sweep
 (constants do not count: the autopilots' offsets and the accel's gravity carry them), gyro in deg/h,
-accel in mg. The table gives medians over the 3 instances x 3 axes, then per instance.
+accel in mg. The table gives medians over the boards x 3 instances x 3 axes, then per instance.
 
 The peers run with this interpreter when it has their dependencies (pyulog, pymavlink, scipy,
 matplotlib), with ``MPLBACKEND=Agg`` and ArduPilot's ``--no-graph``; their wall times are printed
