@@ -345,3 +345,27 @@ def test_a_noise_free_sweep_has_no_spread_in_its_sensitivity() -> None:
     exact = ThermalBias([ThermalSegment(gyro.t_min, gyro.t_max, c * 1e-2)]).temperature_sensitivity(25.0)
     np.testing.assert_allclose(gyro.temperature_sensitivity(25.0), exact, rtol=1e-7)
     assert np.all(np.asarray(gyro.extra["temp_sensitivity_sd"]) < 1e-9 * np.abs(exact))
+
+
+def test_a_still_sweep_is_one_pose_however_far_its_bias_drifts() -> None:
+    from station.engines.thermal.blocks import still_poses
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 2000.0, 0.1)
+    # A thermal accel bias of 1.5 m/s^2 across the sweep: the mean direction moves 8.7 degrees, more than the
+    # 5 degrees that tell two poses apart after a motion.
+    acc = np.column_stack([1.5 * t / t[-1], np.zeros_like(t), np.full_like(t, 9.81)])
+    acc += rng.normal(0.0, 0.01, acc.shape)
+    gyro = rng.normal(0.0, 1e-3, (len(t), 3))
+    pose, names = still_poses(t, acc, gyro)
+    assert names == ["+z"] and np.all(pose[: len(t) // 10 * 10] == 0)
+    # Turned over half way (a second of motion): two poses, each named by its own direction.
+    half = len(t) // 2
+    acc[half:, 2] *= -1.0
+    turn = np.sin(np.linspace(0.0, np.pi, 10))  # a half turn about x in one second
+    gyro[half - 10:half, 0] += np.pi / 2 * np.pi * turn
+    acc[half - 10:half, 2] = 9.81 * np.cos(np.linspace(0.0, np.pi, 10))
+    pose, names = still_poses(t, acc, gyro)
+    assert names == ["+z", "-z"]
+    whole = len(t) // 10 * 10
+    assert set(np.unique(pose[:half - 20])) == {0} and set(np.unique(pose[half + 20:whole])) == {1}

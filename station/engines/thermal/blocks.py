@@ -30,8 +30,9 @@ def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
     With step labels (capture-csv spec) every static label is a pose and rows between steps
     or in rotation steps are left out. Without labels (or with a step column left empty, as
     an unlabelled recording writes it), one-second windows whose accelerometer
-    or gyroscope spread exceeds five times the median spread are motion; still windows are
-    grouped by the direction of their mean specific force (within 5 degrees).
+    or gyroscope spread exceeds five times the median spread are motion; still windows with no motion
+    between them are one pose, and after a motion a still window joins the pose whose mean specific
+    force points within 5 degrees of its own, else starts a new one.
 
     Parameters
     ----------
@@ -70,14 +71,21 @@ def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
     centres: list[np.ndarray] = []
     window_pose = np.full(nw, -1)
     cos_tol = np.cos(np.radians(5.0))
+    previous = -1
     for i in np.flatnonzero(still):
-        for k, c in enumerate(centres):
-            if mean_dir[i] @ c > cos_tol:
-                window_pose[i] = k
-                break
+        # Without motion between two still windows the unit cannot have turned: the same pose, however far
+        # the thermal bias (tens of mg over a sweep) has moved the direction of the mean.
+        if previous >= 0 and not moving[previous:i].any():
+            window_pose[i] = window_pose[previous]
         else:
-            centres.append(mean_dir[i])
-            window_pose[i] = len(centres) - 1
+            for k, c in enumerate(centres):
+                if mean_dir[i] @ c > cos_tol:
+                    window_pose[i] = k
+                    break
+            else:
+                centres.append(mean_dir[i])
+                window_pose[i] = len(centres) - 1
+        previous = i
     pose[: nw * w] = np.repeat(window_pose, w)
     names: list[str] = []
     for k, c in enumerate(centres):
