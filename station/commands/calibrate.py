@@ -1,9 +1,9 @@
 """``imu-station calibrate``: accelerometer and gyroscope intrinsics from a capture.
 
-Why this module is long: one command with four ways in (turntable, free, mag, across temperature)
-that share its parser, its options' checks (gravity, rate, place) and the way results are merged
-into the parameter file; each way's composition of reading, engine, output set and report is a
-function here, the engines and the printing are elsewhere.
+Why this module is long: one command with five ways in (turntable, free, mag, across temperature, a
+board of several IMUs) that share its parser, its options' checks (gravity, rate, place) and the way
+results are merged into the parameter file; each way's composition of reading, engine, output set and
+report is a function here, the engines and the printing are elsewhere.
 """
 
 from __future__ import annotations
@@ -57,6 +57,12 @@ Estimate the intrinsics of both triads, raw = K (I + S) true + b, from a capture
   thermal.misalignment) are written; prints every soak, the orders and the scale-factor temperature
   coefficient (ppm/degC), misalignment change (urad) and bias sensitivity; --plot (default beside -o)
   draws them against T.
+Several IMUs of one board: a PX4/ArduPilot log with several IMUs and no --instance, or one capture
+  per IMU (NAME.csv, NAME.imu1.csv, ... each with its '# instance: k' line): each IMU is calibrated as
+  above, then its rotation relative to the first (v_k = R v_0, each IMU in its own axes, --convention)
+  by Wahba's problem over the first IMU's still poses (and the turns' integrated rates), with its
+  1-sigma; the first IMU's sections and an 'imus' section (every IMU's sections, device ids and
+  rotation_to_first) are merged. --instance N calibrates IMU N alone.
 --method mag: the magnetometer (capture columns mx, my, mz) into the 'mag' section: hard iron, soft iron
   and the rotation to the accelerometer, fitted jointly with the dip constraint (the angle between
   gravity and the field is the same at every still pose), so a desk-bound session whose z axis stays
@@ -76,6 +82,8 @@ EPILOG = """\
 examples:
   imu-station calibrate twelve.csv --method turntable -o unit.yaml
   imu-station calibrate m20.csv p00.csv p20.csv p40.csv p60.csv --across-temperature -o unit.yaml
+  imu-station calibrate board.csv board.imu1.csv board.imu2.csv --method turntable -o board.yaml
+  imu-station calibrate handheld.ulg -o board.yaml
   imu-station calibrate handheld.csv --method free --initial-still 30 --convention upper -o unit.yaml
   imu-station calibrate session.csv --latitude 45.07 --height 240 --json
   imu-station calibrate compass.csv --method mag --latitude 45.07 --longitude 7.68 -o unit.yaml"""
@@ -450,11 +458,16 @@ def run(args: argparse.Namespace) -> int:
     if args.across_temperature:
         return run_across_temperature(args)
     if len(args.input) > 1:
+        if args.method != "mag" and _board_files(args.input) is not None:
+            return run_board(args)
         raise StationError(f"{len(args.input)} captures given: one is calibrated at a time; give one per "
-                           "soak temperature with --across-temperature (turntable method)")
+                           "soak temperature with --across-temperature (turntable method), or one per IMU "
+                           "of a board (each with its '# instance: k' metadata line)")
     args.input = args.input[0]
     if args.method == "mag":
         return run_mag(args)
+    if args.instance is None and _log_imus(args.input) > 1:
+        return run_board(args)
     local_gravity(args)  # refuse bad options before reading a long capture
     with PhaseLine(sys.stderr) as phase:
         phase.show(f"reading {args.input}")
@@ -484,6 +497,135 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
         return ExitCode.OK
     print_report(report, sys.stdout)
+    for path, what in outputs.items():
+        print(f"{printable(path, PATH_CHARS)}: {what}")
+    return ExitCode.OK
+
+
+def _log_imus(path: Path) -> int:
+    """How many IMUs the autopilot log ``path`` holds (0: not a log)."""
+    from station.acquisition.autopilot_log import is_autopilot_log, open_log
+
+    return len(open_log(path).imus) if is_autopilot_log(path) else 0
+
+
+def _board_files(paths: list[Path]) -> dict[int, Path] | None:
+    """The capture CSVs of one board's IMUs by their '# instance: k' lines, or None where one has none."""
+    from station.acquisition.capture_csv import read_csv_device
+
+    out: dict[int, Path] = {}
+    for path in paths:
+        if not str(path).lower().endswith((".csv", ".csv.gz")):
+            return None
+        text = str(read_csv_device(path).get("instance", "")).strip()
+        if not text.isdigit():
+            return None
+        if int(text) in out:
+            raise StationError(f"{out[int(text)]} and {path} are both IMU instance {text}: give one capture "
+                               "per IMU of the board")
+        out[int(text)] = path
+    return dict(sorted(out.items()))
+
+
+def _board_captures(args: argparse.Namespace) -> tuple[dict[int, Capture], dict[int, Path]]:
+    """Every IMU of the board, by instance: a log's IMUs, or the capture files named by instance."""
+    from station.acquisition.autopilot_log import open_log
+    from station.acquisition.capture import read_capture
+    from station.console.log_notes import print_log_notes
+
+    if isinstance(args.input, Path):  # one log with several IMUs
+        if args.instance is not None:
+            raise StationError("--instance picks one IMU; leave it out to calibrate every IMU of the board")
+        log = open_log(args.input)
+        captures = log.captures()
+        print_log_notes(args.input, log.notes())
+        return captures, dict.fromkeys(captures, args.input)
+    if args.instance is not None:
+        raise StationError("--instance picks an IMU of a PX4 or ArduPilot log; the captures of a board name "
+                           "theirs in their '# instance:' lines: leave --instance out")
+    files = _board_files(args.input) or {}
+    return {k: read_capture(path) for k, path in files.items()}, files
+
+
+def _board_unit(captures: dict[int, Capture], files: dict[int, Path]) -> dict[str, Any]:
+    """The first IMU's unit, after checking that every capture names the same board (its serial, less a
+    log's '-imu<k>')."""
+    import re
+
+    first = min(captures)
+    boards = {k: re.sub(r"-imu\d+$", "", str(c.device["serial"])) for k, c in captures.items()
+              if c.device.get("serial")}
+    if len(set(boards.values())) > 1:
+        named = ", ".join(f"{files[k]} {boards[k]}" for k in boards)
+        raise StationError(f"the captures name different units ({named}): the IMUs calibrated together are "
+                           "one board's")
+    return dict(captures[first].device)
+
+
+def run_board(args: argparse.Namespace) -> int:
+    """Several IMUs of one board: calibrate each as a single capture is, then each one's rotation relative
+    to the first from the first's still poses and turns; merge the first's sections and 'imus' into
+    --output, print every IMU's report and the rotations (or JSON)."""
+    from station.common.files import output_set
+    from station.common.text import PATH_CHARS, printable
+    from station.console.board_summary import print_rotations, rotation_dict
+    from station.engines.calibration.imu_alignment import BoardImu, board_rotations
+    from station.errors import EngineInputError
+    from station.export.params.file import merge_sections, name_unit, open_for_unit
+    from station.export.params.imus import IMUS, first_entry, other_entry
+
+    local_gravity(args)  # refuse bad options before reading long captures
+    with PhaseLine(sys.stderr) as phase:
+        phase.show(f"reading {args.input}")
+        captures, files = _board_captures(args)
+        device = name_unit(_board_unit(captures, files), args.serial)
+        if args.output:
+            open_for_unit(args.output, device, replace=args.replace)  # refuse before the fits
+        reports = {}
+        for k, capture in captures.items():
+            phase.show(f"calibrating IMU {k}")
+            try:
+                reports[k] = calibrate_capture(capture, args)
+            except EngineInputError as exc:
+                raise EngineInputError(f"IMU {k} ({files[k]}): {exc}") from None
+        methods = {r.method for r in reports.values()}
+        if len(methods) > 1:
+            raise StationError(f"the IMUs' captures call for different methods "
+                               f"({', '.join(sorted(methods))}): give every IMU's capture with the same step "
+                               "labels, or none")
+        phase.show("rotations between the IMUs")
+        first = min(captures)
+        imus = [BoardImu(k, c.t, c.acc, c.gyro, reports[k]) for k, c in captures.items()]
+        rotations = board_rotations(imus, args.convention)
+    entries = [first_entry(first, captures[first].device)]
+    for k, rot in rotations.items():
+        details = {"rotation_residual_rms": rot.residual_rms,
+                   "rotation_from": f"{rot.poses} still poses, {rot.turns} turns"}
+        entries.append(other_entry(k, captures[k].device, reports[k].accel, reports[k].gyro, rot.to_first,
+                                   rot.sigma, details))
+    outputs = {}
+    with output_set():
+        if args.output:
+            merge_sections(args.output, device, {"accel": reports[first].accel, "gyro": reports[first].gyro,
+                                                 IMUS: entries}, capture=files[first], replace=args.replace)
+            outputs[str(args.output)] = (f"accel and gyro sections (IMU {first}) and the imus section "
+                                         f"({len(entries)} IMUs) written")
+        if args.plot:
+            write_plot(args.plot, reports[first], files[first].name)
+            outputs[str(args.plot)] = f"written (IMU {first})"
+    if args.json:
+        import json
+
+        result = {"imus": [{"instance": k, **report_dict(reports[k], str(files[k]))} for k in reports],
+                  "rotations": [rotation_dict(k, rot) for k, rot in rotations.items()], "outputs": outputs}
+        json.dump(result, sys.stdout, indent=1, allow_nan=False)
+        sys.stdout.write("\n")
+        return ExitCode.OK
+    for k, report in reports.items():
+        sys.stdout.write(f"=== IMU {k} ({printable(files[k], PATH_CHARS)}) ===\n")
+        print_report(report, sys.stdout)
+        sys.stdout.write("\n")
+    print_rotations(first, rotations, sys.stdout)
     for path, what in outputs.items():
         print(f"{printable(path, PATH_CHARS)}: {what}")
     return ExitCode.OK

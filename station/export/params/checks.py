@@ -157,8 +157,66 @@ def check_params(data: Any, path: str | Path = "<params>", locate: Locate | None
         _mag(c, doc["mag"])
     if doc.get("characterisation") is not None:
         _characterisation(c, doc["characterisation"])
+    if doc.get("imus") is not None:
+        _imus(c, doc["imus"], doc)
     if doc.get("sources") is not None:
         _sources(c, doc["sources"])
+
+
+MAX_IMUS = 256  # instances are one byte in every log and protocol
+ROTATION_TOLERANCE = 1e-5  # |R^T R - I| of a stored rotation, written from float64 and read back
+
+
+def _imus(c: _Checker, value: Any, doc: dict[str, Any]) -> None:
+    """``imus``: the board's IMUs, the first naming the top-level sections, the others their own sections
+    and their rotation to the first (``station.export.params.imus``)."""
+    if not isinstance(value, list) or not 1 <= len(value) <= MAX_IMUS:
+        raise c.fail(("imus",), f"must be a list of 1 to {MAX_IMUS} IMU entries (instance, device ids, "
+                     f"sections), not {_shown(value)}")
+    seen: set[int] = set()
+    for k, item in enumerate(value):
+        keys: Keys = ("imus", k)
+        entry = c.mapping(item, keys)
+        instance = entry.get("instance")
+        if isinstance(instance, bool) or not isinstance(instance, int) or not 0 <= instance < MAX_IMUS:
+            raise c.fail((*keys, "instance"), f"must be the IMU's instance, a whole number "
+                         f"0..{MAX_IMUS - 1}, not {_shown(instance)}")
+        if instance in seen:
+            raise c.fail((*keys, "instance"), f"instance {instance} is listed twice; each IMU once")
+        seen.add(instance)
+        for key in ("device_id", "gyro_device_id"):
+            ident = entry.get(key)
+            if ident is not None and (isinstance(ident, bool) or not isinstance(ident, int)
+                                      or not 0 <= ident <= 2**32 - 1):
+                raise c.fail((*keys, key), f"must be a device id, a whole number 0..{2**32 - 1}, not "
+                             f"{_shown(ident)}")
+        if k == 0:
+            extra = [key for key in ("accel", "gyro", "thermal", "rotation_to_first") if key in entry]
+            if extra:
+                raise c.fail((*keys, extra[0]), "the first IMU's sections are the top-level ones; its entry "
+                             "holds only its instance and device ids (remove this key, or move it up)")
+            if doc.get("accel") is None:
+                raise c.fail(("imus",), "lists the board's IMUs but the file has no top-level 'accel' "
+                             "section, the first IMU's; write the file with 'imu-station calibrate'")
+            continue
+        if "rotation_to_first" not in entry:
+            raise c.fail(keys, f"IMU {instance} lacks the required key 'rotation_to_first' (3x3, its vectors "
+                         "into the first IMU's axes)")
+        for name in ("accel", "gyro"):
+            if entry.get(name) is not None:
+                _sensor(c, entry[name], name, keys)
+        if entry.get("thermal") is not None:
+            _thermal(c, entry["thermal"], keys)
+        c.array(entry["rotation_to_first"], (*keys, "rotation_to_first"), (3, 3), 1.0 + ROTATION_TOLERANCE,
+                "")
+        rotation = np.asarray(entry["rotation_to_first"], float)
+        if (np.max(np.abs(rotation.T @ rotation - np.eye(3))) > ROTATION_TOLERANCE
+                or np.linalg.det(rotation) < 0):
+            raise c.fail((*keys, "rotation_to_first"), "is not a rotation (R^T R = I, det +1): a mirror or a "
+                         "scaled matrix; write it with 'imu-station calibrate'")
+        if entry.get("rotation_sigma") is not None:
+            c.array(entry["rotation_sigma"], (*keys, "rotation_sigma"), (3,), math.pi, "rad", nullable=True)
+            _not_negative(c, entry["rotation_sigma"], (*keys, "rotation_sigma"))
 
 
 def _sources(c: _Checker, value: Any) -> None:
@@ -169,27 +227,28 @@ def _sources(c: _Checker, value: Any) -> None:
                 raise c.fail(("sources", name, key), f"must be text, not {_shown(item)}")
 
 
-def _sensor(c: _Checker, value: Any, name: str) -> None:
+def _sensor(c: _Checker, value: Any, name: str, within: Keys = ()) -> None:
     unit = SENSOR_UNIT[name]
-    section = c.mapping(value, (name,))
+    at: Keys = (*within, name)
+    section = c.mapping(value, at)
     for key in ("matrix", "bias"):
         if key not in section:
-            raise c.fail((name,), f"section '{name}' lacks the required key '{key}'")
-    c.array(section["matrix"], (name, "matrix"), (3, 3), MATRIX_LIMIT, "raw per true unit")
-    c.array(section["bias"], (name, "bias"), (3,), BIAS_LIMIT, unit)
-    _invertible(c, section["matrix"], (name, "matrix"))
+            raise c.fail(at, f"section '{name}' lacks the required key '{key}'")
+    c.array(section["matrix"], (*at, "matrix"), (3, 3), MATRIX_LIMIT, "raw per true unit")
+    c.array(section["bias"], (*at, "bias"), (3,), BIAS_LIMIT, unit)
+    _invertible(c, section["matrix"], (*at, "matrix"))
     for key, shape in (("correction", (3, 3)), ("scale", (3,)), ("misalignment", (3, 3))):
         if key in section:
-            c.array(section[key], (name, key), shape, FLOAT32_MAX, "")
+            c.array(section[key], (*at, key), shape, FLOAT32_MAX, "")
     if section.get("method") is not None:
-        c.text(section["method"], (name, "method"))
+        c.text(section["method"], (*at, "method"))
     if section.get("residual_rms") is not None:
-        c.number(section["residual_rms"], (name, "residual_rms"), 0.0, FLOAT32_MAX, unit)
+        c.number(section["residual_rms"], (*at, "residual_rms"), 0.0, FLOAT32_MAX, unit)
     if section.get("stddev") is not None:
-        for key, sd in c.mapping(section["stddev"], (name, "stddev")).items():
-            c.numbers(sd, (name, "stddev", key))
+        for key, sd in c.mapping(section["stddev"], (*at, "stddev")).items():
+            c.numbers(sd, (*at, "stddev", key))
     if "g_sensitivity" in section:
-        c.array(section["g_sensitivity"], (name, "g_sensitivity"), (3, 3), G_SENSITIVITY_LIMIT,
+        c.array(section["g_sensitivity"], (*at, "g_sensitivity"), (3, 3), G_SENSITIVITY_LIMIT,
                 "rad/s per m/s^2")
 
 
@@ -208,29 +267,30 @@ def _invertible(c: _Checker, matrix: Any, keys: Keys, diagonal: bool = True) -> 
                      "sensor's")
 
 
-def _thermal(c: _Checker, value: Any) -> None:
-    section = c.mapping(value, ("thermal",))
+def _thermal(c: _Checker, value: Any, within: Keys = ()) -> None:
+    at: Keys = (*within, "thermal")
+    section = c.mapping(value, at)
     for key in ("reference_temp", "dtemp_filter"):
         if key not in section:
-            raise c.fail(("thermal",), f"section 'thermal' lacks the required key '{key}'")
-    c.number(section["reference_temp"], ("thermal", "reference_temp"), *TEMP_RANGE, "degC")
-    filt = c.mapping(section["dtemp_filter"], ("thermal", "dtemp_filter"))
+            raise c.fail(at, f"section 'thermal' lacks the required key '{key}'")
+    c.number(section["reference_temp"], (*at, "reference_temp"), *TEMP_RANGE, "degC")
+    filt = c.mapping(section["dtemp_filter"], (*at, "dtemp_filter"))
     if filt.get("kind") != "ema":
-        raise c.fail(("thermal", "dtemp_filter", "kind"),
+        raise c.fail((*at, "dtemp_filter", "kind"),
                      f"dT filter kind {_shown(filt.get('kind'))} is unknown; this station knows 'ema'")
-    c.number(filt.get("tau_s"), ("thermal", "dtemp_filter", "tau_s"), 0.0, TAU_LIMIT, "s")
+    c.number(filt.get("tau_s"), (*at, "dtemp_filter", "tau_s"), 0.0, TAU_LIMIT, "s")
     for name in ("accel", "gyro"):
         if section.get(name) is not None:
-            _thermal_triad(c, section[name], ("thermal", name), SENSOR_UNIT[name])
+            _thermal_triad(c, section[name], (*at, name), SENSOR_UNIT[name])
     for key, rows in (("scale", 3), ("misalignment", 6)):
         if section.get(key) is None:
             continue
-        for name, entry in c.mapping(section[key], ("thermal", key)).items():
+        for name, entry in c.mapping(section[key], (*at, key)).items():
             if name not in ("accel", "gyro"):
-                raise c.fail(("thermal", key, name),
+                raise c.fail((*at, key, name),
                              f"is not a triad; 'thermal.{key}' holds 'accel' and 'gyro'")
             if entry is not None:
-                _temp_polynomial(c, entry, ("thermal", key, name), rows)
+                _temp_polynomial(c, entry, (*at, key, name), rows)
 
 
 def _temp_polynomial(c: _Checker, value: Any, keys: Keys, rows: int) -> None:
