@@ -4,6 +4,10 @@ A device delivers samples as numpy batches of ``protocols.base.SAMPLE_DTYPE`` in
 keeps :class:`~drivers.link_stats.LinkStats`, knows what the unit said about itself, and sends
 commands that wait for their answer. When the link breaks, every sample received before the
 break is delivered first; the next read then raises the error (``PortLost``).
+
+A board of several IMUs (``protocols.instances``): :meth:`Device.read` delivers one instance, as from a
+board of one; a device opened with ``instances=True`` also keeps the other instances' batches for
+:meth:`Device.take_instances`. :attr:`Device.imu_instances` says which instances the unit streams.
 """
 
 from __future__ import annotations
@@ -39,6 +43,22 @@ class Device(abc.ABC):
             batch = self.read(timeout)
             if len(batch):
                 yield batch
+
+    def take_instances(self) -> dict[int, np.ndarray]:
+        """The samples of the IMU instances other than :meth:`read`'s received since the last call, by
+        instance (never waits; a device not opened with ``instances=True`` keeps none: ``{}``)."""
+        return {}
+
+    @property
+    def imu_instances(self) -> dict[int, int]:
+        """The IMU instances the unit streams, with the samples seen of each, when its protocol tells
+        several apart (MAVLink, a frame description with ``imu:``); ``{}`` otherwise."""
+        return {}
+
+    @property
+    def imu_instance(self) -> int | None:
+        """The IMU instance :meth:`read` delivers, when the protocol tells instances apart (else None)."""
+        return None
 
     @property
     @abc.abstractmethod

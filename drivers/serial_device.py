@@ -99,12 +99,30 @@ class SerialDevice(Device):
         and counted in ``stats.overflow_drops``.
     exclusive:
         Take an exclusive lock on the port where the OS supports it (a second opener gets PortBusy).
+    instances:
+        Decode every IMU instance of a board of several (``protocols.instances``): :meth:`read` gives
+        instance 0, :meth:`take_instances` the others (buffered under the same bound). A protocol that
+        carries one IMU raises ``DriverError`` before the port is opened.
     """
 
     def __init__(self, port: str, protocol: str = "native", baudrate: int = DEFAULT_BAUDRATE,
-                 max_buffered_samples: int = DEFAULT_MAX_BUFFERED, exclusive: bool = True):
+                 max_buffered_samples: int = DEFAULT_MAX_BUFFERED, exclusive: bool = True,
+                 instances: bool = False):
         self.port = port
         self._decoder = make_decoder(protocol)
+        # instance -> batches not yet taken; None: the decoder makes one stream (nothing else is kept)
+        self._instances: dict[int, list[np.ndarray]] | None = None
+        self._instances_count = 0
+        if instances:
+            enable = getattr(self._decoder, "decode_instances", None)
+            if enable is None:
+                raise DriverError(f"{port}: the {protocol} protocol carries one IMU; several IMU instances "
+                                  f"come over mavlink or a frame description whose fields give imu: k", port)
+            try:
+                enable()
+            except ValueError as exc:
+                raise DriverError(f"{port}: {exc}", port) from None
+            self._instances = {}
         # What captures record: ``frame:<description name>`` for a frame description, else as given.
         self.protocol = self._decoder.label or protocol
         self._max_buffered = max_buffered_samples
@@ -160,8 +178,22 @@ class SerialDevice(Device):
                     self._pending_count += len(samples)
             for message in decoded.messages:
                 self._log.add(message)
+            if self._instances is not None:
+                self._keep_instances(decoded)
             if len(samples) or decoded.messages:
                 self._cond.notify_all()
+
+    def _keep_instances(self, decoded: Any) -> None:
+        """Buffer the other instances' batches of ``decoded`` (under the lock), bounded as the samples are."""
+        assert self._instances is not None
+        for instance, batch in getattr(decoded, "instances", {}).items():
+            if not len(batch):
+                continue
+            if self._instances_count + len(batch) > self._max_buffered:
+                self._monitor.add_overflow(len(batch))
+                continue
+            self._instances.setdefault(instance, []).append(batch)
+            self._instances_count += len(batch)
 
     def _fail(self, error: DriverError) -> None:
         with self._cond:
@@ -193,6 +225,27 @@ class SerialDevice(Device):
             if self._error is not None:
                 self._raise_error()
             return EMPTY_SAMPLES
+
+    def take_instances(self) -> dict[int, np.ndarray]:
+        """The other IMU instances' samples received since the last call, by instance (``Device``)."""
+        with self._cond:
+            if not self._instances:
+                return {}
+            out = {k: b[0] if len(b) == 1 else np.concatenate(b) for k, b in self._instances.items()}
+            self._instances = {}
+            self._instances_count = 0
+            return out
+
+    @property
+    def imu_instances(self) -> dict[int, int]:
+        """The IMU instances the unit streams, with the samples seen of each (``Device``)."""
+        seen = getattr(self._decoder, "instances_seen", None)
+        return dict(seen) if seen is not None else {}
+
+    @property
+    def imu_instance(self) -> int | None:
+        """The IMU instance :meth:`read` delivers, when the protocol tells instances apart (``Device``)."""
+        return getattr(self._decoder, "instance", None)
 
     @property
     def stats(self) -> LinkStats:

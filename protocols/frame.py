@@ -24,6 +24,12 @@ A description with all three of ``mx``, ``my``, ``mz`` is a unit with a magnetom
 ``MAG_SAMPLE_DTYPE``, the field in microtesla as the fields' scales make it. With only some of them
 the samples carry no field (they stay in :attr:`FrameDecoder.last_values`).
 
+A frame of several IMUs (fields with ``imu: k``) decodes instance 0 alone, as a frame of one IMU,
+until :meth:`FrameDecoder.decode_instances`; then each feed returns an
+:class:`~protocols.instances.InstancesDecoded` whose ``instances`` hold the other instances' samples,
+with instance 0's ``seq`` and ``t_us`` (one frame, one time) and no field (the board's field goes
+with instance 0).
+
 The station reads description files (``station.frames.reader``) and registers its reader here with
 :func:`set_description_reader`, so ``make_decoder("frame:board.yaml")`` works wherever a protocol is
 named; this layer reads no files itself.
@@ -46,6 +52,7 @@ from protocols.errors import StationError
 from protocols.frame_checksum_fit import diagnosis
 from protocols.frame_checksums import RowChecksum, checksum_rows
 from protocols.frame_description import FieldSpec, FrameDescription
+from protocols.instances import InstancesDecoded
 
 # Frames checked per vectorised run. After a damaged frame the next run re-checks at most this many,
 # so a stream with errors costs little more than a clean one.
@@ -128,7 +135,7 @@ def frame_dtype(desc: FrameDescription) -> np.dtype:
         formats.append(np.dtype(f"{'<' if cs.byte_order == 'little' else '>'}u{cs.size}"))
         offsets.append(cs.at)
     for spec in desc.fields:
-        names.append(f"f_{spec.name}")
+        names.append(f"f_{spec.key}")
         formats.append(_field_dtype(spec))
         offsets.append(spec.at)
     return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": desc.length})
@@ -136,7 +143,7 @@ def frame_dtype(desc: FrameDescription) -> np.dtype:
 
 def _raw_values(records: np.ndarray, spec: FieldSpec) -> np.ndarray:
     """A field's raw numbers; 24-bit integers assembled from their bytes and sign-extended."""
-    column = records[f"f_{spec.name}"]
+    column = records[f"f_{spec.key}"]
     if spec.size != 3:
         return column
     b = column.astype(np.int32)
@@ -240,10 +247,10 @@ def field_values(desc: FrameDescription, records: np.ndarray) -> dict[str, np.nd
     Returns
     -------
     dict
-        Field name to values.
+        Field key (``ax``, ``ax.imu1``: :attr:`~protocols.frame_description.FieldSpec.key`) to values.
     """
     matrix = _Extractor(desc, list(desc.fields))(np.ascontiguousarray(records))
-    return {spec.name: matrix[:, i] for i, spec in enumerate(desc.fields)}
+    return {spec.key: matrix[:, i] for i, spec in enumerate(desc.fields)}
 
 
 def _quiet(needed: bool) -> contextlib.AbstractContextManager:
@@ -331,6 +338,42 @@ class FrameDecoder(StreamDecoderBase):
         self._synth_seq = -1
         self._refused: deque[bytes] = deque(maxlen=REFUSED_KEPT)
         self.problem: str | None = None  # set once most frames failed their checksum (see the module)
+        self._others: dict[int, _Extractor] | None = None  # decode_instances(): instances 1.. by instance
+        self.instance = 0  # the IMU instance ``samples`` are of
+
+    # -- several IMUs ----------------------------------------------------------------------------
+
+    def decode_instances(self) -> None:
+        """Decode every IMU instance the frame carries (fields with ``imu: k``): from now on ``feed`` and
+        ``flush`` return :class:`~protocols.instances.InstancesDecoded` (a frame of one IMU: no others)."""
+        desc = self.description
+        if self._others is None:
+            self._others = {}
+            for k in desc.instances[1:]:
+                specs = [desc.field(n, k) for n in ("ax", "ay", "az", "gx", "gy", "gz", "temp")]
+                self._others[k] = _Extractor(desc, [f for f in specs if f is not None])
+
+    @property
+    def instances_seen(self) -> dict[int, int]:
+        """The IMU instances the frame carries, with the frames decoded (every frame carries each)."""
+        frames = self.stats.frames
+        return {k: frames for k in self.description.instances} if frames else {}
+
+    def _instance_batches(self, records: np.ndarray, samples: np.ndarray) -> dict[int, np.ndarray]:
+        """Each other instance's samples of ``records``, with instance 0's ``seq`` and ``t_us``."""
+        assert self._others is not None
+        out = {}
+        n = len(records)
+        for k, extract in self._others.items():
+            batch = np.empty(n, dtype=SAMPLE_DTYPE)
+            floats = batch.view(np.uint8).reshape(n, SAMPLE_DTYPE.itemsize)[:, 12:].view(np.float32)
+            extract(records, out=floats[:, : extract.width])
+            if extract.width == 6:
+                floats[:, 6] = np.nan
+            batch["seq"] = samples["seq"]
+            batch["t_us"] = samples["t_us"]
+            out[k] = batch
+        return out
 
     # -- framing -------------------------------------------------------------------------------
 
@@ -421,14 +464,17 @@ class FrameDecoder(StreamDecoderBase):
             self._check_failing(sum(len(r) for r in runs))
         if not runs:
             self._last_records = self._last_records[:0]
-            return Decoded(np.zeros(0, self._out_dtype))
+            empty = np.zeros(0, self._out_dtype)
+            return Decoded(empty) if self._others is None else InstancesDecoded(empty)
         # Joined as bytes: numpy would pack the records' type (dropping the bytes between fields).
         records = runs[0] if len(runs) == 1 else \
             np.concatenate([r.view(np.uint8) for r in runs]).view(self._dtype)
         samples = self._samples(records)
         self.stats.frames += len(samples)
         self.stats.samples += len(samples)
-        return Decoded(samples)
+        if self._others is None:
+            return Decoded(samples)
+        return InstancesDecoded(samples, [], self._instance_batches(records, samples))
 
     def _check_failing(self, new_frames: int) -> None:
         """Set :attr:`problem` when most frames so far failed their checksum (``new_frames`` are not counted
@@ -455,7 +501,8 @@ class FrameDecoder(StreamDecoderBase):
             self.stats.truncated += candidates
             self.stats.garbage_bytes += len(buf)
             buf.clear()
-        return Decoded(np.zeros(0, self._out_dtype))
+        empty = np.zeros(0, self._out_dtype)
+        return Decoded(empty) if self._others is None else InstancesDecoded(empty)
 
     # -- values --------------------------------------------------------------------------------
 
@@ -552,7 +599,8 @@ def encode_frames(desc: FrameDescription, values: dict[str, np.ndarray]) -> byte
     desc : FrameDescription
         The frame.
     values : dict
-        One array per described field, all of one length (missing fields are 0).
+        One array per described field (by :attr:`~protocols.frame_description.FieldSpec.key`: ``ax``,
+        ``ax.imu1``), all of one length (missing fields are 0).
 
     Returns
     -------
@@ -565,10 +613,10 @@ def encode_frames(desc: FrameDescription, values: dict[str, np.ndarray]) -> byte
     records["sync"] = int.from_bytes(desc.sync, "little") if ls in (1, 2, 4, 8) else np.frombuffer(desc.sync,
                                                                                                      np.uint8)
     for spec in desc.fields:
-        if spec.name not in values:
+        if spec.key not in values:
             continue
-        raw = (np.asarray(values[spec.name], dtype=np.float64) - spec.offset) / spec.scale
-        column = f"f_{spec.name}"
+        raw = (np.asarray(values[spec.key], dtype=np.float64) - spec.offset) / spec.scale
+        column = f"f_{spec.key}"
         if spec.kind == "f":
             records[column] = raw
             continue

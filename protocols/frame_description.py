@@ -6,6 +6,11 @@
 (``station.frames.reader``: this layer reads no files); a broken description raises
 :class:`FrameDescriptionError`, which names the key (``fields[3].at``) and the field, so the
 reader can add the file and the line.
+
+Several IMUs in one frame: a field of ``IMU_FIELDS`` may give ``imu: k`` (0 when it gives none), the
+IMU instance whose value it is (``protocols.instances``); every instance a description names needs
+its own ``ax``..``gz``, and ``seq``, ``t`` and the magnetic field are the board's, shared by all. A
+description without ``imu`` is exactly what it was before the key existed.
 """
 
 from __future__ import annotations
@@ -42,7 +47,11 @@ FIELD_NAMES = ("seq", "t", *REQUIRED_FIELDS, "temp", "mx", "my", "mz")
 BYTE_ORDERS = ("little", "big")
 TOP_KEYS = ("schema", "name", "byte_order", "sync", "length", "checksum", "rate_hz", "fields")
 CHECKSUM_KEYS = ("type", "from", "to", "at", "byte_order")
-FIELD_KEYS = ("name", "at", "type", "scale", "offset", "byte_order")
+FIELD_KEYS = ("name", "at", "type", "scale", "offset", "byte_order", "imu")
+IMU_FIELDS = (*REQUIRED_FIELDS, "temp")
+"""The fields that may name their IMU instance (``imu: k``); the others are the board's."""
+MAX_IMU = 15
+"""The largest ``imu`` index of a frame description (a board carries a few IMUs, not hundreds)."""
 
 
 class FrameDescriptionError(StationError, ValueError):
@@ -76,7 +85,7 @@ class FrameDescriptionError(StationError, ValueError):
 
 @dataclass(frozen=True)
 class FieldSpec:
-    """One value in the frame: ``value = raw * scale + offset``."""
+    """One value in the frame: ``value = raw * scale + offset``, of the IMU instance ``imu``."""
 
     name: str
     at: int
@@ -84,6 +93,12 @@ class FieldSpec:
     scale: float = 1.0
     offset: float = 0.0
     byte_order: str = "little"
+    imu: int = 0
+
+    @property
+    def key(self) -> str:
+        """The field's name, and its instance when it is not 0 (``ax``, ``ax.imu1``): unique in a frame."""
+        return self.name if self.imu == 0 else f"{self.name}.imu{self.imu}"
 
     @property
     def size(self) -> int:
@@ -124,9 +139,14 @@ class FrameDescription:
     rate_hz: float | None = None
     byte_order: str = "little"
 
-    def field(self, name: str) -> FieldSpec | None:
-        """The field called ``name``, or None."""
-        return next((f for f in self.fields if f.name == name), None)
+    def field(self, name: str, imu: int = 0) -> FieldSpec | None:
+        """The field called ``name`` (of the IMU instance ``imu``), or None."""
+        return next((f for f in self.fields if f.name == name and f.imu == imu), None)
+
+    @property
+    def instances(self) -> tuple[int, ...]:
+        """The IMU instances the frame carries, in order: ``(0,)`` for a description without ``imu``."""
+        return tuple(sorted({f.imu for f in self.fields}))
 
 
 def shown(value: Any) -> str:
@@ -261,7 +281,13 @@ def _field(checker: _Checker, value: Any, index: int, length: int, order: str, s
             raise FrameDescriptionError((*keys, key), f"{shown(number)}: give {what}", name)
         numbers[key] = float(number)
     byte_order = checker.byte_order(value.get("byte_order", order), (*keys, "byte_order"), name)
-    return FieldSpec(str(name), at, str(kind), numbers["scale"], numbers["offset"], byte_order)
+    imu = 0
+    if "imu" in value:
+        if name not in IMU_FIELDS:
+            raise FrameDescriptionError((*keys, "imu"), f"{name} is the board's, shared by its IMUs: only "
+                                        f"{', '.join(IMU_FIELDS)} take imu; leave it out", name)
+        imu = checker.integer(value["imu"], (*keys, "imu"), 0, MAX_IMU, name)
+    return FieldSpec(str(name), at, str(kind), numbers["scale"], numbers["offset"], byte_order, imu)
 
 
 def describe(doc: Any, default_name: str = "frame") -> FrameDescription:
@@ -310,12 +336,15 @@ def describe(doc: Any, default_name: str = "frame") -> FrameDescription:
                    for i, f in enumerate(raw_fields))
     seen: set[str] = set()
     for i, spec in enumerate(fields):
-        if spec.name in seen:
-            raise FrameDescriptionError(("fields", i, "name"), "given twice", spec.name)
-        seen.add(spec.name)
-    missing = [n for n in REQUIRED_FIELDS if n not in seen]
-    if missing:
-        raise FrameDescriptionError(("fields",), f"missing required field(s) {', '.join(missing)}")
+        if spec.key in seen:
+            twice = "given twice" if spec.imu == 0 else f"given twice for imu {spec.imu}"
+            raise FrameDescriptionError(("fields", i, "name"), twice, spec.name)
+        seen.add(spec.key)
+    for imu in sorted({f.imu for f in fields}):
+        missing = [n for n in REQUIRED_FIELDS if FieldSpec(n, 0, "u8", imu=imu).key not in seen]
+        if missing:
+            whose = "" if imu == 0 else f" of imu {imu} (every IMU the frame carries needs ax..gz)"
+            raise FrameDescriptionError(("fields",), f"missing required field(s) {', '.join(missing)}{whose}")
     rate_hz = doc.get("rate_hz")
     if rate_hz is not None and (not _is_number(rate_hz) or not MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
         raise FrameDescriptionError(("rate_hz",), f"{shown(rate_hz)}: give the rate the board sends at, "

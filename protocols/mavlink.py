@@ -26,6 +26,14 @@ One IMU makes the samples: the first IMU message seen (or the first of ``source`
 message name, system, component and IMU id; other IMU messages are returned as messages and
 counted in ``sources_seen``. ``seq`` counts the samples (MAVLink has no per-sample counter).
 
+Several IMUs of one board (``protocols.instances``): after :meth:`MavlinkDecoder.decode_instances`,
+the board is the system and component of the first IMU message, and each IMU instance of it is a
+stream of its own: ``SCALED_IMU`` is instance 0, ``SCALED_IMU2`` 1, ``SCALED_IMU3`` 2, ``HIGHRES_IMU``
+and ``RAW_IMU`` their ``id`` (the first message seen of an instance fixes which one makes its
+samples). Instance 0 takes the single stream's way (its fast path, its ``seq`` and clock); each
+other instance has its own ``seq``, its own unwrapped ``time_boot_ms`` and its own field flag, and
+comes out in ``InstancesDecoded.instances``. Without the call, nothing of this runs.
+
 Runs of the chosen source's IMU frames take a vectorised path once that source is fixed: frames of
 one length are checked at once (header, the X.25 CRC with the message's CRC extra as per-byte
 tables, the payload zero-extended to the message's full length as MAVLink 2 trims trailing zeros)
@@ -50,6 +58,7 @@ import numpy as np
 
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase, has_mag
 from protocols.errors import StationError
+from protocols.instances import InstancesDecoded, mavlink_instance
 from protocols.mag_batches import join_batches, rows_to_batch, with_mag
 from protocols.units import STANDARD_GRAVITY
 
@@ -68,6 +77,7 @@ _NAN3 = (math.nan, math.nan, math.nan)
 IMU_MESSAGES = ("HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU")
 _STX = re.compile(rb"[\xfd\xfe]")
 _UNDATED = ()  # what _imu_row returns for an IMU message it cannot place in time
+_ROUTED = (None,)  # what _imu_row returns for a sample it gave to another instance's stream
 
 
 class MavlinkUnavailable(StationError):
@@ -120,6 +130,49 @@ class MavlinkDecoder(StreamDecoderBase):
         self._count = 0
         self._boot_ms: int | None = None  # unwrapped time_boot_ms
         self._mag = False  # a field came: batches are MAG_SAMPLE_DTYPE from then on
+        # decode_instances(): the instances 1.. of the board (system, component) by instance; None: one IMU
+        self._streams: dict[int, _InstanceStream] | None = None
+        self._board: tuple[int, int] | None = None
+
+    def decode_instances(self) -> None:
+        """Decode every IMU instance of the board as a stream of its own (module docstring): from now on
+        ``feed`` and ``flush`` return :class:`~protocols.instances.InstancesDecoded`, instance 0's samples
+        in ``samples``. Call it before the first ``feed``.
+
+        Raises
+        ------
+        ValueError
+            With ``source``, which picks one message (hence one instance), or after samples were decoded.
+        """
+        if self.source is not None:
+            raise ValueError(f"mavlink:{self.source} picks one IMU message; several instances are told apart "
+                             "by their messages: leave the message out")
+        if self._key is not None:
+            raise ValueError("decode_instances() comes before the first samples")
+        if self._streams is None:
+            self._streams = {}
+
+    @property
+    def instance(self) -> int | None:
+        """The IMU instance ``samples`` are of (None until the first IMU message)."""
+        key = self._key
+        return None if key is None else mavlink_instance(key[0], key[3])
+
+    @property
+    def instances_seen(self) -> dict[int, int]:
+        """IMU instances of the board seen so far, with their frames (the board: the system and component
+        of the samples, or of the first IMU message with :meth:`decode_instances`)."""
+        key = self._key
+        board = self._board if key is None else (key[1], key[2])
+        seen: dict[int, int] = {}
+        # a copy first: the reader thread may add a source while another thread asks
+        for label, count in dict(self.sources_seen).items():
+            name, ids, _, imu_id = label.split()
+            system, component = (int(v) for v in ids.split("/"))
+            if board is None or board == (system, component):
+                instance = mavlink_instance(name, int(imu_id))
+                seen[instance] = max(seen.get(instance, 0), count)
+        return dict(sorted(seen.items()))
 
     # -------------------------------------------------------------- framing
 
@@ -263,7 +316,7 @@ class MavlinkDecoder(StreamDecoderBase):
             stats.frames += 1
             if row is None:
                 messages.append(Message(msg.get_msgId(), bytes(frame)))
-            else:
+            elif row is not _ROUTED:
                 rows.append(row)
         self._win = None
         if pos:
@@ -282,7 +335,20 @@ class MavlinkDecoder(StreamDecoderBase):
         else:
             samples = rows_to_batch(rows, self._mag)
         stats.samples += len(samples)
-        return Decoded(samples, messages)
+        if self._streams is None:
+            return Decoded(samples, messages)
+        return InstancesDecoded(samples, messages, self._instance_batches())
+
+    def _instance_batches(self) -> dict[int, np.ndarray]:
+        """The samples each other instance completed since the last call (counted as samples)."""
+        assert self._streams is not None
+        out = {}
+        for instance, stream in self._streams.items():
+            if stream.rows:
+                out[instance] = rows_to_batch(stream.rows, stream._mag)
+                stream.rows = []
+                self.stats.samples += len(out[instance])
+        return out
 
     def _skip(self, pos: int) -> int:
         """Drop the frame start at ``pos``: resume at the next one (counted as garbage)."""
@@ -295,15 +361,25 @@ class MavlinkDecoder(StreamDecoderBase):
     def flush(self) -> Decoded:
         """End of stream: an unfinished frame is truncated; what follows its start is decoded."""
         out = self._decode(b"", final=True)
-        batches, messages = [out.samples], list(out.messages)
+        batches, messages, outs = [out.samples], list(out.messages), [out]
         while self._buf:
             self.stats.truncated += 1
             del self._buf[: self._skip(0)]
             out = self._decode(b"", final=True)
             batches.append(out.samples)
             messages += out.messages
+            outs.append(out)
         samples = join_batches(batches)
-        return Decoded(with_mag(samples) if self._mag else samples, messages)
+        samples = with_mag(samples) if self._mag else samples
+        if self._streams is None:
+            return Decoded(samples, messages)
+        parts: dict[int, list[np.ndarray]] = {}
+        for part in outs:
+            for instance, batch in getattr(part, "instances", {}).items():
+                parts.setdefault(instance, []).append(batch)
+        instances = {k: join_batches(b) for k, b in parts.items()}
+        instances = {k: with_mag(b) if self._streams[k]._mag else b for k, b in instances.items()}
+        return InstancesDecoded(samples, messages, instances)
 
     # -------------------------------------------------------------- fast path
 
@@ -473,10 +549,42 @@ class MavlinkDecoder(StreamDecoderBase):
         key = (name, header.srcSystem, header.srcComponent, imu_id)
         label = f"{name} {key[1]}/{key[2]} id {key[3]}"
         self.sources_seen[label] = self.sources_seen.get(label, 0) + 1
-        if self._key is None and (self.source is None or self.source == name):
+        if self._key is None and self._streams is None and (self.source is None or self.source == name):
             self._key = key
         if key != self._key:
+            return None if self._streams is None else self._instance_row(msg, name, key)
+        return self._row(msg, name, self)
+
+    def _instance_row(self, msg: Any, name: str, key: tuple) -> tuple | None:
+        """With :meth:`decode_instances`: a sample of another instance's stream goes to it (``_ROUTED``);
+        instance 0's first message fixes the single stream's key; None for another board's message or
+        another message of an instance that has one."""
+        assert self._streams is not None
+        board = (key[1], key[2])
+        if self._board is None:
+            self._board = board
+        if board != self._board:
             return None
+        instance = mavlink_instance(name, key[3])
+        if instance == 0:
+            if self._key is not None:
+                return None
+            self._key = key
+            return self._row(msg, name, self)
+        stream = self._streams.get(instance)
+        if stream is None:
+            stream = self._streams[instance] = _InstanceStream(key)
+        elif stream.key != key:
+            return None
+        row = self._row(msg, name, stream)
+        if row is _UNDATED:
+            return row
+        stream.rows.append(row)
+        return _ROUTED
+
+    def _row(self, msg: Any, name: str, stream: MavlinkDecoder | _InstanceStream) -> tuple:
+        """The sample of an IMU message of ``stream`` (the decoder itself for the single stream, whose state
+        the fast path shares); ``_UNDATED`` when its time_boot_ms steps back past the stream's first."""
         if name == "HIGHRES_IMU":
             acc = (msg.xacc, msg.yacc, msg.zacc)
             gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
@@ -490,7 +598,7 @@ class MavlinkDecoder(StreamDecoderBase):
                 t_us = int(msg.time_usec)
             else:
                 acc_scale, gyro_scale = MILLI_G, 1e-3
-                boot_ms = self._unwrap_boot_ms(int(msg.time_boot_ms))
+                boot_ms = _unwrap_boot_ms(stream, int(msg.time_boot_ms))
                 if boot_ms is None:
                     return _UNDATED
                 t_us = boot_ms * 1000
@@ -500,26 +608,41 @@ class MavlinkDecoder(StreamDecoderBase):
             temp = cdeg * 0.01 if cdeg else math.nan
             has_field = (msg.xmag, msg.ymag, msg.zmag) != (0, 0, 0)
             mag_scale = UT_PER_MILLIGAUSS
-        seq = self._count & 0xFFFFFFFF
-        self._count += 1
+        seq = stream._count & 0xFFFFFFFF
+        stream._count += 1
         if not has_field:
             return (seq, t_us, acc, gyro, temp, _NAN3)
-        self._mag = True
+        stream._mag = True
         field = (msg.xmag * mag_scale, msg.ymag * mag_scale, msg.zmag * mag_scale)
         return (seq, t_us, acc, gyro, temp, field)
 
-    def _unwrap_boot_ms(self, ms: int) -> int | None:
-        """time_boot_ms unwrapped past 2^32 ms by a signed step from the last sample's: a frame
-        dated a little earlier (a replay) steps back, not 49.7 days forward. None: it would
-        fall before the stream's clock zero."""
-        if self._boot_ms is None:
-            self._boot_ms = ms
-            return ms
-        unwrapped = self._boot_ms + (((ms - self._boot_ms + 2**31) & 0xFFFFFFFF) - 2**31)
-        if unwrapped < 0:
-            return None
-        self._boot_ms = unwrapped
-        return unwrapped
+
+class _InstanceStream:
+    """The state of one more IMU instance's samples (what the decoder keeps for its single stream): the
+    source's key, the sample count, the unwrapped time_boot_ms, whether a field came, the rows of a feed."""
+
+    __slots__ = ("key", "_count", "_boot_ms", "_mag", "rows")
+
+    def __init__(self, key: tuple) -> None:
+        self.key = key
+        self._count = 0
+        self._boot_ms: int | None = None
+        self._mag = False
+        self.rows: list[tuple] = []
+
+
+def _unwrap_boot_ms(stream: MavlinkDecoder | _InstanceStream, ms: int) -> int | None:
+    """time_boot_ms of ``stream`` unwrapped past 2^32 ms by a signed step from its last sample's: a frame
+    dated a little earlier (a replay) steps back, not 49.7 days forward. None: it would fall before the
+    stream's clock zero."""
+    if stream._boot_ms is None:
+        stream._boot_ms = ms
+        return ms
+    unwrapped = stream._boot_ms + (((ms - stream._boot_ms + 2**31) & 0xFFFFFFFF) - 2**31)
+    if unwrapped < 0:
+        return None
+    stream._boot_ms = unwrapped
+    return unwrapped
 
 
 # ---------------------------------------------------------------------------------- fast path
@@ -689,11 +812,12 @@ def _i16(values) -> list[int]:
 
 
 def encode_samples(samples: np.ndarray, message: str = "HIGHRES_IMU", system: int = 1, component: int = 1,
-                   mavlink1: bool = False, heartbeat_every: int = 0) -> bytes:
+                   mavlink1: bool = False, heartbeat_every: int = 0, imu_id: int = 0) -> bytes:
     """MAVLink frames of one IMU message per ``SAMPLE_DTYPE`` record, as an autopilot sends them:
     with the field of ``MAG_SAMPLE_DTYPE`` records (gauss or mgauss), else none (zeros, not flagged).
 
-    ``heartbeat_every`` > 0 puts a HEARTBEAT before every that many samples (and the first).
+    ``heartbeat_every`` > 0 puts a HEARTBEAT before every that many samples (and the first);
+    ``imu_id`` is the ``id`` of HIGHRES_IMU and RAW_IMU (the SCALED_IMU messages have none).
     """
     if message not in IMU_MESSAGES:
         raise ValueError(f"unknown MAVLink IMU message {message!r}; use one of {', '.join(IMU_MESSAGES)}")
@@ -719,14 +843,14 @@ def encode_samples(samples: np.ndarray, message: str = "HIGHRES_IMU", system: in
             if field is None:
                 updated &= ~HIGHRES_MAG_UPDATED
             pack(mav.highres_imu_encode(t_us, *map(float, acc), *map(float, gyro), *gauss, 1013.25,
-                                        0.0, 0.0, temp if known else 0.0, updated))
+                                        0.0, 0.0, temp if known else 0.0, updated, imu_id))
             continue
         a = _i16(acc / MILLI_G)
         g = _i16(gyro * 1000.0)
         m = [0, 0, 0] if field is None else _i16(field / UT_PER_MILLIGAUSS)
         cdeg = (round(temp * 100) or 1) if known else 0  # 0 means "no temperature"; 0.00 degC is sent as 1
         if message == "RAW_IMU":
-            pack(mav.raw_imu_encode(t_us, *a, *g, *m, 0, cdeg))
+            pack(mav.raw_imu_encode(t_us, *a, *g, *m, imu_id, cdeg))
         else:
             encode = getattr(mav, message.lower() + "_encode")
             pack(encode((t_us // 1000) & 0xFFFFFFFF, *a, *g, *m, cdeg))

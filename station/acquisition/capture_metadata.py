@@ -15,7 +15,8 @@ from typing import Any
 from station.common.text import printable
 
 WRITTEN_KEYS = ("serial", "model", "firmware", "protocol", "rate_hz", "created")
-"""The keys the station writes, in this order (``instances`` follows when a file holds several IMUs)."""
+"""The keys the station writes, in this order (``instances`` follows when a file holds several IMUs, and
+``instance`` when it holds one IMU instance of a board of several)."""
 MAX_VALUE_CHARS = 1000
 """A value longer than this is cut: a metadata line stays a short line whatever a unit reports."""
 MAX_LINES = 256
@@ -37,7 +38,8 @@ def csv_metadata(device: Mapping[str, Any] | None, protocol: str = "") -> dict[s
     Returns
     -------
     dict
-        Key to value, every key of ``WRITTEN_KEYS`` (empty where unknown), then ``instances`` if known.
+        Key to value, every key of ``WRITTEN_KEYS`` (empty where unknown), then ``instances`` and
+        ``instance`` if known.
     """
     device = device or {}
     values: dict[str, Any] = {key: device.get(key) for key in ("serial", "model", "firmware")}
@@ -46,6 +48,9 @@ def csv_metadata(device: Mapping[str, Any] | None, protocol: str = "") -> dict[s
     values["created"] = dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     if device.get("instances") is not None:
         values["instances"] = device["instances"]
+    # one file per IMU instance of a board (station.acquisition.instance_capture): which one this is
+    if device.get("instance") is not None:
+        values["instance"] = device["instance"]
     return {key: _one_line(value) for key, value in values.items()}
 
 

@@ -111,4 +111,27 @@ def capture_to_file(port: str, output: Path, protocol: str = "native", duration_
             pass  # record() saves what arrived before the loss, then reports it
         display = status(duration_s) if status is not None else nullcontext(None)
         with display as on_status:
-            return record(device, output, duration_s=duration_s, on_status=on_status)
+            result = record(device, output, duration_s=duration_s, on_status=on_status)
+        hint = other_instances_hint(device)
+        if hint:
+            print(hint, file=err)
+        return result
+
+
+def other_instances_hint(device: Device) -> str:
+    """What to say when the board streams IMU instances besides the one recorded ("" when it does not).
+
+    Parameters
+    ----------
+    device : Device
+        The unit, after the capture.
+
+    Returns
+    -------
+    str
+    """
+    others = [k for k in device.imu_instances if k != device.imu_instance]
+    if not others:
+        return ""
+    return (f"note: the board also streams IMU instance{'s' * (len(others) > 1)} "
+            f"{', '.join(map(str, others))}: --instances all records them")

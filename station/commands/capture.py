@@ -31,6 +31,13 @@ directory -o names: SERIAL.csv (or SERIAL.h5 with --format h5), with the serial 
 second file SERIAL-2). One status line per unit. A unit that fails (vanishes, is silent, sends
 no frames) is reported and the others go on.
 
+A board of several IMUs (MAVLink SCALED_IMU, SCALED_IMU2, SCALED_IMU3 or the id of HIGHRES_IMU and
+RAW_IMU; a frame description whose fields give imu: k): --instances all (or 0,1,2) records each
+instance into a file of its own, FILE for instance 0 and FILE's name with .imu<k> before its suffix
+for instance k (cap.csv, cap.imu1.csv, cap.imu2.csv), with the board's clock, the same step labels
+and an "instance: k" metadata line. Without it, one instance is recorded as before (instance 0 for
+a frame description; for MAVLink the first IMU message seen), and a note names the others.
+
 exit codes: 0 done, 3 device or link error (after saving what was received; with several ports,
 any unit's), 4 usage, or a frame description whose checksum most frames fail (after saving; the
 message names the checksum that fits), 130 interrupted by Ctrl-C (after saving)."""
@@ -42,7 +49,8 @@ examples:
   imu-station capture --port /dev/ttyUSB0 --protocol xsens --field 49.8 --duration 120 -o mti-mag.h5
   imu-station capture --port /dev/ttyACM0 --protocol ascii \\
       --columns t:ms,ax:g,ay:g,az:g,gx:dps,gy:dps,gz:dps --duration 30 -o arduino.csv
-  imu-station capture --port /dev/ttyUSB0 --port /dev/ttyUSB1 --port /dev/ttyUSB2 --duration 60 -o tray/"""
+  imu-station capture --port /dev/ttyUSB0 --port /dev/ttyUSB1 --port /dev/ttyUSB2 --duration 60 -o tray/
+  imu-station capture --port /dev/ttyACM0 --protocol mavlink --instances all --duration 60 -o board.csv"""
 
 
 # SET_RATE carries the rate as an unsigned 16-bit number of Hz (specs/native-protocol.md).
@@ -70,8 +78,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--field", type=FIELD_UT, metavar="UT",
                         help="with an Xsens unit: the local magnetic field's magnitude, which scales its "
                              "normalised MagneticField to microtesla (default: the field is not recorded)")
+    parser.add_argument("--instances", type=_instances_option, metavar="all|K,K",
+                        help="a board of several IMUs (mavlink, or a frame description with imu: on fields): "
+                             "record these IMU instances (all, or e.g. 0,1,2; 0..255), each into its own "
+                             "file: FILE for instance 0, NAME.imu<k>.SUFFIX for instance k (default: one "
+                             "instance, as from a board of one)")
     parser.add_argument("--format", choices=("csv", "h5"), default=None,
                         help="with several --port: the files' format, SERIAL.csv or SERIAL.h5 (default: csv)")
+
+
+def _instances_option(text: str) -> str:
+    """``--instances``: checked here (``all`` or instances 0..255), parsed again where it is used."""
+    from station.acquisition.instance_capture import parse_instances
+
+    try:
+        parse_instances(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def report(result: CaptureResult, out: IO[str]) -> None:
@@ -222,7 +246,11 @@ def run(args: argparse.Namespace) -> int:
     from station.console.status_line import CaptureStatusLine
 
     if len(args.port) > 1:
+        if args.instances is not None:
+            raise StationError("--instances records the IMUs of one board: give one --port")
         return run_many(args)
+    if args.instances is not None:
+        return run_instances(args)
     if args.format is not None:
         raise StationError("--format applies to several --port; with one, the suffix of -o FILE decides "
                            "(.csv, or .h5/.hdf5)")
@@ -238,6 +266,38 @@ def run(args: argparse.Namespace) -> int:
         return result.error.exit_code
     if result.ended_by == "interrupted":
         print("imu-station capture: interrupted; the file keeps every sample received", file=sys.stderr)
+        return ExitCode.INTERRUPTED
+    return ExitCode.OK
+
+
+def run_instances(args: argparse.Namespace) -> int:
+    """Capture the ``--instances`` of one board, one file each, print one summary per file, and exit with
+    the capture's outcome."""
+    from station.acquisition.instance_capture import capture_instances_to_file, parse_instances
+    from station.console.status_line import CaptureStatusLine
+
+    if args.format is not None:
+        raise StationError("--format applies to several --port; with --instances, the suffix of -o FILE "
+                           "decides (.csv, or .h5/.hdf5)")
+    port = args.port[0]
+    protocol = resolve_protocol(port, args.protocol, args.baud, args.columns, sys.stderr, args.rate,
+                                args.field)
+    wanted = parse_instances(args.instances)
+    result = capture_instances_to_file(port, args.output, wanted, protocol=protocol, duration_s=args.duration,
+                                       rate_hz=args.rate, baudrate=args.baud,
+                                       status=lambda duration_s: CaptureStatusLine(sys.stderr, duration_s))
+    for instance, capture in result.captures.items():
+        print(f"IMU instance {instance}: ", end="", file=sys.stdout)
+        report(capture, sys.stdout)
+    if result.missing:
+        seen = ", ".join(map(str, result.seen)) or "none"
+        print(f"no file for IMU instance(s) {', '.join(map(str, result.missing))}: the board did not send "
+              f"them (it streams {seen})", file=sys.stdout)
+    if result.error is not None:
+        print(f"imu-station capture: error: {printable_message(result.error)}", file=sys.stderr)
+        return result.error.exit_code
+    if result.ended_by == "interrupted":
+        print("imu-station capture: interrupted; the files keep every sample received", file=sys.stderr)
         return ExitCode.INTERRUPTED
     return ExitCode.OK
 
