@@ -158,6 +158,30 @@ def tui_thermal(work: Path) -> None:
         server.stop()
 
 
+def tui_datasheet(work: Path) -> None:
+    """The datasheet screen (d) on the parameter file of the simulated examples/campaign.yaml (about two
+    minutes): the figures, the scale factor across temperature and the turn-ons per soak."""
+    from station.tui.app import StationApp
+    from station.tui.config import TuiConfig
+
+    os.chdir(work)
+    _station("run", "--plan", str(ROOT / "examples" / "campaign.yaml"), "--simulate", "--serial", "auto",
+             "--files", "files", "--db", "records.sqlite")
+    params = next((work / "files").rglob("params.yaml"))
+    app = StationApp(TuiConfig(out=params))
+
+    async def drive() -> None:
+        async with app.run_test(size=SIZE) as pilot:
+            await _wait(pilot, lambda: type(app.screen).__name__ == "ConnectScreen", 10, "the connect screen")
+            await pilot.press("d")
+            await _wait(pilot, lambda: type(app.screen).__name__ == "DatasheetScreen", 5, "the datasheet")
+            await pilot.pause(1.0)
+            _save(app.export_screenshot(), "tui-datasheet.svg")
+            await pilot.press("q")
+
+    asyncio.run(drive())
+
+
 def _recorded(screen) -> int:
     recording = getattr(screen, "recording", None)
     return recording.count if recording is not None else 0
@@ -189,7 +213,8 @@ def plots(work: Path) -> None:
         print(f"wrote docs/assets/{name}")
 
 
-STEPS = {"tui": tui_flow, "allan-screen": tui_allan, "thermal-screen": tui_thermal, "plots": plots}
+STEPS = {"tui": tui_flow, "allan-screen": tui_allan, "thermal-screen": tui_thermal,
+         "datasheet-screen": tui_datasheet, "plots": plots}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,7 +24,7 @@ from station.tui.plot import Series, draw
 from station.tui.screens.station_screen import StationScreen
 
 COLORS = ("red", "green", "blue")
-WIDE_COLUMNS = 100  # the table of figures and values fits from here; below, each figure over its values
+SIDE_COLUMNS = 5  # the table's box: borders, padding and its scroll bar
 TRIADS = {"gyro": ("gyroscope", "deg/s", PEOPLE["deg"]), "accel": ("accelerometer", "mg", PEOPLE["mg"])}
 
 
@@ -38,7 +38,7 @@ def _scale_series(params: ParamsFile, triad: str) -> list[Series]:
     k = static.scale if static is not None else np.ones(3)
     temp = np.linspace(poly.t_min, poly.t_max, 60)
     ppm = poly.evaluate(temp, model.reference_temp) / k * 1e6
-    return [Series(axis, temp, ppm[:, j], COLORS[j], fitted=True) for j, axis in enumerate("xyz")]
+    return [Series(axis, temp, ppm[:, j], COLORS[j]) for j, axis in enumerate("xyz")]
 
 
 def _turn_on_series(params: ParamsFile, triad: str) -> list[Series]:
@@ -128,14 +128,16 @@ class DatasheetScreen(StationScreen):
             text.append(f"{out}\n", style="bold")
             if not rows:
                 text.append("the file holds no figure a datasheet gives")
-            elif self.size.width >= WIDE_COLUMNS:  # the sources ("measured by") are in the CLI's table
-                text.append(format_table(rows, sources=False))
             else:
-                text.append(_stacked(rows))
+                # The sources ("measured by") are in the CLI's table; here the table if it fits, else each
+                # figure over its values.
+                tabled = format_table(rows, sources=False)
+                fits = max(len(line) for line in tabled.splitlines()) <= self.size.width - SIDE_COLUMNS
+                text.append(tabled if fits else _stacked(rows))
         table.update(text)
 
     def on_resize(self, event: Resize) -> None:
-        """The table follows the width (a table from ``WIDE_COLUMNS`` on)."""
+        """The table follows the width (a table where it fits)."""
         super().on_resize(event)
         self.call_after_refresh(self.action_reload)
 
