@@ -25,8 +25,11 @@ Gauss-Newton covariance (Shuster & Oh 1981, eq. 62, with the scale from the resi
 
 ``a`` the parameters the calibrations already fitted to the same vectors beyond the rotation (a turntable
 fit's residuals have 3 P - 12 degrees of freedom, not 3 P - 3); the factor d / (d - 2) as
-``common.covariance``. Gravity alone fixes R_k only from two or more non-parallel poses (a rotation about
-the one direction seen is free): refused otherwise.
+``common.covariance``. Each IMU's own axes are known only as well as its calibration: a misalignment error
+turns the axes the convention builds on, which no residual of eq. (1) shows, so the covariance of that
+turn (eq. 4, :func:`frame_covariance`) of both IMUs is added (:func:`board_rotations`). Gravity alone fixes
+R_k only from two or more non-parallel poses (a rotation about the one direction seen is free): refused
+otherwise.
 """
 
 from __future__ import annotations
@@ -174,6 +177,52 @@ def own_axes(accel_correction: np.ndarray, gyro_correction: np.ndarray | None,
     """
     acc_c, gyro_c, _ = convert_convention(accel_correction, gyro_correction, convention)
     return acc_c, gyro_c
+
+
+def frame_covariance(matrix: np.ndarray, matrix_sd: np.ndarray, convention: str = "lower") -> np.ndarray:
+    """Covariance of the small rotation between an IMU's own axes as calibrated and its true ones: eq. (4).
+
+    The calibrated vectors are v_hat = C'_hat M Q v (v in the true own axes, M = Q C'^-1 the true matrix,
+    C'_hat the triangular correction of the estimate M_hat), so they are turned from the true own axes by
+    the antisymmetric part of A = C'_hat M Q - I; a misalignment error moves the axes the convention
+    builds on (x along the accelerometer's x axis), which no residual of eq. (1) shows::
+
+        theta = (A_21 - A_12, A_02 - A_20, A_10 - A_01) / 2,   P_frame = J diag(sd^2) J^T        (4)
+
+    J the derivative of theta by the elements of M at M_hat (central differences), sd their 1-sigma
+    (taken independent: the calibrations give one per element).
+
+    Parameters
+    ----------
+    matrix : ndarray, (3, 3)
+        M_hat of the accelerometer's calibration.
+    matrix_sd : ndarray, (3, 3)
+        Its 1-sigma per element (zero for the elements a triangular fit holds fixed).
+    convention : str
+
+    Returns
+    -------
+    ndarray, (3, 3)
+        rad^2, about the IMU's own x, y, z axes.
+    """
+    from station.engines.calibration.common import triangular_correction
+
+    m_hat = np.asarray(matrix, float)
+    q_hat, own_hat = triangular_correction(np.linalg.inv(m_hat), convention)
+
+    def theta(m: np.ndarray) -> np.ndarray:
+        q, _ = triangular_correction(np.linalg.inv(m), convention)
+        a = own_hat @ m @ q
+        return 0.5 * np.array([a[2, 1] - a[1, 2], a[0, 2] - a[2, 0], a[1, 0] - a[0, 1]])
+
+    sd = np.nan_to_num(np.asarray(matrix_sd, float).reshape(3, 3))
+    jac = np.zeros((3, 9))
+    for k in range(9):
+        h = 1e-6 * max(abs(m_hat.flat[k]), 1.0)
+        step = np.zeros(9)
+        step[k] = h
+        jac[:, k] = (theta(m_hat + step.reshape(3, 3)) - theta(m_hat - step.reshape(3, 3))) / (2 * h)
+    return jac @ np.diag(sd.ravel() ** 2) @ jac.T
 
 
 def _select(t: np.ndarray, t0: float, t1: float) -> slice:
@@ -441,6 +490,7 @@ def board_rotations(imus: Sequence[BoardImu], convention: str = "lower") -> dict
         in the first's stretches.
     """
     first = imus[0]
+    frames = {imu.instance: _frame_of(imu, convention) for imu in imus}
     statics, turns = board_spans(first.report)
     turns = turns if first.report.gyro is not None else []
     reference = board_vectors(first, statics, turns, convention)
@@ -454,7 +504,20 @@ def board_rotations(imus: Sequence[BoardImu], convention: str = "lower") -> dict
             reference_used = reference
         triads = 1 + (len(other.gyro) > 0)
         try:
-            out[imu.instance] = relative_rotation(reference_used, other, ABSORBED_PER_TRIAD * triads)
+            rot = relative_rotation(reference_used, other, ABSORBED_PER_TRIAD * triads)
         except EngineInputError as exc:
             raise EngineInputError(f"IMU {imu.instance} relative to IMU {first.instance}: {exc}") from None
+        # each IMU's own axes are only as well known as its calibration: R = (I + [q_k]x) R (I - [q_0]x),
+        # so about the first's axes the angle is R^T q_k - q_0
+        r = rot.matrix
+        rot.covariance = rot.covariance + r.T @ frames[imu.instance] @ r + frames[first.instance]
+        out[imu.instance] = rot
     return out
+
+
+def _frame_of(imu: BoardImu, convention: str) -> np.ndarray:
+    """Eq. (4) for the IMU's accelerometer (zero without a matrix 1-sigma)."""
+    accel = imu.report.accel
+    if accel is None or accel.stddev.get("matrix") is None:
+        return np.zeros((3, 3))
+    return frame_covariance(accel.matrix, np.asarray(accel.stddev["matrix"], float), convention)
