@@ -165,3 +165,88 @@ def test_board_refusals(turntable_board, tmp_path, capsys) -> None:
     flat = write_instances(tmp_path, "flat", still)
     code, _, err = run(["calibrate", *flat, "--method", "turntable"], capsys)
     assert code == 4 and "Traceback" not in err
+
+
+def _px4_values(path: Path) -> dict[str, float]:
+    rows = [line.split("\t") for line in path.read_text().splitlines() if line and not line.startswith("#")]
+    return {name: float(value) for _, _, name, value, _ in rows}
+
+
+def _ardupilot_values(path: Path) -> dict[str, float]:
+    rows = [line.split(",") for line in path.read_text().splitlines() if line and not line.startswith("#")]
+    return {name: float(value) for name, value in rows}
+
+
+def test_board_exports_every_imu_to_px4_and_ardupilot(handheld_board, tmp_path, capsys) -> None:
+    from station.engines.thermal.model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
+
+    folder, _, log = handheld_board
+    params_path = tmp_path / "board.yaml"
+    code, _, err = run(["calibrate", log, "-o", params_path], capsys)
+    assert code == 0, err
+    entries = board_entries(ParamsFile.load(params_path))
+    code, out, err = run(["export", params_path, "-f", "px4", "-o", tmp_path / "board.params", "--json"],
+                         capsys)
+    assert code == 0, err
+    values = _px4_values(tmp_path / "board.params")
+    for entry in entries:
+        k = entry.instance
+        assert entry.accel is not None and entry.gyro is not None
+        assert values[f"CAL_ACC{k}_ID"] == DEVICE_IDS[k] and values[f"CAL_GYRO{k}_ID"] == DEVICE_IDS[k]
+        for i, axis in enumerate("XYZ"):
+            assert values[f"CAL_ACC{k}_{axis}OFF"] == pytest.approx(entry.accel.bias[i], rel=1e-6)
+            assert values[f"CAL_ACC{k}_{axis}SCALE"] == pytest.approx(1 / entry.accel.scale[i], rel=1e-6)
+            assert values[f"CAL_GYRO{k}_{axis}OFF"] == pytest.approx(entry.gyro.bias[i], rel=1e-6, abs=1e-9)
+    report = json.loads(out)
+    rotations = [lim for lim in report["limitations"] if lim["what"] == "rotation to the first IMU"]
+    assert [lim["triad"] for lim in rotations] == ["imu1", "imu2"]
+    assert rotations[0]["unit"] == "deg"
+    assert rotations[0]["size"] == pytest.approx(entries[1].rotation_angle_deg)
+    assert "accel (IMU 2)" in report["pose_errors"]
+    # one IMU of the board alone, with its device id given
+    code, _, err = run(["export", params_path, "-f", "px4", "--instance", "2", "--device-id", "7",
+                        "-o", tmp_path / "imu2.params"], capsys)
+    assert code == 0, err
+    alone = _px4_values(tmp_path / "imu2.params")
+    assert alone["CAL_ACC2_ID"] == 7 and not any(name.startswith("CAL_ACC0") for name in alone)
+    # ArduPilot, with a thermal model on the second IMU: INS_ACC2OFFS_*, INS_TCAL2_*
+    document = yaml.safe_load(params_path.read_text())
+    coeffs = np.zeros((3, 7))
+    coeffs[:, 2] = [1e-3, -2e-3, 5e-4]
+    thermal = ThermalModel(25.0, DtempFilter(), accel=ThermalBias([ThermalSegment(-10, 60, coeffs)]),
+                           gyro=ThermalBias([ThermalSegment(-10, 60, coeffs * 1e-2)]))
+    document["imus"][1]["thermal"] = thermal.to_dict()
+    params_path.write_text(yaml.safe_dump(document, sort_keys=False))
+    code, out, err = run(["export", params_path, "-f", "ardupilot", "-o", tmp_path / "board.param"], capsys)
+    assert code == 0, err
+    values = _ardupilot_values(tmp_path / "board.param")
+    assert values["INS_TCAL2_ENABLE"] == 1
+    assert values["INS_TCAL1_ENABLE"] == 0 and values["INS_TCAL3_ENABLE"] == 0
+    assert values["INS_ACC2_ID"] == DEVICE_IDS[1] and values["INS_GYR3_ID"] == DEVICE_IDS[2]
+    assert values["INS_TCAL2_ACC1_X"] == pytest.approx(1e-3 * 1e6, rel=1e-5)
+    assert entries[2].accel is not None
+    assert values["INS_ACC3SCAL_Y"] == pytest.approx(1 / entries[2].accel.scale[1], rel=1e-6)
+    assert "rotation to the first IMU" in out
+
+
+def test_board_file_refusals(handheld_board, tmp_path, capsys) -> None:
+    folder, _, log = handheld_board
+    params_path = tmp_path / "board.yaml"
+    code, _, err = run(["calibrate", log, "-o", params_path], capsys)
+    assert code == 0, err
+    good = params_path.read_text()
+    document = yaml.safe_load(good)
+    mirror = [[1, 0, 0], [0, 1, 0], [0, 0, -1]]
+    for change, field in ((lambda d: d["imus"][1].__setitem__("rotation_to_first", mirror),
+                           "imus[1].rotation_to_first"),
+                          (lambda d: d["imus"][2].__setitem__("instance", 1), "imus[2].instance"),
+                          (lambda d: d["imus"][1].__setitem__("rotation_sigma", [0.1, -0.1, 0.0]),
+                           "imus[1].rotation_sigma"),
+                          (lambda d: d["imus"][0].__setitem__("accel", d["accel"]), "imus[0].accel"),
+                          (lambda d: d["imus"][1]["accel"].pop("bias"), "imus[1].accel")):
+        broken = yaml.safe_load(good)
+        change(broken)
+        params_path.write_text(yaml.safe_dump(broken, sort_keys=False))
+        code, _, err = run(["export", params_path, "-f", "px4", "-o", tmp_path / "x.params"], capsys)
+        assert code == 4 and field in err and str(params_path) in err and "Traceback" not in err, err
+    assert document["imus"][1]["instance"] == 1

@@ -33,6 +33,7 @@ import numpy as np
 
 from station import __version__
 from station.engines.thermal.model import ThermalModel
+from station.export.autopilot import board
 from station.export.autopilot import shared as ap
 from station.export.params.file import ParamsFile
 from station.export.params.sections import mag_calibration
@@ -147,9 +148,13 @@ def _temperature_range(thermal: ThermalModel) -> tuple[float, float]:
 
 def build_ardupilot(params: ParamsFile, instance: int = 0, device_id: int | None = None,
                     gyro_device_id: int | None = None) -> ap.AutopilotExport:
-    """ArduPilot parameters for IMU ``instance`` (0-based; 0 writes INS_ACCOFFS_*, INS_TCAL1_*, ...)."""
+    """ArduPilot parameters for IMU ``instance`` (0-based; 0 writes INS_ACCOFFS_*, INS_TCAL1_*, ...); for a
+    board file (``imus``), every IMU as its own instance (``instance`` 0) or IMU ``instance`` alone
+    (:mod:`station.export.autopilot.board`)."""
     if not 0 <= instance <= MAX_INSTANCE:
         raise ValueError(f"ArduPilot IMU instance {instance} is out of 0..{MAX_INSTANCE}")
+    if board.is_board(params):
+        return board.build_board(params, build_ardupilot, MAX_INSTANCE, instance, device_id, gyro_device_id)
     gyro_device_id = device_id if gyro_device_id is None else gyro_device_id
     n = names(instance)
     out: list[ap.Param] = []

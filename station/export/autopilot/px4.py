@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from station import __version__
+from station.export.autopilot import board
 from station.export.autopilot import shared as ap
 from station.export.params.file import ParamsFile
 from station.export.params.sections import mag_calibration
@@ -93,9 +94,13 @@ def _mag_params(params: ParamsFile, instance: int, notes: list[str]) -> list[ap.
 
 def build_px4(params: ParamsFile, instance: int = 0, device_id: int | None = None,
               gyro_device_id: int | None = None) -> ap.AutopilotExport:
-    """PX4 parameters for sensor ``instance`` (CAL_ACCn / CAL_GYROn / TC_An / TC_Gn)."""
+    """PX4 parameters for sensor ``instance`` (CAL_ACCn / CAL_GYROn / TC_An / TC_Gn); for a board file
+    (``imus``), every IMU as its own instance (``instance`` 0) or IMU ``instance`` alone
+    (:mod:`station.export.autopilot.board`)."""
     if not 0 <= instance <= MAX_INSTANCE:
         raise ValueError(f"PX4 sensor instance {instance} is out of 0..{MAX_INSTANCE}")
+    if board.is_board(params):
+        return board.build_board(params, build_px4, MAX_INSTANCE, instance, device_id, gyro_device_id)
     gyro_device_id = device_id if gyro_device_id is None else gyro_device_id
     out: list[ap.Param] = []
     notes: list[str] = []
