@@ -569,7 +569,7 @@ def run_board(args: argparse.Namespace) -> int:
     from station.common.files import output_set
     from station.common.text import PATH_CHARS, printable
     from station.console.board_summary import print_rotations, rotation_dict
-    from station.engines.calibration.imu_alignment import BoardImu, board_rotations
+    from station.engines.calibration.imu_board import BoardImu, board_rotations
     from station.errors import EngineInputError
     from station.export.params.file import merge_sections, name_unit, open_for_unit
     from station.export.params.imus import IMUS, first_entry, other_entry
