@@ -213,13 +213,7 @@ class CampaignRun(UnitRun):
     # ---- the campaign -----------------------------------------------------------------------------
 
     def _run(self, port: str, table_port: str | None) -> tuple[str, str]:
-        phase = self._phase("connect")
-        try:
-            self._connect(phase, port, table_port)
-        except DriverError:
-            phase.outcome = "ERROR"
-            raise
-        phase.end = utc_now()
+        phase = self._connect_phase(port, table_port)
         if self.bench is None or self.bench.chamber is None:
             phase.outcome = "ERROR"
             return "ERROR", "a campaign needs the plan's chamber (instruments.chamber)"

@@ -433,8 +433,8 @@ class UnitRun:
                 with contextlib.suppress(Exception):
                     thing.close()
 
-    def _run(self, port: str, table_port: str | None) -> tuple[str, str]:
-        plan = self.req.plan
+    def _connect_phase(self, port: str, table_port: str | None) -> Phase:
+        """The connect phase, ended; a device or link error marks it ERROR and goes on up."""
         phase = self._phase("connect")
         try:
             self._connect(phase, port, table_port)
@@ -442,6 +442,11 @@ class UnitRun:
             phase.outcome = "ERROR"
             raise
         phase.end = utc_now()
+        return phase
+
+    def _run(self, port: str, table_port: str | None) -> tuple[str, str]:
+        plan = self.req.plan
+        phase = self._connect_phase(port, table_port)
         serial_ok = all(m.outcome != "FAIL" for m in phase.measurements)
         self._check_time(phase)
         if self.req.plan.instruments is not None and self.req.plan.instruments.soak_c is not None:
