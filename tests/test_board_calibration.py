@@ -250,3 +250,22 @@ def test_board_file_refusals(handheld_board, tmp_path, capsys) -> None:
         code, _, err = run(["export", params_path, "-f", "px4", "-o", tmp_path / "x.params"], capsys)
         assert code == 4 and field in err and str(params_path) in err and "Traceback" not in err, err
     assert document["imus"][1]["instance"] == 1
+
+
+def test_board_certificate_lists_every_imu_and_its_rotation(handheld_board, tmp_path, capsys) -> None:
+    from report_helpers import check_page, not_blank, screenshot
+
+    folder, _, log = handheld_board
+    params_path = tmp_path / "board.yaml"
+    code, _, err = run(["calibrate", log, "-o", params_path], capsys)
+    assert code == 0, err
+    code, _, err = run(["report", params_path, "-o", tmp_path / "board.html"], capsys)
+    assert code == 0, err
+    text = check_page(tmp_path / "board.html")
+    entries = board_entries(ParamsFile.load(params_path))
+    for entry in entries[1:]:
+        assert f"IMU {entry.instance} relative to IMU 0" in text
+        assert f"accelerometer (accel), IMU {entry.instance}" in text
+        assert f"{entry.rotation_angle_deg:.4g}"[:4] in text
+    assert "rotation about IMU 0&#39;s axes" in text or "rotation about IMU 0's axes" in text
+    not_blank(screenshot(tmp_path / "board.html", tmp_path))

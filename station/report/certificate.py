@@ -131,12 +131,16 @@ def _sections(cert: Certificate) -> list[dict[str, Any]]:
     if params is None:
         return []
     out = []
+    held = params.other.get("imus")
+    imus: list[dict[str, Any]] = held if isinstance(held, list) else []
+    first = f", IMU {imus[0]['instance']}" if len(imus) > 1 else ""
     for name in ("accel", "gyro"):
         cal = getattr(params, name)
         if cal is not None:
             section = ParamsFile(accel=cal).to_dict()["accel"]
-            out.append({"name": name, "title": f"{parameters.SENSOR_NAMES[name]} ({name})",
+            out.append({"name": name, "title": f"{parameters.SENSOR_NAMES[name]} ({name}){first}",
                         "method": cal.method, **grouped(parameters.sensor_rows(name, section))})
+    out += _board_sections(imus)
     mag = params.other.get("mag")
     if isinstance(mag, dict):
         out.append({"name": "mag", "title": "magnetometer (mag)",
@@ -157,6 +161,28 @@ def _sections(cert: Certificate) -> list[dict[str, Any]]:
         out.append({"name": "thermal", "title": "temperature compensation (thermal)",
                     "method": str(params.thermal.extra.get("method") or ""),
                     **grouped(thermal_rows(params.thermal))})
+    return out
+
+
+def _board_sections(imus: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A board's other IMUs (the file's ``imus``): each one's rotation relative to the first with its
+    1-sigma, then its accelerometer and gyroscope tables."""
+    out: list[dict[str, Any]] = []
+    if len(imus) < 2:
+        return out
+    first = int(imus[0]["instance"])
+    for k, entry in enumerate(imus[1:], start=1):
+        instance = int(entry["instance"])
+        out.append({"name": f"imus{k}-rotation",
+                    "title": f"IMU {instance} relative to IMU {first} (imus[{k}])",
+                    "method": str(entry.get("rotation_from") or ""),
+                    **grouped(parameters.rotation_rows(entry, first))})
+        for name in ("accel", "gyro"):
+            if isinstance(entry.get(name), dict):
+                out.append({"name": f"imus{k}-{name}",
+                            "title": f"{parameters.SENSOR_NAMES[name]} ({name}), IMU {instance}",
+                            "method": str(entry[name].get("method") or ""),
+                            **grouped(parameters.sensor_rows(name, entry[name]))})
     return out
 
 

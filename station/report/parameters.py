@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from protocols.units import STANDARD_GRAVITY
 from station.common.units import DEG, PEOPLE
 from station.engines.allan.terms import NAMES as NOISE_NAMES
@@ -185,3 +187,38 @@ def kalibr_rows(section: dict[str, Any]) -> list[Row]:
                 "filter values = the largest axis's" + (
                     ", equivalent to the whole noise model" if (section.get(key[0]) or {}).get(
                         "filter_equivalent") else "")) for key in KALIBR_KEYS]
+
+
+def rotation_rows(entry: dict[str, Any], first: int) -> list[Row]:
+    """An ``imus`` entry's rotation relative to the first IMU, in degrees with its 1-sigma.
+
+    The rotation R with v_this = R v_first (``rotation_to_first`` is R^T) as a rotation vector about the
+    first IMU's x, y, z axes, the small angles the 1-sigma is of, and its whole angle.
+
+    Parameters
+    ----------
+    entry : dict
+        The entry as the parameter file holds it (``rotation_to_first``, ``rotation_sigma`` in rad).
+    first : int
+        The first IMU's instance, for the labels.
+
+    Returns
+    -------
+    list of Row
+    """
+    to_first = np.asarray(entry["rotation_to_first"], float)
+    r = to_first.T
+    angle = math.acos(max(-1.0, min(1.0, (float(np.trace(r)) - 1.0) / 2.0)))
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    vector = axis / np.linalg.norm(axis) * angle if np.linalg.norm(axis) > 1e-15 else np.zeros(3)
+    sigma = entry.get("rotation_sigma")
+    quantity = f"rotation about IMU {first}'s axes"
+    rows = [Row(quantity, AXES[i], math.degrees(vector[i]),
+                _scaled(_at(sigma, i), math.degrees(1.0)), "deg",
+                f"rotation vector of R, v_this = R v_{first}, each IMU in its own axes") for i in range(3)]
+    rows.append(Row("rotation angle", "", math.degrees(angle), None, "deg"))
+    ids = [f"{key.replace('_', ' ')} {entry[key]}" for key in ("device_id", "gyro_device_id")
+           if entry.get(key) is not None]
+    if ids:
+        rows.append(Row("device", "", ", ".join(ids), None, ""))
+    return rows
