@@ -84,6 +84,7 @@ def build_board(params: ParamsFile, build: Build, max_instance: int, instance: i
     result: AutopilotExport | None = None
     params_out: dict[str, Param] = {}
     notes: list[str] = []
+    per_imu: list[list[str]] = []
     for entry in chosen:
         if entry.instance > max_instance:
             notes.append(f"IMU {entry.instance} is left out: the target has parameters for instances "
@@ -107,9 +108,16 @@ def build_board(params: ParamsFile, build: Build, max_instance: int, instance: i
         result.pose_errors.update({name + tag: e for name, e in one.pose_errors.items()})
         for key, lost in one.thermal_intrinsics_lost.items():
             result.thermal_intrinsics_lost[key + tag] = lost
-        notes += [f"IMU {entry.instance}: {note}" for note in one.notes]
+        per_imu.append([f"IMU {entry.instance}: {note}" for note in one.notes])
     if result is None:
         raise ValueError(f"no IMU of the board has an instance the target holds (0..{max_instance})")
+    # a note every IMU's export makes is said once, without the IMU's name
+    bare = [[n.split(": ", 1)[1] for n in notes_k] for notes_k in per_imu]
+    common = set.intersection(*(set(b) for b in bare))
+    notes += [n for notes_k in per_imu for n in notes_k if n.split(": ", 1)[1] not in common]
+    notes += [n for n in dict.fromkeys(n for b in bare for n in b) if n in common]
+    written = ", ".join(str(e.instance) for e in chosen if e.instance <= max_instance)
+    notes.append(f"the board's IMUs {written} written as those instances (the file's imus section)")
     result.params = list(params_out.values())
     result.notes = list(dict.fromkeys(notes))
     return result
