@@ -52,7 +52,7 @@ def test_sigma_matches_a_monte_carlo_of_twelve_poses_and_six_turns() -> None:
     truth = Rotation.from_euler("xyz", [2.0, -1.5, 3.0], degrees=True).as_matrix()
     turns = np.repeat(np.eye(3), 2, axis=0) * np.tile([2 * np.pi, -2 * np.pi], 3)[:, None]
     acc_sd, gyro_sd = 2e-3, 3e-4  # per component of each vector, each IMU
-    errors, sigmas = [], []
+    error_list, sigma_list = [], []
     for _ in range(400):
         v0 = TWELVE + rng.normal(scale=acc_sd, size=TWELVE.shape)
         vk = TWELVE @ truth.T + rng.normal(scale=acc_sd, size=TWELVE.shape)
@@ -61,9 +61,9 @@ def test_sigma_matches_a_monte_carlo_of_twelve_poses_and_six_turns() -> None:
         first = AlignmentVectors(v0, np.full(12, acc_sd**2), w0, np.full(6, gyro_sd**2))
         other = AlignmentVectors(vk, np.full(12, acc_sd**2), wk, np.full(6, gyro_sd**2))
         rot = relative_rotation(first, other)
-        errors.append(rotation_vector(truth.T @ rot.matrix))
-        sigmas.append(rot.sigma)
-    errors, sigmas = np.array(errors), np.array(sigmas)
+        error_list.append(rotation_vector(truth.T @ rot.matrix))
+        sigma_list.append(rot.sigma)
+    errors, sigmas = np.array(error_list), np.array(sigma_list)
     empirical = errors.std(axis=0)
     stated = np.median(sigmas, axis=0)
     # 400 draws: the empirical standard deviation is within ~7 % (1-sigma) of the true one
