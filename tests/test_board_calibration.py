@@ -243,7 +243,12 @@ def test_board_file_refusals(handheld_board, tmp_path, capsys) -> None:
                           (lambda d: d["imus"][1].__setitem__("rotation_sigma", [0.1, -0.1, 0.0]),
                            "imus[1].rotation_sigma"),
                           (lambda d: d["imus"][0].__setitem__("accel", d["accel"]), "imus[0].accel"),
-                          (lambda d: d["imus"][1]["accel"].pop("bias"), "imus[1].accel")):
+                          (lambda d: d["imus"][1]["accel"].pop("bias"), "imus[1].accel"),
+                          (lambda d: d["imus"][1].__setitem__("thermal", {"reference_temp": 900,
+                                                                           "dtemp_filter": {"kind": "ema",
+                                                                                            "tau_s": 2}}),
+                           "imus[1].thermal.reference_temp"),
+                          (lambda d: d["imus"][2].pop("rotation_to_first"), "imus[2]")):
         broken = yaml.safe_load(good)
         change(broken)
         params_path.write_text(yaml.safe_dump(broken, sort_keys=False))

@@ -119,3 +119,27 @@ def test_own_axes_keep_the_mounting_rotation() -> None:
     acc_c, gyro_c = own_axes(fixture, fixture, "lower")
     assert np.allclose(acc_c, np.linalg.inv(m), atol=1e-12)
     assert gyro_c is not None and np.allclose(gyro_c, np.linalg.inv(m), atol=1e-12)
+
+
+def test_frame_covariance_matches_a_monte_carlo_of_the_matrix_error() -> None:
+    """Eq. (4) against perturbed matrices: the own axes of M_hat + dM turned from those of M_hat."""
+    from station.engines.calibration.common import triangular_correction
+    from station.engines.calibration.imu_alignment import frame_covariance
+
+    rng = np.random.default_rng(5)
+    mount = Rotation.from_euler("xyz", [1.0, -2.0, 3.0], degrees=True).as_matrix()
+    m_hat = np.array([[1.01, 0.003, -0.002], [0.001, 0.99, 0.004], [-0.003, 0.002, 1.02]]) @ mount
+    sd = np.full((3, 3), 2e-4)
+    q_hat, own_hat = triangular_correction(np.linalg.inv(m_hat), "lower")
+    angles = []
+    for _ in range(2000):
+        m = m_hat + rng.normal(size=(3, 3)) * sd
+        q, _ = triangular_correction(np.linalg.inv(m), "lower")
+        a = own_hat @ m @ q
+        angles.append(0.5 * np.array([a[2, 1] - a[1, 2], a[0, 2] - a[2, 0], a[1, 0] - a[0, 1]]))
+    empirical = np.cov(np.array(angles).T)
+    stated = frame_covariance(m_hat, sd, "lower")
+    assert np.allclose(np.sqrt(np.diag(stated)), np.sqrt(np.diag(empirical)), rtol=0.08)
+    # a lower-triangular fit holds the upper elements fixed: only the lower ones turn its axes
+    lower = np.tril(np.full((3, 3), 2e-4))
+    assert np.all(np.diag(frame_covariance(np.tril(m_hat), lower, "lower")) > 0)
