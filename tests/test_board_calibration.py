@@ -274,3 +274,25 @@ def test_board_certificate_lists_every_imu_and_its_rotation(handheld_board, tmp_
         assert f"{entry.rotation_angle_deg:.4g}"[:4] in text
     assert "rotation about IMU 0&#39;s axes" in text or "rotation about IMU 0's axes" in text
     not_blank(screenshot(tmp_path / "board.html", tmp_path))
+
+
+def test_turntable_board_from_hdf5_capture_files(tmp_path, capsys) -> None:
+    """Capture files (.h5) name their instance in the device attribute; the same rotations as the CSVs."""
+    from station.acquisition.capture_h5 import H5CaptureWriter
+
+    truths = board(4)
+    recordings = simulate_board(truths, sequence_segments("six-position", rotations=True, hold_s=4.0), seed=4)
+    paths = []
+    for k, rec in enumerate(recordings):
+        path = tmp_path / ("board.h5" if k == 0 else f"board.imu{k}.h5")
+        writer = H5CaptureWriter(path, device={"serial": "SIM-H5", "rate_hz": rec.rate_hz, "instance": k},
+                                 with_step=True)
+        writer.write(rec.samples(), [str(s) for s in rec.step])
+        writer.close()
+        paths.append(path)
+    code, out, err = run(["calibrate", *paths, "--method", "turntable", "-o", tmp_path / "b.yaml", "--json"],
+                         capsys)
+    assert code == 0, err
+    assert [r["instance"] for r in json.loads(out)["rotations"]] == [1, 2]
+    for err_deg, sigma_deg in errors_against_truth(tmp_path / "b.yaml", truths):
+        assert err_deg < K_SIGMA * sigma_deg + FLOOR_DEG, (err_deg, sigma_deg)

@@ -510,14 +510,21 @@ def _log_imus(path: Path) -> int:
 
 
 def _board_files(paths: list[Path]) -> dict[int, Path] | None:
-    """The capture CSVs of one board's IMUs by their '# instance: k' lines, or None where one has none."""
+    """The captures of one board's IMUs by their instance (a CSV's '# instance: k' line, an HDF5 file's
+    device attribute), or None where one names none."""
+    from station.acquisition.capture import read_capture
     from station.acquisition.capture_csv import read_csv_device
 
     out: dict[int, Path] = {}
     for path in paths:
-        if not str(path).lower().endswith((".csv", ".csv.gz")):
+        name = str(path).lower()
+        if name.endswith((".csv", ".csv.gz")):
+            device = read_csv_device(path)
+        elif name.endswith((".h5", ".hdf5")):
+            device = read_capture(path).device  # its device attribute is read with the samples
+        else:
             return None
-        text = str(read_csv_device(path).get("instance", "")).strip()
+        text = str(device.get("instance", "")).strip()
         if not text.isdigit():
             return None
         if int(text) in out:
