@@ -583,7 +583,8 @@ def run_board(args: argparse.Namespace) -> int:
 
     local_gravity(args)  # refuse bad options before reading long captures
     with PhaseLine(sys.stderr) as phase:
-        phase.show(f"reading {args.input}")
+        names = args.input if isinstance(args.input, Path) else ", ".join(str(p) for p in args.input)
+        phase.show(f"reading {names}")
         captures, files = _board_captures(args)
         device = name_unit(_board_unit(captures, files), args.serial)
         if args.output:
