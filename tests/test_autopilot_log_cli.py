@@ -137,8 +137,10 @@ def test_calibrate_hand_held_from_a_log_and_mag_refused(tmp_path, capsys) -> Non
     assert "nothing taken out" in err and "low-pass filtered" in err
     code, _, err = run(["calibrate", log, "--instance", "1", "--method", "mag"], capsys)  # no MAG messages
     assert code == 4 and "has no magnetometer columns (mx, my, mz)" in err and "Traceback" not in err
-    code, _, err = run(["calibrate", log], capsys)
-    assert code == 4 and "choose one with --instance N" in err
+    # Without --instance the board: every IMU calibrated, with its rotation relative to the first.
+    code, out, err = run(["calibrate", log, "--initial-still", "14", "--json"], capsys)
+    assert code == 0, err
+    assert [imu["instance"] for imu in json.loads(out)["imus"]] == [0, 1]
 
 
 def test_calibrate_mag_from_a_ulog_is_the_csvs_calibration(tmp_path, capsys) -> None:

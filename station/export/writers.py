@@ -47,7 +47,7 @@ MAX_EPOCH_S = 253_402_300_799
 MAX_INSTANCE = {"px4": px4.MAX_INSTANCE, "ardupilot": ardupilot.MAX_INSTANCE}
 """The highest sensor instance (0-based) each autopilot has parameters for."""
 CARRIES: dict[str, tuple[str, ...] | None] = {"c": CARRIED, "bin": CARRIED, "json": None, "yaml": None,
-                                              "px4": CARRIED, "ardupilot": CARRIED}
+                                              "px4": (*CARRIED, "imus"), "ardupilot": (*CARRIED, "imus")}
 """The sections each format writes (None: every section, the document is the file itself)."""
 
 
