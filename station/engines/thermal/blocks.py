@@ -85,7 +85,7 @@ def still_poses(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray,
             else:
                 centres.append(mean_dir[i])
                 window_pose[i] = len(centres) - 1
-        previous = i
+        previous = int(i)
     pose[: nw * w] = np.repeat(window_pose, w)
     names: list[str] = []
     for k, c in enumerate(centres):
