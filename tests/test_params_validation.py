@@ -184,6 +184,8 @@ def line_of(path: Path, text: str) -> int:
     (("units", "accel"), "g", "this station reads accel in m/s^2"),
     (("accel", "matrix"), [[1, 0, 0], [0, 1, 0], [0, 0, 1e-9]], "singular"),
     (("device", "serial"), ["a"], "must be text"),
+    (("device", "accel_device_id"), "2228242", "must be a sensor's device id"),
+    (("device", "gyro_device_id"), -1, "must be a sensor's device id"),
 ])
 def test_each_bad_value_is_named_with_key_line_and_unit(tmp_path: Path, where: tuple, value: Any,
                                                         words: str) -> None:

@@ -230,9 +230,11 @@ def test_thermal_log_to_px4_and_ardupilot_per_instance(small_logs: Path, tmp_pat
     assert code == 0, err
     assert f"instance {k} (device {imu.accel_id})" in err + out
     ids = ["--device-id", imu.accel_id, "--gyro-device-id", imu.gyro_id]
+    # PX4 without ids given: the file's device section holds the log's (the TC_* blocks bind to them).
     code, px4_report, err = run_cli(["export", board, "-f", "px4", "--instance", k, "-o",
-                                     tmp_path / "b.params", *ids], capsys)
+                                     tmp_path / "b.params"], capsys)
     assert code == 0, err
+    assert f"accel {imu.accel_id}, gyro {imu.gyro_id}" in px4_report
     # the loss from our richer model is printed: the dT terms PX4 cannot hold, with their size
     assert "thermal model as one cubic" in px4_report
     if imu.kind == "strong dT":

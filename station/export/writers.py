@@ -245,10 +245,22 @@ def _write_yaml(params: ParamsFile, out: Path, settings: ExportSettings) -> Writ
 def _autopilot_writer(fmt: str, build: Callable[..., AutopilotExport],
                       render: Callable[[AutopilotExport, ParamsFile, str, str], str]) -> Writer:
     def write(params: ParamsFile, out: Path, settings: ExportSettings) -> Written:
+        device_id, gyro_device_id = settings.device_id, settings.gyro_device_id
+        recorded = params.device.get("accel_device_id")
+        # A board file's IMUs carry their own ids (station.export.autopilot.board).
+        if device_id is None and recorded is not None and "imus" not in params.other:
+            # The sensor the file was calibrated from (an autopilot log's IMU): its parameters bind to it.
+            device_id = int(recorded)
+            gyro = params.device.get("gyro_device_id")
+            gyro_device_id = int(gyro) if gyro_device_id is None and gyro is not None else gyro_device_id
         try:
-            result = build(params, settings.instance, settings.device_id, settings.gyro_device_id)
+            result = build(params, settings.instance, device_id, gyro_device_id)
         except ValueError as exc:
             raise StationError(str(exc)) from None
+        if device_id is not None and settings.device_id is None:
+            gyro_id = gyro_device_id if gyro_device_id is not None else device_id
+            result.notes.append(f"device ids from {settings.source}'s device section (the log's IMU): "
+                                f"accel {device_id}, gyro {gyro_id}")
         if not result.params:
             raise _nothing_to_export(settings.source, fmt, present(params))
         path = _file_target(out, fmt)

@@ -31,6 +31,7 @@ G_SENSITIVITY_LIMIT = 10.0  # rad/s per m/s^2
 TEMP_RANGE = (-100.0, 200.0)  # degC
 DTEMP_LIMIT = 100.0  # degC/s
 TAU_LIMIT = 1e5  # s
+DEVICE_IDS = ("accel_device_id", "gyro_device_id")  # an autopilot log's sensor ids, in ``device``
 COEFF_LIMIT = 1e7  # sensor unit per degC^k (degC/s)^l
 MAX_SEGMENTS = 64
 NOISE_LIMIT = 1e6
@@ -140,6 +141,9 @@ def check_params(data: Any, path: str | Path = "<params>", locate: Locate | None
             if key in ("serial", "model", "firmware") and (isinstance(value, bool)
                                                            or not isinstance(value, str | int | float)):
                 raise c.fail(("device", key), f"must be text, not {_shown(value)}")
+            if key in DEVICE_IDS and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+                raise c.fail(("device", key), f"must be a sensor's device id (a whole number from 0), not "
+                             f"{_shown(value)}")
     if "created" in doc:
         c.text(doc["created"], ("created",))
     if doc.get("units") is not None:

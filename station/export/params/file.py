@@ -24,7 +24,7 @@ from station.common.yaml_file import read_yaml
 from station.engines.shared.sensor_model import SensorCalibration
 from station.engines.thermal.model import ThermalModel
 from station.errors import InputFileError, StationError
-from station.export.params.checks import UNITS, Locate, check_params
+from station.export.params.checks import DEVICE_IDS, UNITS, Locate, check_params
 
 SCHEMA = "imu-station/params/1"
 SENSOR_KEYS = ("matrix", "bias", "scale", "misalignment", "correction", "method", "residual_rms", "stddev")
@@ -183,10 +183,14 @@ class ParamsFile:
         return cls.load(path) if Path(path).exists() else cls()
 
     def update_device(self, info: dict[str, Any] | None) -> None:
-        """Record what is known of the unit (serial, model, firmware) without losing known keys."""
+        """Record what is known of the unit (serial, model, firmware, and an autopilot log's IMU device ids,
+        which the PX4 and ArduPilot exports bind their parameters to) without losing known keys."""
         for key in ("serial", "model", "firmware"):
             if info and info.get(key) is not None:
                 self.device[key] = str(info[key])
+        for key in DEVICE_IDS:
+            if info and info.get(key) is not None:
+                self.device[key] = int(info[key])
 
     def set_section(self, name: str, value: Any, source: dict[str, Any] | None = None) -> None:
         """Write section ``name`` and record where it came from (``source``; None forgets the old one).
