@@ -243,9 +243,9 @@ def test_values_outside_the_documented_range_are_written_and_named(tmp_path, cap
 
 
 def test_the_options_help_shows_are_the_writers() -> None:
-    from station.commands import export as export_command
+    from station.console import options
 
-    assert export_command.NOISE_EXPORT_FORMATS == NOISE_FORMATS
+    assert options.NOISE_EXPORT_FORMATS == NOISE_FORMATS
 
 
 def test_the_reason_names_the_factor_and_the_sources() -> None:

@@ -10,6 +10,9 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from station.console.options import (
+    EKF_RATE_HZ,
+    INFLATE,
+    NOISE_EXPORT_FORMATS,
     RATE_HZ,
     add_instance_option,
     add_output_option,
@@ -51,10 +54,6 @@ examples:
 
 
 MAX_PER_DECADE = 1000  # beyond this the cluster sizes repeat: every integer m is already there
-ESTIMATOR_OPTIONS = ("kalibr", "vins", "orbslam3", "openvins", "ekf2", "ekf3")
-"""The options writing an estimator's file, each named as its ``export`` format."""
-INFLATE = number(float, 1.0, 1000.0)
-EKF_RATE_HZ = number(float, 1.0, 10000.0, unit="Hz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -286,7 +285,7 @@ def analyse(args: argparse.Namespace, err: IO[str]) -> dict[str, Any]:
     section = to_plain(noise_file.noise_section(noise, curve, source, horizon_s=args.horizon))
     outputs: dict[str, str] = {}
     rostopic = args.rostopic or args.topic or "/imu0"
-    requests = {fmt: getattr(args, fmt) for fmt in ESTIMATOR_OPTIONS if getattr(args, fmt)}
+    requests = {fmt: getattr(args, fmt) for fmt in NOISE_EXPORT_FORMATS if getattr(args, fmt)}
     estimators = {}
     if requests:
         from station.export.writers import noise_exports

@@ -7,8 +7,11 @@ import json
 from pathlib import Path
 
 from station.console.options import (
+    EKF_RATE_HZ,
     EXPORT_FORMATS,
     EXPORT_MAX_INSTANCE,
+    INFLATE,
+    NOISE_EXPORT_FORMATS,
     add_output_option,
     describe_range,
     number,
@@ -51,11 +54,6 @@ examples:
 
 INT32_MAX = 2**31 - 1
 DEVICE_ID = number(int, 0, INT32_MAX, unit="the autopilots' int32 range")
-NOISE_EXPORT_FORMATS = ("kalibr", "vins", "orbslam3", "openvins", "ekf2", "ekf3")
-"""``station.export.writers.NOISE_FORMATS`` (kept here so that --help loads no writer;
-tests/test_estimator_noise.py checks the two agree)."""
-INFLATE = number(float, 1.0, 1000.0)
-EKF_RATE_HZ = number(float, 1.0, 10000.0, unit="Hz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -195,6 +195,14 @@ RATE_HZ = positive("Hz", MAX_RATE_HZ)
 """A sample rate a unit runs at."""
 GRAVITY = number(float, MIN_GRAVITY, MAX_GRAVITY, unit="m/s^2")
 """Local gravity."""
+NOISE_EXPORT_FORMATS = ("kalibr", "vins", "orbslam3", "openvins", "ekf2", "ekf3")
+"""The estimators' noise files: ``export`` formats and ``allan`` options of the same names
+(``station.export.writers.NOISE_FORMATS``, kept here so that --help loads no writer;
+tests/test_estimator_noise.py checks the two agree)."""
+INFLATE = number(float, 1.0, 1000.0)
+"""``--inflate K``: the factor every noise value written for an estimator is multiplied by."""
+EKF_RATE_HZ = number(float, 1.0, 10000.0, unit="Hz")
+"""``--ekf-rate``: the rate of an autopilot EKF's prediction step."""
 
 
 def protocol(text: str) -> str:
