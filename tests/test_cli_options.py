@@ -26,6 +26,8 @@ CASES = [
     (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--duration", "inf"),
     (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--field", "0"),
     (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--field", "nan"),
+    (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--instances", "256"),
+    (["capture", "--port", "/dev/null-imu", "-o", "{tmp}/x.csv"], "--instances", "0,-1"),
     (["tui"], "--hold", "0"),
     (["tui"], "--hold", "1e9"),
     (["tui"], "--rotation-rate", "-90"),
