@@ -131,7 +131,7 @@ def test_instances_of_a_protocol_of_one_imu_or_of_several_ports_are_refused(tmp_
     assert "--instances records the IMUs of one board" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["capture", "--port", "sim://", "--instances", "0,x", "-o", str(tmp_path / "x.csv")])
-    assert "'x' is not an IMU instance" in capsys.readouterr().err
+    assert "'x' (in '0,x') is not an IMU instance" in capsys.readouterr().err
 
 
 def test_an_instance_the_board_does_not_send_is_named(tmp_path: Path, capsys) -> None:

@@ -87,14 +87,16 @@ def parse_instances(text: str) -> tuple[int, ...] | None:
     text = text.strip()
     if text.lower() == ALL:
         return None
-    values = []
-    for part in text.split(","):
+    values: list[int] = []
+    parts = text.split(",")
+    within = f" (in {text!r})" if len(parts) > 1 else ""
+    for part in parts:
         part = part.strip()
         if not part.isdigit() or int(part) > MAX_INSTANCE:
-            raise ValueError(f"{part!r} is not an IMU instance: give all, or instances 0..{MAX_INSTANCE} "
-                             f"separated by commas (0,1,2)")
+            raise ValueError(f"{part!r}{within} is not an IMU instance: give all, or instances "
+                             f"0..{MAX_INSTANCE} separated by commas (0,1,2)")
         if int(part) in values:
-            raise ValueError(f"instance {part} is given twice")
+            raise ValueError(f"instance {part} is given twice{within}")
         values.append(int(part))
     return tuple(values)
 
