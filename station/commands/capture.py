@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import io
 import sys
 import time
 from pathlib import Path
@@ -287,8 +288,13 @@ def run_instances(args: argparse.Namespace) -> int:
                                        rate_hz=args.rate, baudrate=args.baud,
                                        status=lambda duration_s: CaptureStatusLine(sys.stderr, duration_s))
     for instance, capture in result.captures.items():
-        print(f"IMU instance {instance}: ", end="", file=sys.stdout)
-        report(capture, sys.stdout)
+        summary = io.StringIO()
+        report(capture, summary)
+        # the link is the board's, one for all its instances: said once below
+        lines = [line for line in summary.getvalue().splitlines() if not line.startswith("link: ")]
+        print(f"IMU instance {instance}: " + "\n".join(lines), file=sys.stdout)
+    if result.captures:
+        print(f"link: {result.link.summary()}, {result.link.bytes} bytes", file=sys.stdout)
     if result.missing:
         seen = ", ".join(map(str, result.seen)) or "none"
         print(f"no file for IMU instance(s) {', '.join(map(str, result.missing))}: the board did not send "
