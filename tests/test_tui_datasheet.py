@@ -71,9 +71,10 @@ def test_datasheet_of_a_missing_file_says_what_to_do(tmp_path) -> None:
 
 
 @pytest.mark.parametrize("size", [(80, 24), (160, 48)])
-def test_datasheet_snapshots(tmp_path, size) -> None:
-    out = campaign_file(tmp_path / "unit.yaml")
-    app = StationApp(TuiConfig(out=out))
+def test_datasheet_snapshots(tmp_path, size, monkeypatch) -> None:
+    campaign_file(tmp_path / "unit.yaml")
+    monkeypatch.chdir(tmp_path)  # the screen names --out as given: the same on every run and worker
+    app = StationApp(TuiConfig(out=Path("unit.yaml")))
 
     async def run() -> None:
         async with app.run_test(size=size) as pilot:
