@@ -43,9 +43,12 @@ def interleaved(instances: list[np.ndarray], messages: list[str], heartbeat: boo
     return b"".join(frames)
 
 
-def decode_instances(data: bytes, seed: int = 1,
-                     max_chunk: int = 53) -> tuple[MavlinkDecoder, dict[int, np.ndarray]]:
-    dec = MavlinkDecoder()
+Decodes = tuple[MavlinkDecoder, dict[int, np.ndarray]]
+
+
+def decode_instances(data: bytes, seed: int = 1, max_chunk: int = 53,
+                     cls: type[MavlinkDecoder] = MavlinkDecoder) -> Decodes:
+    dec = cls()
     dec.decode_instances()
     rng = np.random.default_rng(seed)
     got: dict[int, list[np.ndarray]] = {}
@@ -230,3 +233,19 @@ def test_a_wrong_imu_index_is_refused_naming_the_field(change, words: str) -> No
     change(doc)
     with pytest.raises(FrameDescriptionError, match=words):
         describe(doc)
+
+
+def test_interleaved_instances_decode_alike_with_and_without_the_fast_path() -> None:
+    from test_mavlink_fast import PerFrameDecoder, assert_same, damaged
+
+    sent = board_samples(300, seed=10)
+    for messages in (["SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"], ["HIGHRES_IMU"] * 3):
+        data = interleaved(sent, messages)
+        assert_same(data, chunks=(7, 64, 4096))  # one stream, the others as messages
+        assert_same(damaged(data, 11), chunks=(61, 4096))
+        for stream in (data, damaged(data, 12)):
+            fast, fast_samples = decode_instances(stream, seed=13)
+            slow, slow_samples = decode_instances(stream, seed=13, cls=PerFrameDecoder)
+            assert fast.stats.as_dict() == slow.stats.as_dict() and fast_samples.keys() == slow_samples.keys()
+            for k, samples in fast_samples.items():
+                assert samples.tobytes() == slow_samples[k].tobytes()
