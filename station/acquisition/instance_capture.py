@@ -11,8 +11,8 @@ how the multi-IMU calibration pairs the files up.
 
 A file is opened when its instance's first sample comes, so ``--instances all`` records whatever the
 board streams; an instance asked for that never comes leaves no file and is reported. The loop is
-:func:`~station.acquisition.recorder.record`'s, for several recorders: it ends on the duration
-(every file full), Ctrl-C, a stop event or a link error, and in every case each file keeps every
+:func:`~station.acquisition.recorder.record`'s (``capture_loop``), for several recorders: it ends on the
+duration (every file full), Ctrl-C, a stop event or a link error, and in every case each file keeps every
 sample of its instance received before the end (the other instances' samples buffered when the
 link broke included).
 """
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import sys
 import threading
-import time
 from collections.abc import Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -31,17 +30,15 @@ from typing import IO, Any
 import numpy as np
 
 from drivers import DEFAULT_BAUDRATE, Device, DriverError, LinkStats, NoSamples, PortLost, open_device
-from drivers.errors import FramesRefused
 from protocols.instances import MAX_INSTANCE
 from protocols.registry import make_decoder
 from station.acquisition.port_capture import StatusCallback, StatusDisplay, prepare_device
 from station.acquisition.recorder import (
     NO_SAMPLES_TIMEOUT_S,
-    READ_TIMEOUT_S,
     CaptureResult,
     Recorder,
-    _install_sigint,
     _with_clock,
+    capture_loop,
 )
 from station.errors import StationError
 
@@ -212,45 +209,18 @@ def record_instances(device: Device, path: str | Path, instances: Sequence[int] 
     """
     path = Path(path)
     files = _Files(device, path, instances, duration_s)
-    interrupted = threading.Event()
-    restore = _install_sigint(interrupted) if handle_sigint else None
-    wall_deadline = None if duration_s is None else time.monotonic() + duration_s * 1.5 + 5.0
-    ended_by, error = "stopped", None
-    started = last_status = time.monotonic()
+
+    def nothing_came() -> DriverError:
+        why = _nothing_asked(device, instances, no_samples_timeout_s)
+        return NoSamples(f"{device.port}: {why}", device.port)
+
     try:
-        while True:
-            if interrupted.is_set():
-                ended_by = "interrupted"
-                break
-            if stop is not None and stop.is_set():
-                break
-            try:
-                batches = _batches(device, READ_TIMEOUT_S)
-            except DriverError as exc:
-                error, ended_by = exc, "link error"
-                break
-            files.write(batches, _link(device, files))
-            now = time.monotonic()
-            if files.received == 0 and now - started > no_samples_timeout_s:
-                why = _nothing_asked(device, instances, no_samples_timeout_s)
-                error, ended_by = NoSamples(f"{device.port}: {why}", device.port), "link error"
-                break
-            problem = getattr(device, "decoder_problem", None)
-            if problem:
-                error = FramesRefused(f"{device.port}: {problem}; the capture stopped", device.port)
-                ended_by = "link error"
-                break
-            if on_status is not None and now - last_status >= status_interval_s:
-                on_status(device.stats, files.rows, files.device_time_s)
-                last_status = now
-            if files.full or (wall_deadline is not None and now > wall_deadline):
-                ended_by = "duration"
-                break
-    except KeyboardInterrupt:
-        ended_by = "interrupted"
+        ended_by, error = capture_loop(
+            device, files, lambda timeout: _batches(device, timeout),
+            lambda batches: files.write(batches, _link(device, files)), nothing_came, duration_s=duration_s,
+            on_status=on_status, status_interval_s=status_interval_s, stop=stop, handle_sigint=handle_sigint,
+            no_samples_timeout_s=no_samples_timeout_s)
     finally:
-        if restore is not None:
-            restore()
         # what the link delivered before it ended (or before Ctrl-C) still goes into its file
         try:
             files.write(_batches(device, 0.0), _link(device, files))

@@ -246,6 +246,88 @@ class CaptureResult:
 StatusCallback = Callable[[LinkStats, int, float], None]
 
 
+class CaptureSink(Protocol):
+    """What :func:`capture_loop` writes to and watches: a :class:`Recorder`, or one per IMU instance."""
+
+    @property
+    def received(self) -> int:
+        """Samples given to it so far."""
+
+    @property
+    def full(self) -> bool:
+        """Its capture has the duration asked for."""
+
+    @property
+    def rows(self) -> int:
+        """Rows written so far."""
+
+    @property
+    def device_time_s(self) -> float:
+        """Device seconds recorded so far."""
+
+
+def capture_loop(device: Device, sink: CaptureSink, read: Callable[[float], Any],
+                 write: Callable[[Any], object], nothing_came: Callable[[], DriverError], *,
+                 duration_s: float | None, on_status: StatusCallback | None, status_interval_s: float,
+                 stop: threading.Event | None, handle_sigint: bool,
+                 no_samples_timeout_s: float) -> tuple[str, DriverError | None]:
+    """Read ``device`` and ``write`` what comes to ``sink`` until ``duration_s`` of device clock
+    (``sink.full``), Ctrl-C, ``stop`` or a link error: the loop of :func:`record` and of a board's
+    several IMUs (``station.acquisition.instance_capture``). The caller writes what is left and closes
+    its files after it, also when ``write`` raises.
+
+    Returns
+    -------
+    tuple
+        How it ended (``duration``, ``interrupted``, ``stopped``, ``link error``) and the link's error:
+        a ``DriverError`` of ``read``, ``nothing_came()`` after ``no_samples_timeout_s`` without a
+        sample, or ``FramesRefused`` when most frames fail a frame description's checksum.
+    """
+    interrupted = threading.Event()
+    restore = _install_sigint(interrupted) if handle_sigint else None
+    # The device clock decides the duration; the wall clock only guards against a unit that stalls.
+    wall_deadline = None if duration_s is None else time.monotonic() + duration_s * 1.5 + 5.0
+    ended_by = "stopped"
+    error: DriverError | None = None
+    last_status = 0.0
+    started = time.monotonic()
+    try:
+        while True:
+            if interrupted.is_set():
+                ended_by = "interrupted"
+                break
+            if stop is not None and stop.is_set():
+                break
+            try:
+                batch = read(READ_TIMEOUT_S)
+            except DriverError as exc:
+                error, ended_by = exc, "link error"
+                break
+            write(batch)
+            now = time.monotonic()
+            if sink.received == 0 and now - started > no_samples_timeout_s:
+                error, ended_by = nothing_came(), "link error"
+                break
+            # a frame description most frames fail: what is kept is a few frames that matched by chance
+            problem = getattr(device, "decoder_problem", None)
+            if problem:
+                error = FramesRefused(f"{device.port}: {problem}; the capture stopped", device.port)
+                ended_by = "link error"
+                break
+            if on_status is not None and now - last_status >= status_interval_s:
+                on_status(device.stats, sink.rows, sink.device_time_s)
+                last_status = now
+            if sink.full or (wall_deadline is not None and now > wall_deadline):
+                ended_by = "duration"
+                break
+    except KeyboardInterrupt:
+        ended_by = "interrupted"
+    finally:
+        if restore is not None:
+            restore()
+    return ended_by, error
+
+
 def record(device: Device, path: str | Path, duration_s: float | None = None,
            on_status: StatusCallback | None = None, status_interval_s: float = 0.25,
            stop: threading.Event | None = None, handle_sigint: bool = True,
@@ -264,52 +346,18 @@ def record(device: Device, path: str | Path, duration_s: float | None = None,
     """
     recorder = Recorder(path, device=device.info, port=device.port, protocol=device.protocol,
                         duration_s=duration_s)
-    interrupted = threading.Event()
-    restore = _install_sigint(interrupted) if handle_sigint else None
-    # The device clock decides the duration; the wall clock only guards against a unit that stalls.
-    wall_deadline = None if duration_s is None else time.monotonic() + duration_s * 1.5 + 5.0
-    ended_by = "stopped"
-    error: DriverError | None = None
-    last_status = 0.0
-    started = time.monotonic()
+
+    def nothing_came() -> DriverError:
+        return NoSamples(f"{device.port}: no sample arrived in {no_samples_timeout_s:g} s "
+                         f"({device.stats.bytes} bytes read); check that the unit streams, and the "
+                         f"--protocol and baud rate", device.port)
+
     try:
-        while True:
-            if interrupted.is_set():
-                ended_by = "interrupted"
-                break
-            if stop is not None and stop.is_set():
-                break
-            try:
-                batch = device.read(READ_TIMEOUT_S)
-            except DriverError as exc:
-                error, ended_by = exc, "link error"
-                break
-            now = time.monotonic()
-            if recorder.received == 0 and not len(batch) and now - started > no_samples_timeout_s:
-                error, ended_by = NoSamples(
-                    f"{device.port}: no sample arrived in {no_samples_timeout_s:g} s "
-                    f"({device.stats.bytes} bytes read); check that the unit streams, and the --protocol "
-                    f"and baud rate", device.port
-                ), "link error"
-                break
-            recorder.write(batch, _link(device, recorder))
-            # a frame description most frames fail: what is kept is a few frames that matched by chance
-            problem = getattr(device, "decoder_problem", None)
-            if problem:
-                error = FramesRefused(f"{device.port}: {problem}; the capture stopped", device.port)
-                ended_by = "link error"
-                break
-            if on_status is not None and now - last_status >= status_interval_s:
-                on_status(device.stats, recorder.rows, recorder.device_time_s)
-                last_status = now
-            if recorder.full or (wall_deadline is not None and now > wall_deadline):
-                ended_by = "duration"
-                break
-    except KeyboardInterrupt:
-        ended_by = "interrupted"
+        ended_by, error = capture_loop(
+            device, recorder, device.read, lambda batch: recorder.write(batch, _link(device, recorder)),
+            nothing_came, duration_s=duration_s, on_status=on_status, status_interval_s=status_interval_s,
+            stop=stop, handle_sigint=handle_sigint, no_samples_timeout_s=no_samples_timeout_s)
     finally:
-        if restore is not None:
-            restore()
         recorder.drain()
         recorder.close(_link(device, recorder))
     if on_status is not None:
