@@ -147,11 +147,16 @@ class PtyServer(PtyService):
 
     def device_time_s(self) -> float:
         """Device-clock seconds since power-up (start)."""
-        return self.elapsed_s() * self.speed
+        return self._device_at(time.monotonic())
+
+    def _device_at(self, wall: float) -> float:
+        """The device clock at wall-clock time ``wall``: ``speed`` times the wall seconds since start (a
+        subclass may pace it otherwise, ``mocks.instruments.warp``)."""
+        return (wall - self._t0) * self.speed
 
     def _update_times(self, now: float) -> None:
         self.stats.elapsed_s = now - self._t0
-        self.stats.device_time_s = self.stats.elapsed_s * self.speed
+        self.stats.device_time_s = self._device_at(now)
 
     def _close_master(self) -> None:
         super()._close_master()
@@ -186,7 +191,7 @@ class PtyServer(PtyService):
                 self.stats.late_blocks += 1
             self.stats.max_lateness_s = max(self.stats.max_lateness_s, lateness)
             self._probe_host()
-            device_time = (now - self._t0) * self.speed
+            device_time = self._device_at(now)
             self._emit(device_time)
             if faults is not None and faults.disconnect_after_s is not None \
                     and device_time >= faults.disconnect_after_s and self.injector is not None:

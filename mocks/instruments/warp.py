@@ -8,7 +8,8 @@ and a small part recording sequences. :class:`WarpPtyServer` is the ``PtyServer`
 
 (w wall seconds, s_k the pace set at w_k by :meth:`WarpPtyServer.set_speed`), continuous at every
 change, so the unit's samples, the chamber plant and the rate table (all on this clock) never see
-a jump. The serving loop's blocks stay paced in wall time, as the base server's are.
+a jump. The serving loop's blocks stay paced in wall time: the base server's loop, which reads its
+device clock through ``_device_at``.
 """
 
 from __future__ import annotations
@@ -46,40 +47,3 @@ class WarpPtyServer(PtyServer):
             self._d0 += (now - self._w0) * self.speed
             self._w0 = now
             self.speed = float(speed)
-
-    def device_time_s(self) -> float:
-        """Device-clock seconds since start, eq. (1)."""
-        return self._device_at(time.monotonic())
-
-    def _update_times(self, now: float) -> None:
-        self.stats.elapsed_s = now - self._t0
-        self.stats.device_time_s = self._device_at(now)
-
-    def _serve(self) -> None:
-        # The base loop with eq. (1) for its device time.
-        tick = 0
-        faults = self.faults
-        while not self._stop.is_set():
-            tick += 1
-            due = self._t0 + tick * self.block_s
-            self._wait(due)
-            if self._stop.is_set() or self._master < 0:
-                return
-            now = time.monotonic()
-            lateness = now - due
-            if lateness > self.block_s:
-                self.stats.late_blocks += 1
-            self.stats.max_lateness_s = max(self.stats.max_lateness_s, lateness)
-            self._probe_host()
-            device_time = self._device_at(now)
-            self._emit(device_time)
-            if faults is not None and faults.disconnect_after_s is not None \
-                    and device_time >= faults.disconnect_after_s and self.injector is not None:
-                self.injector.end_link()
-            self._flush(now)
-            if self.injector is not None and self.injector.disconnected and not self._pending:
-                self.stats.disconnected = True
-                self._update_times(time.monotonic())
-                self._close_master()
-                return
-            self._update_times(now)
