@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from autopilot_params import px4_values, read_ardupilot
 from scipy.spatial.transform import Rotation
 
 from mocks.board import mounted, rotation_xyz, simulate_board, true_relative_rotation, write_board_ulog
@@ -167,16 +168,6 @@ def test_board_refusals(turntable_board, tmp_path, capsys) -> None:
     assert code == 4 and "Traceback" not in err
 
 
-def _px4_values(path: Path) -> dict[str, float]:
-    rows = [line.split("\t") for line in path.read_text().splitlines() if line and not line.startswith("#")]
-    return {name: float(value) for _, _, name, value, _ in rows}
-
-
-def _ardupilot_values(path: Path) -> dict[str, float]:
-    rows = [line.split(",") for line in path.read_text().splitlines() if line and not line.startswith("#")]
-    return {name: float(value) for name, value in rows}
-
-
 def test_board_exports_every_imu_to_px4_and_ardupilot(handheld_board, tmp_path, capsys) -> None:
     from station.engines.thermal.model import DtempFilter, ThermalBias, ThermalModel, ThermalSegment
 
@@ -190,7 +181,7 @@ def test_board_exports_every_imu_to_px4_and_ardupilot(handheld_board, tmp_path, 
     assert code == 0, err
     # The board's IMUs are what the export writes: no note that it leaves the imus section out.
     assert not [n for n in json.loads(out)["notes"] if "does not carry" in n and "imus" in n]
-    values = _px4_values(tmp_path / "board.params")
+    values = px4_values(tmp_path / "board.params")
     for entry in entries:
         k = entry.instance
         assert entry.accel is not None and entry.gyro is not None
@@ -209,7 +200,7 @@ def test_board_exports_every_imu_to_px4_and_ardupilot(handheld_board, tmp_path, 
     code, _, err = run(["export", params_path, "-f", "px4", "--instance", "2", "--device-id", "7",
                         "-o", tmp_path / "imu2.params"], capsys)
     assert code == 0, err
-    alone = _px4_values(tmp_path / "imu2.params")
+    alone = px4_values(tmp_path / "imu2.params")
     assert alone["CAL_ACC2_ID"] == 7 and not any(name.startswith("CAL_ACC0") for name in alone)
     # ArduPilot, with a thermal model on the second IMU: INS_ACC2OFFS_*, INS_TCAL2_*
     document = yaml.safe_load(params_path.read_text())
@@ -221,7 +212,7 @@ def test_board_exports_every_imu_to_px4_and_ardupilot(handheld_board, tmp_path, 
     params_path.write_text(yaml.safe_dump(document, sort_keys=False))
     code, out, err = run(["export", params_path, "-f", "ardupilot", "-o", tmp_path / "board.param"], capsys)
     assert code == 0, err
-    values = _ardupilot_values(tmp_path / "board.param")
+    values = read_ardupilot(tmp_path / "board.param")
     assert values["INS_TCAL2_ENABLE"] == 1
     assert values["INS_TCAL1_ENABLE"] == 0 and values["INS_TCAL3_ENABLE"] == 0
     assert values["INS_ACC2_ID"] == DEVICE_IDS[1] and values["INS_GYR3_ID"] == DEVICE_IDS[2]

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from autopilot_params import read_ardupilot, read_px4
 
 from mocks.rig import Static, simulate
 from mocks.truth import NoiseSpec, SensorTruth, UnitTruth
@@ -65,28 +66,6 @@ def save_params(path: Path, noise: dict | None) -> Path:
     params.noise = noise
     params.save(path)
     return path
-
-
-def read_px4(path: Path) -> dict[str, tuple[float, int]]:
-    """A QGroundControl .params file: vehicle, component, name, value, MAV_PARAM_TYPE per line."""
-    out = {}
-    for line in path.read_text().splitlines():
-        if line.startswith("#"):
-            continue
-        vehicle, component, name, value, kind = line.split("\t")
-        assert (vehicle, component) == ("1", "1")
-        out[name] = (float(value), int(kind))
-    return out
-
-
-def read_ardupilot(path: Path) -> dict[str, float]:
-    """An ArduPilot .param file: NAME,VALUE per line."""
-    out = {}
-    for line in path.read_text().splitlines():
-        if not line.startswith("#"):
-            name, value = line.split(",")
-            out[name] = float(value)
-    return out
 
 
 def read_values(fmt: str, path: Path) -> dict[str, float]:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from autopilot_params import read_ardupilot, read_px4
 from export_params import BREAKS, cubic_params, make_params
 
 from station.engines.shared.correction import apply_calibration
@@ -27,27 +28,6 @@ from station.export.params.file import ParamsFile
 
 G = 9.80665
 POSES = np.repeat(np.eye(3), 2, axis=0) * np.tile([1.0, -1.0], 3)[:, None]
-
-
-def read_px4(path: Path) -> dict[str, tuple[float, int]]:
-    out = {}
-    for line in path.read_text().splitlines():
-        if line.startswith("#"):
-            continue
-        vehicle, component, name, value, kind = line.split("\t")
-        assert (vehicle, component) == ("1", "1")
-        out[name] = (float(value), int(kind))
-    return out
-
-
-def read_ardupilot(path: Path) -> dict[str, float]:
-    out = {}
-    for line in path.read_text().splitlines():
-        if line.startswith("#"):
-            continue
-        name, value = line.split(",")
-        out[name] = float(value)
-    return out
 
 
 def px4_firmware(p: dict[str, tuple[float, int]], raw_acc, raw_gyro, temp, i: int = 0):

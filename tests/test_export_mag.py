@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from autopilot_params import read_ardupilot, read_px4
 from export_params import FIELD_UT, make_params
-from test_export_autopilot import pose_inputs, read_ardupilot, read_px4
+from test_export_autopilot import pose_inputs
 
 from station.cli import main
 from station.engines.shared.correction import apply_calibration

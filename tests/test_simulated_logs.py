@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from autopilot_params import px4_values, read_ardupilot
 
 from mocks import dataflash_writer as df
 from mocks import ulog_writer as ul
@@ -37,19 +38,6 @@ def run_cli(args: list[object], capsys: pytest.CaptureFixture[str]) -> tuple[int
     code = cli.main([str(a) for a in args])
     out, err = capsys.readouterr()
     return code, out, err
-
-
-def qgc_params(path: Path) -> dict[str, float]:
-    """QGroundControl's ``1<TAB>1<TAB>NAME<TAB>VALUE<TAB>TYPE`` lines."""
-    rows = [line.split("\t") for line in path.read_text().splitlines() if line and not line.startswith("#")]
-    return {r[2]: float(r[3]) for r in rows}
-
-
-def ardupilot_params(path: Path) -> dict[str, float]:
-    """``NAME,VALUE`` (Mission Planner) or ``NAME VALUE`` (tempcal_IMU.py) lines."""
-    rows = [line.replace(",", " ").split() for line in path.read_text().splitlines()
-            if line and not line.startswith("#")]
-    return {r[0]: float(r[1]) for r in rows}
 
 
 def px4_offset(values: dict[str, float], prefix: str, temp: np.ndarray) -> np.ndarray:
@@ -240,7 +228,7 @@ def test_thermal_log_to_px4_and_ardupilot_per_instance(small_logs: Path, tmp_pat
     assert code == 0, err
     assert "thermal model as one cubic" in ap_report
 
-    px4 = qgc_params(tmp_path / "b.params")
+    px4 = px4_values(tmp_path / "b.params")
     assert px4["TC_A_ENABLE"] == 1 and px4["TC_G_ENABLE"] == 1
     assert px4[f"TC_A{k}_ID"] == imu.accel_id and px4[f"TC_G{k}_ID"] == imu.gyro_id
     assert not any(name.startswith(f"TC_{s}{j}") for name in px4 for s in "AG" for j in range(4) if j != k)
@@ -249,7 +237,7 @@ def test_thermal_log_to_px4_and_ardupilot_per_instance(small_logs: Path, tmp_pat
     assert -10.1 < px4[f"TC_G{k}_TMIN"] < -9.0
     assert 49.9 + 1.5 * k < px4[f"TC_G{k}_TMAX"] < 50.1 + 2.0 * k
     assert px4[f"TC_G{k}_TMIN"] < px4[f"TC_G{k}_TREF"] < px4[f"TC_G{k}_TMAX"]
-    ap = ardupilot_params(tmp_path / "b.param")
+    ap = read_ardupilot(tmp_path / "b.param")
     first = k == 0
     assert ap[f"INS_TCAL{n}_ENABLE"] == 1
     assert ap["INS_ACC_ID" if first else f"INS_ACC{n}_ID"] == imu.accel_id
