@@ -47,13 +47,11 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import CommandUnsupported, DriverError
-from protocols.units import STANDARD_GRAVITY
 from station.acquisition.capture import read_capture
 from station.acquisition.recorder import Recorder, record
 from station.acquisition.settle import Settle, SettleWatch
 from station.engines.calibration.turntable import TurntableCapture, TurntableSettings, calibrate_turntable
 from station.engines.characterisation.turn_on import reduce_record, turn_on_repeatability
-from station.engines.shared.earth import normal_gravity
 from station.engines.thermal.intrinsics import matrices_at
 from station.errors import StationError
 from station.export.params.file import ParamsFile
@@ -461,35 +459,9 @@ class CampaignRun(UnitRun):
     # ---- the end: calibration across temperature, figures, parameter file ----------------------------
 
     def _finish(self, steps: list[CampaignStep]) -> tuple[str, str]:
-        phase = self._phase("calibrate")
-        try:
-            across, reports, turn_ons, hysteresis = self._calibrate_all(phase, steps)
-        except StationError as exc:
-            phase.outcome = "ERROR"
-            phase.end = utc_now()
-            return "ABORTED", f"calibration: {exc}"
-        phase.end = utc_now()
-        phase = self._phase("export")
-        try:
-            self._export_campaign(phase, across, reports, turn_ons, hysteresis)
-        except StationError as exc:
-            phase.outcome = "ERROR"
-            phase.end = utc_now()
-            return "ABORTED", f"export: {exc}"
-        phase.end = utc_now()
-        failed = [m for p in self.record.phases for m in p.measurements if m.outcome == "FAIL"]
-        if failed:
-            names = ", ".join(m.name for m in failed[:6]) + (" ..." if len(failed) > 6 else "")
-            return "FAIL", f"outside limits: {names}"
-        return "PASS", ""
+        return self._calibrate_and_export(lambda phase: self._calibrate_all(phase, steps),
+                                          lambda phase, found: self._export_campaign(phase, *found))
 
-    def _gravity(self) -> float:
-        plan = self.req.plan
-        if plan.gravity is not None:
-            return plan.gravity
-        if plan.latitude is not None:
-            return normal_gravity(plan.latitude, plan.height)
-        return STANDARD_GRAVITY
 
     def _calibrate_all(self, phase: Phase, steps: list[CampaignStep]
                        ) -> tuple[Any, list[Any], list[Any], Any]:

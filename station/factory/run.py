@@ -464,28 +464,46 @@ class UnitRun:
             return stopped
         self._check_time(phase)
 
-        phase = self._phase("calibrate")
-        try:
-            report = self._calibrate(phase, result)
-        except StationError as exc:
-            phase.outcome = "ERROR"
-            phase.end = utc_now()
-            return "ABORTED", f"calibration: {exc}"
-        phase.end = utc_now()
+        return self._calibrate_and_export(lambda phase: self._calibrate(phase, result),
+                                          lambda phase, report: self._export(phase, report, plan), serial_ok)
 
-        phase = self._phase("export")
-        try:
-            self._export(phase, report, plan)
-        except StationError as exc:
-            phase.outcome = "ERROR"
-            phase.end = utc_now()
-            return "ABORTED", f"export: {exc}"
-        phase.end = utc_now()
+    def _calibrate_and_export(self, calibrate: Callable[[Phase], Any], export: Callable[[Phase, Any], None],
+                              serial_ok: bool = True) -> tuple[str, str]:
+        """The run's end: the calibrate phase, then the export phase with what it found, then the verdict
+        (FAIL for a measurement outside its limits or another serial; an error in either phase ABORTED)."""
+        found, stopped = self._guarded("calibrate", "calibration", calibrate)
+        if stopped is None:
+            _, stopped = self._guarded("export", "export", lambda phase: export(phase, found))
+        if stopped is not None:
+            return stopped
         failed = [m for p in self.record.phases for m in p.measurements if m.outcome == "FAIL"]
         if failed or not serial_ok:
             names = ", ".join(m.name for m in failed[:6]) + (" ..." if len(failed) > 6 else "")
             return "FAIL", f"outside limits: {names}"
         return "PASS", ""
+
+    def _guarded(self, name: str, what: str,
+                 work: Callable[[Phase], Any]) -> tuple[Any, tuple[str, str] | None]:
+        """Phase ``name`` doing ``work``: what it returns, or an error of the station ending the phase ERROR
+        and the run ABORTED ("``what``: the error")."""
+        phase = self._phase(name)
+        try:
+            found = work(phase)
+        except StationError as exc:
+            phase.outcome = "ERROR"
+            phase.end = utc_now()
+            return None, ("ABORTED", f"{what}: {exc}")
+        phase.end = utc_now()
+        return found, None
+
+    def _gravity(self) -> float:
+        """Local gravity: the plan's, or the normal gravity at its latitude and height, else standard."""
+        plan = self.req.plan
+        if plan.gravity is not None:
+            return plan.gravity
+        if plan.latitude is not None:
+            return normal_gravity(plan.latitude, plan.height)
+        return STANDARD_GRAVITY
 
     # ---- phases -------------------------------------------------------------------------------------
 
@@ -616,16 +634,11 @@ class UnitRun:
     def _calibrate(self, phase: Phase, result: RunResult) -> Any:
         plan = self.req.plan
         capture = result.capture
-        if plan.gravity is not None:
-            gravity = plan.gravity
-        elif plan.latitude is not None:
-            gravity = normal_gravity(plan.latitude, plan.height)
-        else:
-            gravity = STANDARD_GRAVITY
         # The runner labels every sample; TurntableCapture refuses an unlabelled capture itself.
         data = TurntableCapture(capture.t, capture.acc, capture.gyro, capture.step,
                                 rate_hz=float(plan.rate_hz))
-        report = calibrate_turntable(data, TurntableSettings(gravity=gravity, latitude_deg=plan.latitude))
+        settings = TurntableSettings(gravity=self._gravity(), latitude_deg=plan.latitude)
+        report = calibrate_turntable(data, settings)
         phase.measurements += measure(plan, CALIBRATION_QUANTITIES, report, self._link)
         phase.notes += list(report.warnings)
         if any(m.outcome == "FAIL" for m in phase.measurements):
