@@ -240,3 +240,28 @@ def test_thermal_section_round_trips(unit) -> None:
         assert np.allclose(again.misalignment[triad].coeffs, result.thermal.misalignment[triad].coeffs)
         assert getattr(again, triad).t_min == min(s.temp for s in result.soaks)
     assert result.orders == {k: f.order for k, f in result.fits.items()}
+
+
+def test_apply_uses_m_of_t_where_the_temperature_is_known_and_the_section_elsewhere() -> None:
+    from station.engines.shared.correction import apply_calibration
+    from station.engines.shared.sensor_model import SensorCalibration
+    from station.engines.thermal.intrinsics import TempPolynomial
+    from station.engines.thermal.model import DtempFilter, ThermalModel
+
+    rng = np.random.default_rng(11)
+    k0, s0 = np.array([1.01, 0.99, 1.002]), np.array([[0, 1e-3, 0], [0, 0, 2e-3], [-1e-3, 0, 0]])
+    cal = SensorCalibration.from_parts(k0, s0, np.array([0.01, -0.02, 0.0]))
+    scale = TempPolynomial(-20.0, 60.0, (1,), [[2e-4], [1e-4], [-1e-4]])
+    thermal = ThermalModel(25.0, DtempFilter(), scale={"gyro": scale})
+    temp = rng.uniform(-30.0, 70.0, 60)
+    temp[::4] = np.nan
+    raw = rng.normal(0.0, 1.0, (60, 3))
+    _, gyro = apply_calibration(raw, raw, temp, None, cal, cal, thermal)
+    for i in range(60):
+        if np.isfinite(temp[i]):  # K(T) = K + k(clamp(T) - T_ref), written out here
+            k = k0 + np.array([2e-4, 1e-4, -1e-4]) * (np.clip(temp[i], -20.0, 60.0) - 25.0)
+            matrix = np.diag(k) @ (np.eye(3) + s0)
+        else:
+            matrix = cal.matrix
+        expected = np.linalg.solve(matrix, raw[i] - cal.bias)
+        np.testing.assert_allclose(gyro[i], expected, rtol=1e-12, atol=1e-12)

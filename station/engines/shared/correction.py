@@ -89,12 +89,14 @@ def _correct(raw: np.ndarray, cal: SensorCalibration, extra_bias: np.ndarray, th
     if thermal is None or temp is None or (scale is None and misalignment is None):
         return cal.correct(raw, extra_bias)
     temp = np.asarray(temp, float)
-    out = cal.correct(raw, extra_bias)
     known = np.isfinite(temp)
-    if known.any():
-        matrices = matrices_at(cal.matrix, temp[known], thermal.reference_temp, scale, misalignment)
-        bias = (cal.bias + np.broadcast_to(extra_bias, raw.shape))[known]
-        out[known] = correct_at(raw[known], bias, matrices)
+    if not known.any():
+        return cal.correct(raw, extra_bias)
+    extra = np.broadcast_to(extra_bias, raw.shape)
+    out = np.empty(raw.shape)
+    out[~known] = cal.correct(raw[~known], extra[~known])
+    matrices = matrices_at(cal.matrix, temp[known], thermal.reference_temp, scale, misalignment)
+    out[known] = correct_at(raw[known], cal.bias + extra[known], matrices)
     return out
 
 
