@@ -324,20 +324,24 @@ class MavlinkDecoder(StreamDecoderBase):
         if batches:
             if rows:
                 batches.append(rows_to_batch(rows, True))
-            # Joined as raw records (numpy's structured concatenate costs more); all MAG_SAMPLE_DTYPE.
-            if len(batches) == 1:
-                samples = batches[0]
-            else:
-                full = [b.view(_MAG_VOID) for b in batches if len(b)]
-                samples = (full[0] if len(full) == 1 else np.concatenate(full)).view(MAG_SAMPLE_DTYPE)
-            if not self._mag:
-                samples = _without_mag(samples)
+            samples = self._joined(batches)
         else:
             samples = rows_to_batch(rows, self._mag)
         stats.samples += len(samples)
         if self._streams is None:
             return Decoded(samples, messages)
         return InstancesDecoded(samples, messages, self._instance_batches())
+
+    def _joined(self, batches: list[np.ndarray]) -> np.ndarray:
+        """The batches of one read (fast runs, rows between them) as one: ``MAG_SAMPLE_DTYPE`` once the
+        stream has carried a field, else ``SAMPLE_DTYPE``."""
+        dtype = MAG_SAMPLE_DTYPE if self._mag else SAMPLE_DTYPE
+        parts = [b if b.dtype == dtype else with_mag(b) if self._mag else _without_mag(b)
+                 for b in batches if len(b)]
+        if len(parts) < 2:
+            return parts[0] if parts else np.zeros(0, dtype)
+        void = np.dtype((np.void, dtype.itemsize))  # raw records: numpy's structured concatenate costs more
+        return np.concatenate([b.view(void) for b in parts]).view(dtype)
 
     def _instance_batches(self) -> dict[int, np.ndarray]:
         """The samples each other instance completed since the last call (counted as samples)."""
@@ -387,7 +391,9 @@ class MavlinkDecoder(StreamDecoderBase):
         """Samples of the run of frames at ``pos`` that the per-frame path would turn into samples of the
         chosen source without a second look: unsigned, of its message, system, component and IMU id,
         of one length (a payload at most the message's full length), a good CRC, dated. Checked on
-        all frames at once; the run ends at the first other frame, which the per-frame path takes."""
+        all frames at once; the run ends at the first other frame, which the per-frame path takes, but
+        for a quiet bad frame (``_FastWindow``), which the run steps over, counted as the per-frame
+        path counts it."""
         key = self._key
         assert key is not None
         name, system, component, imu_id = key
@@ -412,20 +418,27 @@ class MavlinkDecoder(StreamDecoderBase):
             k = bisect_left(win.bad, i)
             if k < len(win.bad):
                 j = win.bad[k]
-        n = j - i
-        if n < 1:
+        if j <= i:
             return _EMPTY_MAG, 0
+        quiet = win.quiet
+        a = b = 0
+        keep: slice | np.ndarray = slice(i, j)
+        if quiet:
+            a, b = bisect_left(quiet, i), bisect_left(quiet, j)
+            if b > a:
+                kept = np.ones(j - i, dtype=bool)
+                kept[[q - i for q in quiet[a:b]]] = False
+                keep = kept.nonzero()[0] + i
         if name == "HIGHRES_IMU" or name == "RAW_IMU":
-            # Every slot's values once per window: a damaged frame splits it into runs, each a slice.
+            # Every slot's values once per window: a run is a slice of them (the kept slots with quiet ones).
             if win.out is None:
-                win.out, field = self._values(win.msg, win.payload, name)
-                win.out["t_us"] = win.msg["time_usec"]
-                win.field = field if field.any() else None
-            out = win.out[i:j]
-            has_field = win.field is not None and bool(win.field[i:j].any())
+                win.out, field = self._values(win.msg, name)
+                win.field = field if _ANY(field) else None
+            out = win.out[keep]
+            has_field = win.field is not None and bool(_ANY(win.field[keep]))
         else:
-            msg = win.msg[i:j]
-            out, field = self._values(msg, win.payload[i:j], name)
+            msg = win.msg[keep]
+            out, field = self._values(msg, name)
             ms = msg["time_boot_ms"].astype(np.int64)
             prev = ms[0] if self._boot_ms is None else self._boot_ms
             steps = ((np.diff(ms, prepend=prev) + 2**31) & 0xFFFFFFFF) - 2**31
@@ -433,14 +446,22 @@ class MavlinkDecoder(StreamDecoderBase):
                 steps[0] = ms[0]
                 prev = 0
             boot = prev + np.cumsum(steps)
-            if (boot < 0).any():
-                n = int(np.argmax(boot < 0))
-                if n < 1:
+            if (boot < 0).any():  # dated before the stream's clock zero: the run ends before that frame
+                stop = int(np.argmax(boot < 0))
+                if stop < 1:
                     return _EMPTY_MAG, 0
-                field, boot, out = field[:n], boot[:n], out[:n]
+                field, boot, out = field[:stop], boot[:stop], out[:stop]
+                j = i + stop if isinstance(keep, slice) else int(keep[stop])
+                b = bisect_left(quiet, j) if quiet else 0
             self._boot_ms = int(boot[-1])
             out["t_us"] = boot * 1000
             has_field = bool(field.any())
+        if b > a:  # the quiet bad frames stepped over
+            stats = self.stats
+            stats.crc_errors += b - a
+            stats.resyncs += sum(win.quiet_resyncs[a:b])
+            stats.garbage_bytes += (b - a) * size
+        n = len(out)
         out["seq"] = np.arange(self._count, self._count + n, dtype=np.uint64)  # wraps to 32 bits as stored
         self._count += n
         if has_field:
@@ -449,19 +470,18 @@ class MavlinkDecoder(StreamDecoderBase):
         label = f"{name} {system}/{component} id {imu_id}"
         self.sources_seen[label] = self.sources_seen.get(label, 0) + n
         self.stats.frames += n
-        return out, n * size
+        return out, (j - i) * size
 
-    def _values(self, msg: np.ndarray, payload: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """Samples of IMU messages (``msg``, their ``payload`` bytes) but ``seq`` and ``t_us``, and which
-        carry a field."""
+    def _values(self, msg: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Samples of IMU messages ``msg`` but ``seq`` (and ``t_us`` of those dated by ``time_boot_ms``),
+        and which carry a field: ``SAMPLE_DTYPE`` when none does and the stream has carried none yet."""
         spec = _fast_spec(self._dialect, name)
         n = len(msg)
-        out = np.empty(n, dtype=MAG_SAMPLE_DTYPE)
+        raw = msg.view(np.uint8).reshape(n, spec.size)
         acc_scale: float | None
         gyro_scale: float | None
         if name == "HIGHRES_IMU":
             acc_scale = gyro_scale = None
-            out["temp"] = msg["temperature"]
             field = (msg["fields_updated"] & HIGHRES_MAG_UPDATED) == HIGHRES_MAG_UPDATED
             mag_scale = UT_PER_GAUSS
         else:
@@ -469,27 +489,37 @@ class MavlinkDecoder(StreamDecoderBase):
                 acc_scale, gyro_scale = self.raw_acc_scale, self.raw_gyro_scale
             else:
                 acc_scale, gyro_scale = MILLI_G, 1e-3
-            cdeg = msg["temperature"].astype(np.float64) if "temperature" in (spec.dtype.names or ()) \
-                else np.zeros(n)
-            out["temp"] = np.where(cdeg != 0, cdeg * 0.01, np.nan)
             field = (msg["xmag"] != 0) | (msg["ymag"] != 0) | (msg["zmag"] != 0)
             mag_scale = UT_PER_MILLIGAUSS
-        # xacc .. zmag are nine consecutive values of one type in every IMU message: one block.
-        # In double, then rounded to float32: as the per-frame path's Python floats.
-        block = payload[:, spec.block_at : spec.block_at + 9 * spec.block_type.itemsize]
-        with np.errstate(invalid="ignore"):  # a damaged slot's bytes may be a signalling NaN: never used
-            values = block.view(spec.block_type).astype(np.float64)
-        if acc_scale is not None and gyro_scale is not None:
-            values *= np.array([acc_scale] * 3 + [gyro_scale] * 3 + [mag_scale] * 3)
-        else:
-            values[:, 6:] *= mag_scale
+        any_field = bool(_ANY(field))
+        out = np.empty(n, dtype=MAG_SAMPLE_DTYPE if any_field or self._mag else SAMPLE_DTYPE)
+        block = raw[:, spec.block_at : spec.block_at + 9 * spec.block_type.itemsize]
+        if acc_scale is None:
+            # HIGHRES_IMU: time_usec and the six float32 axes are the sample's t_us, acc and gyro as they
+            # lie in memory (SAMPLE_DTYPE's bytes 4-36): one copy.
+            out.view(np.uint8).reshape(n, out.itemsize)[:, 4:36] = raw[:, :32]
+            out["temp"] = msg["temperature"]
+            if any_field:
+                with np.errstate(invalid="ignore"):  # a slot the run leaves out may hold a signalling NaN
+                    mag = block[:, 24:36].view(np.float32).astype(np.float64) * mag_scale  # as Python floats
+                out["mag"] = mag if _ALL(field) else np.where(field[:, None], mag, np.nan)
+            elif self._mag:
+                out["mag"] = np.nan
+            return out, field
+        if spec.has_time_usec:
+            out["t_us"] = msg["time_usec"]
+        cdeg = msg["temperature"].astype(np.float64) if "temperature" in (spec.dtype.names or ()) \
+            else np.zeros(n)
+        out["temp"] = np.where(cdeg != 0, cdeg * 0.01, np.nan)
+        # xacc .. zmag are nine consecutive values of one type: one block, in double then rounded to
+        # float32 (as the per-frame path's Python floats).
+        values = block.view(spec.block_type).astype(np.float64)
+        values *= np.array([acc_scale] * 3 + [gyro_scale] * 3 + [mag_scale] * 3)
         out["acc"] = values[:, 0:3]
         out["gyro"] = values[:, 3:6]
-        if field.all():
-            out["mag"] = values[:, 6:9]
-        elif field.any():
-            out["mag"] = np.where(field[:, None], values[:, 6:9], np.nan)
-        else:
+        if any_field:
+            out["mag"] = values[:, 6:9] if _ALL(field) else np.where(field[:, None], values[:, 6:9], np.nan)
+        elif self._mag:
             out["mag"] = np.nan
         return out, field
 
@@ -506,8 +536,7 @@ class MavlinkDecoder(StreamDecoderBase):
             return None
         spec = _fast_spec(self._dialect, name)
         plen = buf[pos + 1]
-        header = HEADER_V1 if v1 else HEADER_V2
-        size = header + plen + 2
+        size = (HEADER_V1 if v1 else HEADER_V2) + plen + 2
         count = min(avail // size, _FAST_WINDOW)
         if count < 1 or plen > spec.size:
             return None
@@ -517,33 +546,44 @@ class MavlinkDecoder(StreamDecoderBase):
             # SCALED_IMU2, SCALED_IMU3, ...): the per-frame path takes it for a third of what a window's
             # arrays cost.
             return None
-        cols = spec.cols_v1 if v1 else spec.cols_v2
-        expect = _HEADERS.get((v1, plen, system, component, spec.msg_id))
-        if expect is None:
-            make = spec.header_v1 if v1 else spec.header_v2
-            expect = _HEADERS[(v1, plen, system, component, spec.msg_id)] = make(plen, system, component)
-        rows = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
-        ok = _ALL(rows[:, cols] == expect, axis=1)
+        kind = (v1, plen, system, component, name)
+        lay = _LAYOUTS.get(kind)
+        if lay is None:
+            lay = _LAYOUTS[kind] = _FrameLayout(v1, plen, system, component, spec)
+        frames = np.frombuffer(buf, dtype=lay.dtype, count=count, offset=pos)
+        ok = (frames["h8"] & lay.mask8) == lay.expect8
+        if not v1:
+            ok &= frames["h2"] == lay.expect2
         n = count if _ALL(ok) else int(np.argmin(ok))
         if n < 1:
             return None
-        rows = rows[:n]
-        base, flat, offsets = _crc_tables(header, plen, spec.crc_extra)
-        crc = np.bitwise_xor.reduce(flat.take(rows[:, 1 : header + plen] + offsets), axis=1) ^ base
-        sent = rows[:, header + plen : header + plen + 2].view("<u2")[:, 0]
-        good = crc == sent
-        crc_bad = [] if _ALL(good) else np.flatnonzero(~good).tolist()
-        payload = np.zeros((n, spec.size), dtype=np.uint8)
-        payload[:, :plen] = rows[:, header : header + plen]
-        del rows  # the window keeps no view of the buffer
-        msg = payload.view(spec.dtype)[:, 0]
+        if n < count:
+            frames = frames[:n]
+        crc = np.bitwise_xor.reduce(lay.table.take(frames["crc_bytes"] + lay.offsets), axis=1) ^ lay.base
+        good = crc == frames["crc"]
+        if lay.trimmed:  # MAVLink 2 trims the payload's trailing zeros: put them back
+            msg = np.zeros(n, dtype=spec.dtype)
+            msg.view(np.uint8).reshape(n, spec.size)[:, :plen] = frames["payload"]
+        else:
+            msg = frames["payload"].copy()
+        del frames  # the window keeps no view of the buffer
+        crc_bad = [] if _ALL(good) else (~good).nonzero()[0].tolist()
         bad = crc_bad
         if spec.has_id:
             ours = msg["id"] == imu_id
             if not _ALL(ours):
                 good &= ours
                 bad = np.flatnonzero(~good).tolist()
-        return _FastWindow(pos, size, n, bad, crc_bad, spec, payload, msg)
+        quiet, resyncs = [], []
+        for slot in crc_bad:
+            found = _quiet_resyncs(buf, pos + slot * size, size) if slot + 1 < n else 0
+            if found:
+                quiet.append(slot)
+                resyncs.append(found)
+        if quiet:
+            stepped = set(quiet)
+            bad = [slot for slot in bad if slot not in stepped]
+        return _FastWindow(pos, size, n, bad, crc_bad, quiet, resyncs, msg)
 
     # -------------------------------------------------------------- IMU messages
 
@@ -656,15 +696,20 @@ def _unwrap_boot_ms(stream: MavlinkDecoder | _InstanceStream, ms: int) -> int | 
 
 class _FastWindow:
     """Frame slots of one length from ``base`` checked at once; ``bad`` lists the slots (below
-    ``checked``) that are not good frames of the source. Runs from any slot are then slices, so a
-    damaged frame costs the next run no second check. Copies of the payloads: no buffer view."""
+    ``checked``) that are not good frames of the source, and the per-frame path takes, ``crc_bad``
+    those whose CRC failed. ``quiet`` are bad slots a run steps over: a CRC failed, another slot after
+    it, and no start inside that the per-frame path would read as a frame (only MAVLink 2 starts with
+    unknown incompatibility flags: :func:`_quiet_resyncs`), so that path would count a CRC error, the
+    frame's bytes as garbage and ``quiet_resyncs`` resyncs, nothing else. Runs from any slot are then
+    slices, so a damaged frame costs the next run no second check. Copies of the payloads: no buffer
+    view."""
 
-    __slots__ = ("base", "size", "checked", "bad", "crc_bad", "spec", "payload", "msg", "out", "field")
+    __slots__ = ("base", "size", "checked", "bad", "crc_bad", "quiet", "quiet_resyncs", "msg", "out", "field")
 
     def __init__(self, base: int, size: int, checked: int, bad: list[int], crc_bad: list[int],
-                 spec: _FastSpec, payload: np.ndarray, msg: np.ndarray) -> None:
+                 quiet: list[int], quiet_resyncs: list[int], msg: np.ndarray) -> None:
         self.base, self.size, self.checked, self.bad, self.crc_bad = base, size, checked, bad, crc_bad
-        self.spec, self.payload, self.msg = spec, payload, msg
+        self.quiet, self.quiet_resyncs, self.msg = quiet, quiet_resyncs, msg
         # Samples of every slot (HIGHRES_IMU, RAW_IMU: no state but seq), made at the first run, and
         # which slots carry a field (None: none does); runs of a window are slices of these.
         self.out: np.ndarray | None = None
@@ -683,16 +728,31 @@ class _FastWindow:
         off = pos - self.base
         return off >= 0 and off % self.size == 0 and off // self.size < self.checked
 
+
+def _quiet_resyncs(buf: bytearray, pos: int, size: int) -> int:
+    """The resyncs the per-frame path counts for the bad frame of ``size`` bytes at ``pos`` (another frame
+    right after it) when every start inside it is a MAVLink 2 one with unknown incompatibility flags,
+    where that path reads no length (nor waits for more bytes): one for the frame and one a start.
+    0 when a start inside may be read as a frame: the per-frame path takes it."""
+    resyncs = 1
+    for m in _STX.finditer(buf, pos + 1, pos + size):
+        at = m.start()
+        if buf[at] != STX_V2 or not buf[at + 2] & ~IFLAG_SIGNED:
+            return 0
+        resyncs += 1
+    return resyncs
+
+
 _FAST_WINDOW = 512  # frames a fast run checks at once
 _ALL = np.logical_and.reduce  # ndarray.all without its Python wrapper: a few microseconds a read
+_ANY = np.logical_or.reduce
 _EMPTY_MAG = np.zeros(0, MAG_SAMPLE_DTYPE)
-_MAG_VOID = np.dtype((np.void, MAG_SAMPLE_DTYPE.itemsize))
 _STRUCT_TYPES = {"Q": "<u8", "q": "<i8", "I": "<u4", "i": "<i4", "H": "<u2", "h": "<i2", "B": "u1",
                  "b": "i1", "f": "<f4", "d": "<f8"}
 
 
 class _FastSpec:
-    """An IMU message for the fast path: its full payload as a record, CRC extra and header checks."""
+    """An IMU message for the fast path: its full payload as a record, its CRC extra."""
 
     def __init__(self, msgtype: Any) -> None:
         fmt = msgtype.unpacker.format
@@ -706,6 +766,7 @@ class _FastSpec:
         assert self.dtype.itemsize == self.size
         self.crc_extra = msgtype.crc_extra
         self.has_id = "id" in msgtype.fieldnames
+        self.has_time_usec = "time_usec" in msgtype.fieldnames
         first = names.index("xacc")
         if names[first : first + 9] != [a + q for q in ("acc", "gyro", "mag") for a in "xyz"]:
             raise ValueError(f"{msgtype.msgname}: no fast path, its axes are not one block")
@@ -713,23 +774,38 @@ class _FastSpec:
         self.block_at = int(fields["xacc"][1])
         self.block_type = self.dtype["xacc"]
         self.msg_id = msgtype.id
-        # Header bytes checked: v2 STX, length, incompat flags, sys, comp, id (3 bytes); v1 STX,
-        # length, sys, comp, id.
-        self.cols_v2 = np.array([0, 1, 2, 5, 6, 7, 8, 9])
-        self.cols_v1 = np.array([0, 1, 3, 4, 5])
 
-    def header_v2(self, plen: int, system: int, component: int) -> np.ndarray:
-        mid = self.msg_id
-        return np.array([STX_V2, plen, 0, system, component, mid & 0xFF, (mid >> 8) & 0xFF, mid >> 16],
-                        dtype=np.uint8)
 
-    def header_v1(self, plen: int, system: int, component: int) -> np.ndarray:
-        return np.array([STX_V1, plen, system, component, self.msg_id if self.msg_id < 256 else 0],
-                        dtype=np.uint8)
+class _FrameLayout:
+    """Frames of one kind (MAVLink 1 or 2, payload length, system, component, message) read as records:
+    ``h8`` (bytes 0-7) and, MAVLink 2, ``h2`` (8-9) the header words a frame of a run has (masked: all
+    but the sequence and compatibility flags), ``crc_bytes`` the bytes under the CRC, ``crc`` the CRC
+    sent, ``payload`` the message (its bytes when trimmed); the CRC as per-byte tables
+    (:func:`_crc_tables`)."""
+
+    def __init__(self, v1: bool, plen: int, system: int, component: int, spec: _FastSpec) -> None:
+        header = HEADER_V1 if v1 else HEADER_V2
+        mid = spec.msg_id
+        expect = {0: STX_V1, 1: plen, 3: system, 4: component, 5: mid & 0xFF} if v1 else \
+            {0: STX_V2, 1: plen, 2: 0, 5: system, 6: component, 7: mid & 0xFF}
+        self.mask8 = np.uint64(sum(0xFF << 8 * i for i in expect))
+        self.expect8 = np.uint64(sum(v << 8 * i for i, v in expect.items()))
+        self.expect2 = np.uint16(mid >> 8)  # MAVLink 2: the message id's upper bytes
+        self.trimmed = plen < spec.size
+        fields = {"h8": ("<u8", 0), "crc_bytes": (("u1", (header - 1 + plen,)), 1),
+                  "payload": (("u1", (plen,)) if self.trimmed else spec.dtype, header),
+                  "crc": ("<u2", header + plen)}
+        if not v1:
+            fields["h2"] = ("<u2", 8)
+        self.dtype = np.dtype({"names": list(fields), "formats": [f for f, _ in fields.values()],
+                               "offsets": [at for _, at in fields.values()], "itemsize": header + plen + 2})
+        self.base, self.table, offsets = _crc_tables(header, plen, spec.crc_extra)
+        # uint8 + uint16 stays 16 bits: a third of the intp sum's bytes
+        self.offsets = offsets.astype(np.uint16 if len(self.table) <= 1 << 16 else np.intp)
 
 
 _SPECS: dict[str, _FastSpec] = {}
-_HEADERS: dict[tuple[bool, int, int, int, int], np.ndarray] = {}  # header bytes a run's frames share
+_LAYOUTS: dict[tuple[bool, int, int, int, str], _FrameLayout] = {}  # by (v1, plen, system, component, name)
 
 
 def _fast_spec(dialect: Any, name: str) -> _FastSpec:

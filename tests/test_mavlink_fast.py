@@ -126,3 +126,48 @@ def test_trimmed_payloads_of_varying_length_decode_alike() -> None:
     s["temp"][::4] = np.nan
     for message in IMU_MESSAGES:
         assert_same(encode_samples(s, message), chunks=(11, 4096))
+
+
+class CountingDecoder(MavlinkDecoder):
+    """The decoder, counting the bad frames its runs stepped over (``_FastWindow.quiet``)."""
+
+    stepped = 0
+
+    def _check_window(self, pos: int):
+        win = super()._check_window(pos)
+        if win is not None:
+            CountingDecoder.stepped += len(win.quiet)
+        return win
+
+
+@pytest.mark.parametrize("mavlink1", [False, True])
+def test_frames_damaged_inside_decode_alike(mavlink1: bool) -> None:
+    """Frames whose CRC fails, with no start inside, with MAVLink 2 starts of unknown flags (stepped over
+    by a run) and with starts the per-frame path reads (a MAVLink 1 start, a MAVLink 2 one of known flags:
+    the run ends there), at every place in the payload and at the end of a read."""
+    data = bytearray(encode_samples(samples(1200, 13, False), "HIGHRES_IMU", mavlink1=mavlink1))
+    size = len(data) // 1200
+    rng = np.random.default_rng(14)
+    kinds = ("flip", "v2 unknown flags", "v2 known flags", "v1 start")
+    for k, frame in enumerate(range(3, 1195, 5)):
+        kind = kinds[k % 4]
+        at = frame * size + int(rng.integers(10, size - 3))  # in the payload: a damaged header ends a run
+        if kind == "flip":
+            data[at] ^= 0x5A
+        else:
+            data[at] = 0xFE if kind == "v1 start" else 0xFD
+            data[at + 2] = 0x04 if kind == "v2 unknown flags" else 0x00
+            data[at + 1] ^= 0x01  # the CRC fails whatever the bytes were
+    # A run steps over a bad frame when every start inside is MAVLink 2 with flags unknown (bits but the
+    # signing one), read independently here; a window's last frame is the exception (at most two here).
+    damaged = list(range(3, 1195, 5))
+    quiet = sum(all(data[q] == 0xFD and data[q + 2] & 0xFE for q in range(f * size + 1, (f + 1) * size)
+                    if data[q] in (0xFD, 0xFE)) for f in damaged)
+    assert quiet > len(damaged) // 4
+    for chunk in (64, 997, 4096, 65536):
+        CountingDecoder.stepped = 0
+        fast = decode(CountingDecoder, bytes(data), chunk)
+        slow = decode(PerFrameDecoder, bytes(data), chunk)
+        assert fast[1] == slow[1] and fast[2:] == slow[2:], chunk
+        assert fast[3]["crc_errors"] + fast[3]["truncated"] >= len(damaged)
+    assert quiet - 2 <= CountingDecoder.stepped <= quiet
