@@ -47,7 +47,7 @@ from typing import TypedDict
 import numpy as np
 
 from protocols._fixed_lines import FixedForm, fixed_form, read_fixed
-from protocols._text_table import form_mask, number_table
+from protocols._text_table import form_mask, number_table, simple_table
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE, Decoded, Message, StreamDecoderBase, has_mag
 from protocols.crc import crc16_ccitt_false
 from protocols.mag_batches import join_batches, rows_to_batch, with_mag
@@ -603,14 +603,13 @@ class AsciiDecoder(StreamDecoderBase):
                 good &= _ALL(np.abs(table) <= _MAX_COUNTS, axis=1)
         elif k == _CSV:
             delim = self.columns.delimiter
-            found = number_table(lines, delim.encode("ascii"), len(lay.lo)) \
-                if self._fast_forms and len(lines) >= _ARRAY_PARSE else None
+            found = _arrays_table(lines, delim.encode("ascii"), len(lay.lo), False) \
+                if self._fast_forms else None
             table, good = found or _table(lines, delim, len(lay.lo))
         else:
             head = len(_HEADS[k])
             bodies = [line[head:-3] if k >= _VNYMR else line[head:] for line in lines]
-            found = number_table(bodies, b",", len(lay.lo), integers=k == _RAW) \
-                if len(lines) >= _ARRAY_PARSE else None
+            found = _arrays_table(bodies, b",", len(lay.lo), k == _RAW)
             table, good = found or _table(bodies, ",", len(lay.lo))
             if k >= _VNYMR:
                 good &= _checksums_match(lines)
@@ -961,6 +960,17 @@ def _line_forms(delimiter: str, fields: int) -> re.Pattern[bytes]:
         r"\$VNIMU," + fields_of(_NUMBER, 11) + r"\*[0-9A-Fa-f]{2}",
     ]
     return re.compile("|".join(f"({form})" for form in forms).encode("ascii"))
+
+
+def _arrays_table(lines: list[bytes], delimiter: bytes, width: int,
+                  integers: bool) -> tuple[np.ndarray, np.ndarray] | None:
+    """The table of numbers of lines in arrays: :func:`simple_table` when every field is a simple number,
+    else :func:`number_table` for a batch large enough to pay its fixed cost; None: :func:`_table` reads
+    them."""
+    found = simple_table(lines, delimiter, width, integers)
+    if found is None and len(lines) >= _ARRAY_PARSE:
+        found = number_table(lines, delimiter, width, integers)
+    return found
 
 
 def _table(lines: list[bytes], delimiter: str, width: int) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,7 @@ import pytest
 
 from protocols import ascii_lines
 from protocols._fixed_lines import fixed_form, read_fixed
-from protocols._text_table import form_mask, number_table
+from protocols._text_table import form_mask, number_table, simple_table
 from protocols.crc import crc16_bytewise, crc16_ccitt_false
 from protocols.mavlink import _x25, _x25_bytewise
 
@@ -82,6 +82,74 @@ def test_number_table_refuses_lines_of_other_field_counts() -> None:
     assert table is not None and good is not None
     assert good.tolist() == [True, True, False]
     assert table[:2].tolist() == [[1.0, 2.0], [-3.5, 0.25]]
+
+
+SIMPLE_BYTES = b"0123456789" * 3 + b"-+."
+
+
+def _simple_field(rng: np.random.Generator) -> bytes:
+    """A number of at most 15 characters as devices write it."""
+    kind = int(rng.integers(0, 4))
+    value = float(rng.normal(0, 10 ** int(rng.integers(-4, 5))))
+    if kind == 0:
+        return f"{value:.7g}".encode() if "e" not in f"{value:.7g}" else b"-0.000"
+    if kind == 1:
+        return f"{value:+0{int(rng.integers(1, 9))}.{int(rng.integers(0, 6))}f}".encode()[:15]
+    if kind == 2:
+        return str(int(rng.integers(-(10**14), 10**14))).encode()
+    return rng.choice([b"-0", b"+0", b"0.", b".0", b"-.5", b"5.", b"007", b"-00.10", b"0"])
+
+
+def _near_simple_field(rng: np.random.Generator) -> bytes:
+    """Bytes of numbers that may not be one: a lone sign, a dot, two of them, a sign inside, nothing."""
+    if rng.random() < 0.3:
+        return _fuzzed_field(rng)
+    return bytes(rng.choice(np.frombuffer(SIMPLE_BYTES, np.uint8), int(rng.integers(0, 4))).tolist())
+
+
+@pytest.mark.parametrize("integers", [False, True])
+@pytest.mark.parametrize("seed", range(60))
+def test_simple_table_equals_float_or_refuses(seed: int, integers: bool) -> None:
+    """Where every field is simple, the table of float() (int()) bit for bit; else None, never a number
+    float() would not give (half the batches all simple, the others with a field that may not be)."""
+    rng = np.random.default_rng(seed)
+    width = int(rng.integers(1, 10))
+    lines = []
+    for _ in range(int(rng.integers(1, 60))):
+        fields = [_simple_field(rng) for _ in range(width)]
+        if integers:
+            fields = [f.split(b".")[0] or b"0" for f in fields]
+        lines.append(fields)
+    if seed % 2:
+        line = lines[int(rng.integers(0, len(lines)))]
+        line[int(rng.integers(0, width))] = _near_simple_field(rng)
+    text = [b",".join(fields) for fields in lines]
+    if seed % 10 == 3 and len(text) > 1:  # a field too many in one line and one too few in another
+        text[0] += b",1"
+        text[-1] = text[-1].rpartition(b",")[0]
+    got = simple_table(text, b",", width, integers)
+    want = _reference(text, width, integers)
+    simple = all(len(line.split(b",")) == width and all(
+        len(f) <= 15 and f.lstrip(b"+-").replace(b".", b"", 0 if integers else 1).isdigit()
+        and f[1:].lstrip(b"0123456789.") == b"" for f in line.split(b",")) for line in text)
+    if got is None:
+        assert not simple, "refused simple numbers"
+        return
+    assert simple and bool(want[1].all()) and bool(got[1].all())
+    assert got[0].tobytes() == want[0].tobytes()  # bit for bit: -0.0 included
+
+
+def test_simple_table_refuses_what_float_refuses() -> None:
+    for lines in ([b"1,-,2"], [b"1,+.,2"], [b"1,.,2"], [b"1,,2"], [b",1,2"], [b"1,2,"], [b"5-,1,2"], [b"1,2-3,4"],
+                  [b"1..2,3,4"], [b"1,2.3.4,5"], [b"1e5,2,3"], [b"1, 2,3"], [b"1234567890123456,1,2"],
+                  [b"1,2,3", b"4,5,6,7"], [b"1,2,3,4", b"5,6"], [b"-", b"1,2,3"]):
+        assert simple_table(lines, b",", 3) is None, lines
+    assert simple_table([b"1.5,2,3"], b",", 3, integers=True) is None
+    table, good = simple_table([b"-0.000,+0,-0", b"5.,.5,-.5", b"007,-00.10,123456789012345"], b",", 3) \
+        or (None, None)
+    assert table is not None and good is not None and good.all()
+    assert table.tolist() == [[-0.0, 0.0, -0.0], [5.0, 0.5, -0.5], [7.0, -0.1, 123456789012345.0]]
+    assert np.signbit(table[0]).tolist() == [True, False, True]
 
 
 def _damaged_lines(data: bytes, seed: int) -> list[bytes]:
