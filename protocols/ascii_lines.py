@@ -372,7 +372,7 @@ class AsciiDecoder(StreamDecoderBase):
             ok[rows_of] = got.good
         clean = first == _CSV and uniform and bool(_ALL(ok))
         if clean:
-            return [self._batch(0, n, kind, got, self._csv_dtype)], True
+            return [self._batch(0, n, first, got, self._csv_dtype)], True
         one = first if uniform else kind if rows_of is None else int(kind[rows_of[0]])
         if _ALL(ok):
             dtype = MAG_SAMPLE_DTYPE if self._field or first != _CSV or not uniform and _ANY(kind != _CSV) \
@@ -400,17 +400,22 @@ class AsciiDecoder(StreamDecoderBase):
             runs.append((self._count, b - a))
             self._count += b - a
             filled += b - a
-        sel = ok.nonzero()[0]
-        if not len(sel):  # no batch: the rows are the caller's, as they were
+        if not runs:  # no batch: the rows are the caller's, as they were
             return [], False
-        self._field = self._field or bool(_ANY(kind[sel] != _CSV))
+        parsed: slice | np.ndarray
+        if rows_of is None:
+            parsed = ok.nonzero()[0]
+            self._field = self._field or bool(_ANY(kind[parsed] != _CSV))
+        else:  # got holds the lines of one dialect: all of them samples, or those it found good
+            parsed = slice(None) if _ALL(got.good) else got.good.nonzero()[0]
+            self._field = self._field or one != _CSV
         dtype = MAG_SAMPLE_DTYPE if self._field else SAMPLE_DTYPE
         # The batch's samples together (slices on the output side: cheaper than fancy field writes), then
-        # the rows between them where any.
-        batch = np.empty(len(sel), dtype=dtype)
-        parsed = sel if rows_of is None else got.good.nonzero()[0]  # the rows of got of those lines
-        counts = np.concatenate([np.arange(c, c + m) for c, m in runs]) if len(runs) > 1 \
-            else np.arange(runs[0][0], runs[0][0] + runs[0][1])
+        # the rows between them where any. Without such rows, the runs' numbers follow each other.
+        size = sum(m for _, m in runs)
+        batch = np.empty(size, dtype=dtype)
+        counts = np.concatenate([np.arange(c, c + m) for c, m in runs]) if rows and len(runs) > 1 \
+            else np.arange(runs[0][0], runs[0][0] + size)
         self._fill(batch, slice(None), parsed, one, got, counts)
         if not rows:
             return [batch], False
@@ -614,15 +619,18 @@ class AsciiDecoder(StreamDecoderBase):
             if k >= _VNYMR:
                 good &= _checksums_match(lines)
             elif k == _RAW:
-                good &= _ALL(np.abs(table) <= _MAX_COUNTS, axis=1)
+                counted = np.abs(table) <= _MAX_COUNTS
+                if not _ALL(counted, axis=None):
+                    good &= _ALL(counted, axis=1)
         v = table
         for factor, divide in ((lay.m1, False), (lay.div, True), (lay.m2, False)):
             if factor is not None:
                 v = v / factor if divide else v * factor
         inside = (v >= lay.lo) & (v <= lay.hi)
-        if lay.nan_ok is not None:
-            inside |= np.isnan(v) & lay.nan_ok
-        good &= _ALL(inside, axis=1)
+        if not _ALL(inside, axis=None):  # lines out of bounds, or a NaN (outside both bounds) where it may be
+            if lay.nan_ok is not None:
+                inside |= np.isnan(v) & lay.nan_ok
+            good &= _ALL(inside, axis=1)
         n = len(good)
         seq = None
         if lay.seq is not None:
