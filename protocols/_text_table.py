@@ -121,12 +121,13 @@ _ANY = np.logical_or.reduce
 _MAX = np.maximum.reduce
 
 
-def simple_table(lines: list[bytes], delimiter: bytes, width: int,
+def simple_table(text: bytes, n: int, delimiter: bytes, width: int,
                  integers: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
-    """The numbers of ``lines`` (``width`` fields split by ``delimiter``, a byte of no number and no
-    blank) as an (n, width) table in double, every line parsed, when every field is a simple number:
-    ``[+-]`` then digits with at most one dot (none where ``integers``), at least one digit, at most 15
-    characters; else None (then :func:`number_table`, or the lines one by one, read them).
+    """The numbers of the ``n`` lines of ``text`` (joined by ``\\n``, ``width`` fields each split by
+    ``delimiter``, a byte of no number and no blank) as an (n, width) table in double, every line
+    parsed, when every field is a simple number: ``[+-]`` then digits with at most one dot (none where
+    ``integers``), at least one digit, at most 15 characters; else None (then :func:`number_table`, or
+    the lines one by one, read them).
 
     Each number is the double ``float()`` (``int()`` where ``integers``) gives for its field: the field
     without its dot is an integer below 10**15, exact in double, and so is the power of ten it is
@@ -134,24 +135,24 @@ def simple_table(lines: list[bytes], delimiter: bytes, width: int,
     numpy's ``fromstring`` reads the integers; what it would read where ``int()`` refuses (a lone sign,
     as 0) is refused before, what it refuses (an empty field, a sign inside one) it raises on.
     """
-    n = len(lines)
-    text = delimiter.join(lines)  # one field after another
-    if not n or delimiter in b" \t" or text.translate(None, _SIMPLE_BYTES + delimiter):
+    if not n or delimiter in b" \t" or text.translate(None, _SIMPLE_BYTES + delimiter + b"\n"):
         return None
     plain = text.replace(b".", b"")
     if integers and len(plain) != len(text):
         return None
     try:
-        ints = np.fromstring(plain, dtype=np.int64, sep=delimiter.decode("ascii"))
+        ints = np.fromstring(plain.replace(b"\n", delimiter), dtype=np.int64, sep=delimiter.decode("ascii"))
     except ValueError:  # an empty field, a sign inside one
         return None
     raw = np.frombuffer(text, dtype=np.uint8)
-    seps = (raw == delimiter[0]).nonzero()[0]
+    seps = ((raw == delimiter[0]) | (raw == 10)).nonzero()[0]
     if len(ints) != n * width or len(seps) != n * width - 1:
         return None
     ends = np.empty(len(seps) + 1, dtype=np.intp)  # each field's end
     ends[:-1] = seps
     ends[-1] = len(raw)
+    if n > 1 and not _ALL(raw[ends[width - 1 : -1 : width]] == 10):
+        return None  # a line of a field too many, another of one too few
     if ends[0] > _SIMPLE_CHARS or (n * width > 1 and _MAX(ends[1:] - ends[:-1]) > _SIMPLE_CHARS + 1):
         return None
     # A field ends with a digit, or a dot after one: else it is a lone sign ("-", "-."), read as 0.
@@ -159,10 +160,6 @@ def simple_table(lines: list[bytes], delimiter: bytes, width: int,
     if not _ALL(last < 10):
         dotted = (last == 254).nonzero()[0]  # '.' - 48
         if len(dotted) != int(np.count_nonzero(last >= 10)) or not _ALL(raw[ends[dotted] - 2] - 48 < 10):
-            return None
-    if n > 1:  # each line its own width fields: the joints between lines are the ends of every width-th
-        joints = np.cumsum(np.fromiter(map(len, lines[:-1]), dtype=np.intp, count=n - 1) + 1) - 1
-        if not _ALL(ends[width - 1 : -1 : width] == joints):
             return None
     dots = (raw == 46).nonzero()[0]  # '.'
     if len(dots):

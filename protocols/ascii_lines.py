@@ -608,13 +608,18 @@ class AsciiDecoder(StreamDecoderBase):
                 good &= _ALL(np.abs(table) <= _MAX_COUNTS, axis=1)
         elif k == _CSV:
             delim = self.columns.delimiter
-            found = _arrays_table(lines, delim.encode("ascii"), len(lay.lo), False) \
+            found = _arrays_table(b"\n".join(lines), lines, delim.encode("ascii"), len(lay.lo), False) \
                 if self._fast_forms else None
             table, good = found or _table(lines, delim, len(lay.lo))
         else:
-            head = len(_HEADS[k])
-            bodies = [line[head:-3] if k >= _VNYMR else line[head:] for line in lines]
-            found = _arrays_table(bodies, b",", len(lay.lo), k == _RAW)
+            head = _HEADS[k]
+            if k >= _VNYMR:
+                bodies = [line[len(head):-3] for line in lines]
+                text = b"\n".join(bodies)
+            else:  # every line starts with its head, and holds no other (a colon is no number's)
+                text = b"\n".join(lines).replace(head, b"")
+                bodies = text.split(b"\n")
+            found = _arrays_table(text, bodies, b",", len(lay.lo), k == _RAW)
             table, good = found or _table(bodies, ",", len(lay.lo))
             if k >= _VNYMR:
                 good &= _checksums_match(lines)
@@ -970,12 +975,12 @@ def _line_forms(delimiter: str, fields: int) -> re.Pattern[bytes]:
     return re.compile("|".join(f"({form})" for form in forms).encode("ascii"))
 
 
-def _arrays_table(lines: list[bytes], delimiter: bytes, width: int,
+def _arrays_table(text: bytes, lines: list[bytes], delimiter: bytes, width: int,
                   integers: bool) -> tuple[np.ndarray, np.ndarray] | None:
-    """The table of numbers of lines in arrays: :func:`simple_table` when every field is a simple number,
-    else :func:`number_table` for a batch large enough to pay its fixed cost; None: :func:`_table` reads
-    them."""
-    found = simple_table(lines, delimiter, width, integers)
+    """The table of numbers of ``lines`` (``text``: joined by newlines) in arrays: :func:`simple_table`
+    when every field is a simple number, else :func:`number_table` for a batch large enough to pay its
+    fixed cost; None: :func:`_table` reads them."""
+    found = simple_table(text, len(lines), delimiter, width, integers)
     if found is None and len(lines) >= _ARRAY_PARSE:
         found = number_table(lines, delimiter, width, integers)
     return found

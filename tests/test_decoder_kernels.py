@@ -127,7 +127,7 @@ def test_simple_table_equals_float_or_refuses(seed: int, integers: bool) -> None
     if seed % 10 == 3 and len(text) > 1:  # a field too many in one line and one too few in another
         text[0] += b",1"
         text[-1] = text[-1].rpartition(b",")[0]
-    got = simple_table(text, b",", width, integers)
+    got = simple_table(b"\n".join(text), len(text), b",", width, integers)
     want = _reference(text, width, integers)
     simple = all(len(line.split(b",")) == width and all(
         len(f) <= 15 and f.lstrip(b"+-").replace(b".", b"", 0 if integers else 1).isdigit()
@@ -143,9 +143,9 @@ def test_simple_table_refuses_what_float_refuses() -> None:
     for lines in ([b"1,-,2"], [b"1,+.,2"], [b"1,.,2"], [b"1,,2"], [b",1,2"], [b"1,2,"], [b"5-,1,2"], [b"1,2-3,4"],
                   [b"1..2,3,4"], [b"1,2.3.4,5"], [b"1e5,2,3"], [b"1, 2,3"], [b"1234567890123456,1,2"],
                   [b"1,2,3", b"4,5,6,7"], [b"1,2,3,4", b"5,6"], [b"-", b"1,2,3"]):
-        assert simple_table(lines, b",", 3) is None, lines
-    assert simple_table([b"1.5,2,3"], b",", 3, integers=True) is None
-    table, good = simple_table([b"-0.000,+0,-0", b"5.,.5,-.5", b"007,-00.10,123456789012345"], b",", 3) \
+        assert simple_table(b"\n".join(lines), len(lines), b",", 3) is None, lines
+    assert simple_table(b"1.5,2,3", 1, b",", 3, integers=True) is None
+    table, good = simple_table(b"-0.000,+0,-0\n5.,.5,-.5\n007,-00.10,123456789012345", 3, b",", 3) \
         or (None, None)
     assert table is not None and good is not None and good.all()
     assert table.tolist() == [[-0.0, 0.0, -0.0], [5.0, 0.5, -0.5], [7.0, -0.1, 123456789012345.0]]
