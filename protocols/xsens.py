@@ -46,6 +46,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -382,6 +383,7 @@ class _Layout:
     time_at: int
     values: dict[int, tuple[int, int]]  # item kind -> (frame offset of its data, precision)
     names: tuple[str, ...]  # item names, for items_seen
+    record: np.dtype  # a frame as a record: "counter", "time" and each value item's data as "v<kind>"
 
 
 def _make_layout(payload: bytes, items: list[tuple[int, int]]) -> _Layout | None:
@@ -412,22 +414,30 @@ def _make_layout(payload: bytes, items: list[tuple[int, int]]) -> _Layout | None
         at += 3 + size
     header = bytes([PREAMBLE, BUS_ID, MID_MTDATA2, len(payload)]) + payload
     index = np.array(fixed_at)
+    # Big-endian values as the frame holds them; FP16.32 (6 bytes a value) as bytes, read by _fp1632.
+    fields: dict[str, tuple[Any, int]] = {"counter": (">u2", counter_at), "time": (">u4", time_at)}
+    for kind, (offset, precision) in values.items():
+        count = _VALUE_COUNTS.get(kind, 1)
+        form = ("u1", (count, 6)) if precision == FP1632 else (_PRECISION_TYPES[precision], (count,))
+        fields[f"v{kind}"] = (form, offset)
+    record = np.dtype({"names": list(fields), "formats": [f for f, _ in fields.values()],
+                       "offsets": [at for _, at in fields.values()], "itemsize": len(header) + 1})
     return _Layout(source, index, np.frombuffer(header, np.uint8)[index].copy(), counter_at, time_at, values,
-                   tuple(item_name(data_id) for data_id, _ in items))
+                   tuple(item_name(data_id) for data_id, _ in items), record)
 
 
-def _column_values(frames: np.ndarray, at: int, precision: int, count: int) -> np.ndarray:
-    """``(frames, count)`` float64 values of one item of every frame, as ``_decode_values`` reads them."""
-    data = np.ascontiguousarray(frames[:, at : at + count * PRECISION_SIZE[precision]])
-    if precision == FLOAT32:
-        return data.view(">f4").astype(np.float64)
-    if precision == FLOAT64:
-        return data.view(">f8").astype(np.float64)
+_PRECISION_TYPES = {FLOAT32: ">f4", FP1220: ">i4", FLOAT64: ">f8"}
+
+
+def _item_values(data: np.ndarray, precision: int) -> np.ndarray:
+    """``(frames, count)`` float64 values of one item of every frame (its record field), as
+    ``_decode_values`` reads them."""
     if precision == FP1220:
-        return data.view(">i4") / 1048576.0
-    words = data.reshape(len(data), count, 6)
-    fraction = np.ascontiguousarray(words[:, :, :4]).view(">u4")[:, :, 0].astype(np.int64)
-    integer = np.ascontiguousarray(words[:, :, 4:]).view(">i2")[:, :, 0].astype(np.int64)
+        return data / 1048576.0
+    if precision != FP1632:
+        return data.astype(np.float64)
+    fraction = np.ascontiguousarray(data[:, :, :4]).view(">u4")[:, :, 0].astype(np.int64)
+    integer = np.ascontiguousarray(data[:, :, 4:]).view(">i2")[:, :, 0].astype(np.int64)
     return (integer * 4294967296 + fraction) / 4294967296.0
 
 
@@ -464,6 +474,8 @@ class XsensDecoder(StreamDecoderBase):
         self._temp = math.nan
         self._pending: list[tuple[int, int, MTData2Packet]] = []  # delta packets waiting for an interval
         self._layouts: dict[tuple, _Layout | None] = {}  # packet layouts of the vectorised path
+        self._last_layout: _Layout | None = None  # the layout of the last run, and its first item's header
+        self._last_head = b""
         # (position, frame size, good, framed) of the frames the vectorised path checked in this feed
         self._run_checked: tuple[int, int, np.ndarray, np.ndarray] | None = None
 
@@ -592,9 +604,12 @@ class XsensDecoder(StreamDecoderBase):
         count = min(avail // size, _RUN_WINDOW)
         if count < _RUN_MIN:
             return None
-        layout = self._layout(bytes(buf[pos + 4 : pos + size - 1]))
-        if layout is None or layout.source != (self.source or layout.source):
-            return None
+        layout = self._last_layout  # a unit sends one layout: checked below with every frame's header
+        if layout is None or layout.record.itemsize != size or buf[pos + 4 : pos + 7] != self._last_head:
+            layout = self._layout(bytes(buf[pos + 4 : pos + size - 1]))
+            if layout is None or layout.source != (self.source or layout.source):
+                return None
+            self._last_layout, self._last_head = layout, bytes(buf[pos + 4 : pos + 7])
         frames = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
         checked = self._run_checked
         if checked is not None and checked[0] <= pos and (pos - checked[0]) % size == 0 \
@@ -619,19 +634,19 @@ class XsensDecoder(StreamDecoderBase):
         if n < _RUN_MIN:
             return None
         end = pos + n * size
-        frames = frames[:n] if good[:n].all() else frames[:n][good[:n]]
-        damaged, n = n - len(frames), len(frames)
-        values = {kind: _column_values(frames, at, precision, _VALUE_COUNTS.get(kind, 1))
-                  for kind, (at, precision) in layout.values.items()}
-        at = layout.counter_at
-        raw = (frames[:, at].astype(np.int64) << 8) | frames[:, at + 1]
+        records = np.frombuffer(buf, dtype=layout.record, count=n, offset=pos)
+        if not good[:n].all():
+            records = records[good[:n]]
+        damaged, n = n - len(records), len(records)
+        values = {kind: _item_values(records[f"v{kind}"], precision)
+                  for kind, (_, precision) in layout.values.items()}
+        raw = records["counter"].astype(np.int64)
         steps = np.empty(n, dtype=np.int64)
         steps[0] = 0 if self._counter is None else (int(raw[0]) - self._counter) & 0xFFFF
         np.subtract(raw[1:], raw[:-1], out=steps[1:])
         steps[1:] &= 0xFFFF
         counter = (int(raw[0]) if self._counter is None else self._counter) + np.cumsum(steps)
-        at = layout.time_at
-        raw = frames[:, at : at + 4].copy().view(">u4").ravel().astype(np.int64)
+        raw = records["time"].astype(np.int64)
         steps[0] = 0 if self._fine is None else ((int(raw[0]) - self._fine + 2**31) & 0xFFFFFFFF) - 2**31
         np.subtract(raw[1:], raw[:-1], out=steps[1:])
         steps[1:] += 2**31
