@@ -23,3 +23,17 @@ def feed_ragged(decoder: StreamDecoderBase, data: bytes, seed: int,
     samples.append(out.samples)
     messages += out.messages
     return join_batches(samples), messages  # a nine-axis stream's batches before its first field are six-axis
+
+
+def feed_in_chunks(decoder: StreamDecoderBase, data: bytes,
+                   chunk: int) -> tuple[list[np.ndarray], list[Message]]:
+    """Feed ``data`` in chunks of ``chunk`` bytes, then flush: every batch (in order) and the messages."""
+    batches, messages = [], []
+    for pos in range(0, len(data), chunk):
+        out = decoder.feed(data[pos : pos + chunk])
+        batches.append(out.samples)
+        messages += out.messages
+    out = decoder.flush()
+    batches.append(out.samples)
+    messages += out.messages
+    return batches, messages

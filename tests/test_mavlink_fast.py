@@ -13,6 +13,8 @@ import pytest
 
 pytest.importorskip("pymavlink", reason="pymavlink is not installed (pip install 'imu-station[mavlink]')")
 
+from decode_helpers import feed_in_chunks  # noqa: E402
+
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE  # noqa: E402
 from protocols.mag_batches import join_batches  # noqa: E402
 from protocols.mavlink import _EMPTY_MAG, IMU_MESSAGES, MavlinkDecoder, encode_samples  # noqa: E402
@@ -44,14 +46,7 @@ def samples(n: int, seed: int, mag: bool, t0_us: int = 1_000_000) -> np.ndarray:
 
 def decode(cls: type[MavlinkDecoder], data: bytes, chunk: int, source: str | None = None):
     dec = cls(source=source)
-    batches, messages = [], []
-    for pos in range(0, len(data), chunk):
-        out = dec.feed(data[pos : pos + chunk])
-        batches.append(out.samples)
-        messages += out.messages
-    out = dec.flush()
-    batches.append(out.samples)
-    messages += out.messages
+    batches, messages = feed_in_chunks(dec, data, chunk)
     for b in batches:  # every batch of a stream has one dtype from its first field on
         assert b.dtype in (SAMPLE_DTYPE, MAG_SAMPLE_DTYPE)
     joined = join_batches(batches)

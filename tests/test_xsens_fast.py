@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from decode_helpers import feed_in_chunks
 
 from protocols.base import MAG_SAMPLE_DTYPE, SAMPLE_DTYPE
 from protocols.mag_batches import join_batches
@@ -40,14 +41,7 @@ def samples(n: int, seed: int, mag: bool) -> np.ndarray:
 
 def decode(cls: type[XsensDecoder], data: bytes, chunk: int):
     dec = cls()
-    batches, messages = [], []
-    for pos in range(0, len(data), chunk):
-        out = dec.feed(data[pos : pos + chunk])
-        batches.append(out.samples)
-        messages += out.messages
-    out = dec.flush()
-    batches.append(out.samples)
-    messages += out.messages
+    batches, messages = feed_in_chunks(dec, data, chunk)
     joined = join_batches(batches)
     return (joined.dtype, joined.tobytes(), messages, dec.stats.as_dict(), dict(dec.items_seen),
             dict(dec.message_ids_seen))
