@@ -12,10 +12,20 @@ cut short (no line end, not a whole row: a power loss during a capture), which i
 Memory stays bounded whatever the file holds: a line longer than ``MAX_LINE_CHARS`` is refused
 (naming its line) without being read whole, and a chunk ends once its lines hold ``CHUNK_CHARS``
 characters, so a chunk of long lines is not ``CHUNK_ROWS`` of them.
+
+A long file's rows are parsed by a compiled loop (:mod:`station.acquisition._csv_kernel`, 0.3 s
+against ``np.loadtxt``'s 1.6 s for a million rows); a chunk it does not read whole, and every chunk
+after it, is read by ``np.loadtxt`` from its first line, so that what is refused or warned of is
+said the same way, at the same line, whichever parse met it.
+
+Why this module is long: the reader and the writers keep one spec's columns and rules; the reader's
+two parses must end their chunks at the same rows and put the values through the same checks
+(:class:`_Rows`), which apart would have to be stated twice and kept in step by hand.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import gzip
 import io
@@ -23,7 +33,7 @@ import itertools
 import math
 import os
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -49,6 +59,17 @@ at most ``_BATCH * MAX_LINE_CHARS`` more)."""
 _BATCH = 64
 """Lines read between checks of their length: an endless line costs at most ``_BATCH`` pieces of
 ``MAX_LINE_CHARS`` (4 Mi characters) before it is refused."""
+FAST_BYTES = 24 * 1024 * 1024
+"""Files of this many bytes or more have their rows parsed by the compiled loop of
+:mod:`station.acquisition._csv_kernel` (five times ``np.loadtxt``'s speed). Below, loading numba where
+a command has not (about 0.3 s) and compiling the loop on a fresh install cost more than it saves."""
+_BLOCK = 1 << 20
+"""Bytes the compiled parse reads at a time (memory stays within a few of them, as the text reader's)."""
+_PROBE_ROWS = 64
+"""Rows :func:`reads_compiled` has the compiled loop read."""
+_FIRST_ROOM = 1 << 14
+"""Rows the compiled parse makes room for first, doubled as a chunk needs (a chunk of long lines holds
+far fewer than ``CHUNK_ROWS``)."""
 
 
 def _open_text(path: Path) -> IO[str]:
@@ -132,88 +153,218 @@ def iter_csv_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS,
     Checks every rule of the spec across chunk borders (t strictly increasing included). With
     ``from_byte`` (the offset of a line's start in an uncompressed file), the rows from there on, read
     with the file's header: a part of the file for another process (line numbers in its messages then
-    count from that offset, as if the header stood just before it).
+    count from that offset, as if the header stood just before it). A file of ``FAST_BYTES`` or more
+    without step labels has its rows parsed by a compiled loop (the same chunks and values; any chunk
+    it does not read whole is read by ``np.loadtxt`` from its first line, with every message).
     """
     path = Path(path)
-    try:
-        fh = _open_text(path)
-    except FileNotFoundError:
-        raise InputFileError(path, "does not exist; give a capture CSV or capture file") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be opened: {exc.strerror}") from None
-    with fh:
+    with _open_reader(path) as fh:
         # every line is read with readline(limit): a line without an end in reach is refused, never read whole
         readline = functools.partial(fh.readline, MAX_LINE_CHARS + 1)
-        header_line, line_no, device = _read_metadata(path, readline)
+        rows, data_at, fields, step_idx = _header(path, readline)
         if from_byte is not None:
             fh.seek(from_byte)  # a line's start: the UTF-8 decoder holds no state there
-        header = [h.strip() for h in header_line.rstrip("\r\n").split(",")]
-        if not header_line.strip():
-            raise InputFileError(path, "is empty; expected a header row: " + ",".join(HEADER), line=line_no)
-        for name in REQUIRED:
-            if name not in header:
-                raise InputFileError(path, f"header lacks the required column; it has {header}", line=line_no,
-                                     column=name)
-        mag_present = [n for n in MAG_COLUMNS if n in header]
-        if mag_present and len(mag_present) < len(MAG_COLUMNS):
-            missing = [n for n in MAG_COLUMNS if n not in header]
-            raise InputFileError(path, f"header has {', '.join(mag_present)} but not {', '.join(missing)}: "
-                                 f"the magnetometer needs all three columns (microtesla) or none",
-                                 line=line_no, column=missing[0])
-        numeric = {n: header.index(n) for n in REQUIRED + OPTIONAL_NUMERIC + MAG_COLUMNS if n in header}
-        step_idx = header.index("step") if "step" in header else None
-        names = list(numeric)
-        usecols = [numeric[n] for n in names]
-        last_t = -math.inf
+            data_at = from_byte
+        if step_idx is None and _compiled(path):
+            resume = yield from _compiled_chunks(rows, data_at, fields, chunk_rows)
+            if resume is None:
+                return
+            fh.seek(resume)  # the start of the chunk it did not read whole: a line's start
+        numeric = rows.columns
+        usecols = list(numeric.values())
         while True:
             try:
-                lines, at_end = _read_chunk(path, readline, chunk_rows, line_no + 1)
+                lines, at_end = _read_chunk(path, readline, chunk_rows, rows.line_no + 1)
             except UnicodeDecodeError as exc:
-                raise InputFileError(path, f"is not UTF-8 text ({exc.reason})", line=line_no + 1) from None
+                raise InputFileError(path, f"is not UTF-8 text ({exc.reason})",
+                                     line=rows.line_no + 1) from None
             if at_end:
                 # The end of the file: blank lines there are harmless; inside the file they are refused.
                 while lines and not lines[-1].strip():
                     lines.pop()
-                _drop_cut_line(path, lines, line_no + 1, numeric)
+                _drop_cut_line(path, lines, rows.line_no + 1, numeric)
             if not lines:
                 return
-            first = line_no + 1
-            line_no += len(lines)
             try:
                 values = np.loadtxt(lines, delimiter=",", usecols=usecols, ndmin=2, dtype=float)
                 if values.shape[0] != len(lines):
                     raise ValueError
             except (ValueError, IndexError):
-                raise _locate_bad_value(path, lines, first, numeric) from None
-            cols = {n: values[:, i] for i, n in enumerate(names)}
-            for n in REQUIRED:
-                bad = np.flatnonzero(~np.isfinite(cols[n]))
-                if len(bad):
-                    raise InputFileError(path, "value is not a finite number", line=first + int(bad[0]),
-                                         column=n)
-            t = cols["t"]
-            steps = np.diff(np.concatenate([[last_t], t]))
-            bad = np.flatnonzero(steps <= 0)
-            if len(bad):
-                i = int(bad[0])
-                raise InputFileError(path, f"t = {float(t[i])!r} does not increase (previous row has "
-                                     f"{float(t[i - 1]) if i else last_t!r}); rows must be in time order",
-                                     line=first + i, column="t")
-            last_t = float(t[-1])
+                raise _locate_bad_value(path, lines, rows.line_no + 1, numeric) from None
             step = None
             if step_idx is not None:
                 step = np.array([_cell(ln, step_idx) for ln in lines], dtype=object)
-            yield Capture(
-                t=t,
-                acc=np.column_stack([cols["ax"], cols["ay"], cols["az"]]),
-                gyro=np.column_stack([cols["gx"], cols["gy"], cols["gz"]]),
-                temp=cols.get("temp"),
-                dtemp=cols.get("dtemp"),
-                step=step,
-                source=str(path),
-                mag=np.column_stack([cols[n] for n in MAG_COLUMNS]) if mag_present else None,
-                device=dict(device),
-            )
+            yield rows.capture(values, step)
+
+
+def _open_reader(path: Path) -> IO[str]:
+    try:
+        return _open_text(path)
+    except FileNotFoundError:
+        raise InputFileError(path, "does not exist; give a capture CSV or capture file") from None
+    except OSError as exc:
+        raise InputFileError(path, f"cannot be opened: {exc.strerror}") from None
+
+
+def _header(path: Path, readline: Callable[[], str]) -> tuple[_Rows, int, int, int | None]:
+    """The metadata and header lines read and checked: the checks of the rows to come, the byte where
+    they start, the header's field count and the step labels' field (None without)."""
+    head_bytes = 0
+
+    def counted() -> str:
+        nonlocal head_bytes
+        line = readline()
+        head_bytes += len(line.encode("utf-8"))  # the decoder is strict and newline="": the file's bytes
+        return line
+
+    header_line, line_no, device = _read_metadata(path, counted)
+    header = [h.strip() for h in header_line.rstrip("\r\n").split(",")]
+    if not header_line.strip():
+        raise InputFileError(path, "is empty; expected a header row: " + ",".join(HEADER), line=line_no)
+    for name in REQUIRED:
+        if name not in header:
+            raise InputFileError(path, f"header lacks the required column; it has {header}", line=line_no,
+                                 column=name)
+    mag_present = [n for n in MAG_COLUMNS if n in header]
+    if mag_present and len(mag_present) < len(MAG_COLUMNS):
+        missing = [n for n in MAG_COLUMNS if n not in header]
+        raise InputFileError(path, f"header has {', '.join(mag_present)} but not {', '.join(missing)}: "
+                             f"the magnetometer needs all three columns (microtesla) or none",
+                             line=line_no, column=missing[0])
+    numeric = {n: header.index(n) for n in REQUIRED + OPTIONAL_NUMERIC + MAG_COLUMNS if n in header}
+    step_idx = header.index("step") if "step" in header else None
+    return _Rows(path, numeric, bool(mag_present), device, line_no), head_bytes, len(header), step_idx
+
+
+def reads_compiled(path: str | Path) -> bool:
+    """Whether :func:`iter_csv_chunks` parses the rows of ``path`` by the compiled loop: a file of
+    ``FAST_BYTES`` or more, without step labels, whose first rows the loop reads (a later row it does
+    not read sends the rest of its chunk and of the file to ``np.loadtxt``). False for a file the
+    reader refuses: it says why when asked for the rows.
+
+    Parameters
+    ----------
+    path : str or Path
+        A capture CSV.
+
+    Returns
+    -------
+    bool
+    """
+    path = Path(path)
+    if not _compiled(path):
+        return False
+    try:
+        with _open_reader(path) as fh:
+            readline = functools.partial(fh.readline, MAX_LINE_CHARS + 1)
+            rows, data_at, fields, step_idx = _header(path, readline)
+        if step_idx is not None:
+            return False
+        with contextlib.closing(_compiled_chunks(rows, data_at, fields, _PROBE_ROWS)) as first:
+            next(first)
+    except StopIteration as end:
+        return end.value is None  # the whole file in less than a chunk
+    except (InputFileError, UnicodeDecodeError):
+        return False
+    return True
+
+
+def _compiled(path: Path) -> bool:
+    try:
+        return path.stat().st_size >= FAST_BYTES
+    except OSError:
+        return False  # the text reader says what is wrong with the file
+
+
+class _Rows:
+    """The checks every chunk's values go through, whoever parsed them, and where the file has got to."""
+
+    def __init__(self, path: Path, numeric: dict[str, int], mag: bool, device: dict[str, Any], line_no: int):
+        self.path = path
+        self.columns = numeric  # name: its field in a line
+        self.names = list(numeric)
+        self.mag = mag
+        self.device = device
+        self.line_no = line_no  # the last line read
+        self.last_t = -math.inf
+
+    def capture(self, values: np.ndarray, step: np.ndarray | None) -> Capture:
+        """The chunk of the lines after ``line_no`` (``values``: a row a line, columns as ``names``),
+        checked: required values finite, t increasing from the chunk before."""
+        path, first = self.path, self.line_no + 1
+        cols = {n: values[:, i] for i, n in enumerate(self.names)}
+        for n in REQUIRED:
+            bad = np.flatnonzero(~np.isfinite(cols[n]))
+            if len(bad):
+                raise InputFileError(path, "value is not a finite number", line=first + int(bad[0]), column=n)
+        t = cols["t"]
+        steps = np.diff(np.concatenate([[self.last_t], t]))
+        bad = np.flatnonzero(steps <= 0)
+        if len(bad):
+            i = int(bad[0])
+            raise InputFileError(path, f"t = {float(t[i])!r} does not increase (previous row has "
+                                 f"{float(t[i - 1]) if i else self.last_t!r}); rows must be in time order",
+                                 line=first + i, column="t")
+        self.last_t = float(t[-1])
+        self.line_no += len(values)
+        return Capture(
+            t=t,
+            acc=np.column_stack([cols["ax"], cols["ay"], cols["az"]]),
+            gyro=np.column_stack([cols["gx"], cols["gy"], cols["gz"]]),
+            temp=cols.get("temp"),
+            dtemp=cols.get("dtemp"),
+            step=step,
+            source=str(path),
+            mag=np.column_stack([cols[n] for n in MAG_COLUMNS]) if self.mag else None,
+            device=dict(self.device),
+        )
+
+
+def _compiled_chunks(rows: _Rows, at: int, fields: int,
+                     chunk_rows: int) -> Generator[Capture, None, int | None]:
+    """The chunks from byte ``at`` (a line's start) parsed by :func:`_csv_kernel.parse_rows`, ending where
+    the text reader's chunks end; returns None at the file's end, or the byte where the chunk the loop
+    did not read whole starts (a line it leaves to ``np.loadtxt``, or a last line without its end)."""
+    from station.acquisition import _csv_kernel as kernel
+
+    slots = np.full(fields, -1, dtype=np.int64)  # each field's column of the chunk's values; -1 ignored
+    for i, name in enumerate(rows.names):
+        slots[rows.columns[name]] = i
+    opener = gzip.open if rows.path.suffix == ".gz" else open
+    with opener(rows.path, "rb") as raw:
+        raw.seek(at)
+        buf = np.empty(0, dtype=np.uint8)
+        pos = 0
+        base = at  # the file's byte at buf[0]
+        ended = False
+        while True:
+            start = base + pos
+            out = np.empty((min(chunk_rows, _FIRST_ROOM), len(rows.names)))
+            row = chars = 0
+            while True:
+                row, pos, chars, why = kernel.parse_rows(buf, pos, slots, out, row, chars, chunk_rows,
+                                                         CHUNK_CHARS, _BATCH, MAX_LINE_CHARS)
+                if why == kernel.ROOM:
+                    more = np.empty((min(len(out), chunk_rows - len(out)), out.shape[1]))
+                    out = np.concatenate([out, more])
+                    continue
+                if why == kernel.STOP:
+                    return start
+                if why == kernel.FULL:
+                    break
+                block = b"" if ended else raw.read(_BLOCK)
+                if block:
+                    buf = np.concatenate([buf[pos:], np.frombuffer(block, dtype=np.uint8)])
+                    base += pos
+                    pos = 0
+                    continue
+                ended = True
+                if why == kernel.MORE:
+                    return start
+                break
+            if row == 0:
+                return None
+            yield rows.capture(out[:row], None)
 
 
 def _check_length(path: Path, lines: list[str], first_line: int) -> None:
@@ -251,13 +402,8 @@ def _cell(line: str, idx: int) -> str:
 def read_csv_device(path: str | Path) -> dict[str, Any]:
     """The device info of a capture CSV's metadata lines alone (the rows are not read)."""
     path = Path(path)
-    try:
-        with _open_text(path) as fh:
-            return _read_metadata(path, functools.partial(fh.readline, MAX_LINE_CHARS + 1))[2]
-    except FileNotFoundError:
-        raise InputFileError(path, "does not exist; give a capture CSV or capture file") from None
-    except OSError as exc:
-        raise InputFileError(path, f"cannot be opened: {exc.strerror}") from None
+    with _open_reader(path) as fh:
+        return _read_metadata(path, functools.partial(fh.readline, MAX_LINE_CHARS + 1))[2]
 
 
 def read_csv(path: str | Path) -> Capture:

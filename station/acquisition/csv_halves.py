@@ -1,12 +1,17 @@
 """A long capture CSV parsed by two processes: this one reads the first half while a forked child reads
 the second.
 
-Parsing the numbers of a capture CSV (numpy's C ``loadtxt``) holds the GIL, so a thread does not help:
-the 86 MB, one-million-row ADIS16405 record takes 1.7 s of parsing in one process, most of the whole
+Parsing the numbers of a capture CSV by ``np.loadtxt`` holds the GIL, so a thread does not help: the
+86 MB, one-million-row ADIS16405 record took 1.7 s of parsing in one process, most of the whole
 ``imu-station allan`` run. Split at a line's start near the middle, the two halves parse at once on two
 cores. The child only ever hands back arrays: on any problem in its half (a bad value, a cut last line,
 time that does not follow on from the first half) this process reads that half itself, line by line,
 so every message and warning names the file's own line numbers as a single reader would.
+
+A file whose rows the reader parses by its compiled loop (``capture_csv.reads_compiled``: the station's
+own captures without step labels: 0.3 s for that record) is read by one process: forking and handing
+half the arrays back would cost more than the parse. Two processes remain for the long files the loop
+does not read (step labels, numbers of more than 18 digits such as ``np.savetxt``'s ``%.18e``).
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.acquisition.capture_csv import CHUNK_ROWS, iter_csv_chunks
+from station.acquisition.capture_csv import CHUNK_ROWS, iter_csv_chunks, reads_compiled
 
 Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]  # t, acc, gyro
 MIN_BYTES = 32 * 1024 * 1024
@@ -30,7 +35,8 @@ than half of their parse saves."""
 
 def iter_chunks(path: str | Path, chunk_rows: int = CHUNK_ROWS) -> Iterator[Chunk]:
     """The ``(t, acc, gyro)`` chunks of a capture CSV, in order, parsed by two processes when the file
-    is long, uncompressed and the platform forks; else by :func:`iter_csv_chunks` alone.
+    is long, uncompressed, not one the compiled loop reads, and the platform forks; else by
+    :func:`iter_csv_chunks` alone.
 
     Parameters
     ----------
@@ -93,7 +99,7 @@ def _parallel(path: Path) -> bool:
     except OSError:
         return False  # the single reader says what is wrong with the file
     return (path.suffix.lower() == ".csv" and size >= MIN_BYTES and hasattr(os, "fork")
-            and "fork" in multiprocessing.get_all_start_methods())
+            and "fork" in multiprocessing.get_all_start_methods() and not reads_compiled(path))
 
 
 def _split(path: Path, chunk_rows: int) -> tuple[int, int] | None:
