@@ -379,8 +379,6 @@ class _Layout:
     source: str
     fixed_at: np.ndarray  # frame offsets of the header and item-header bytes
     fixed: np.ndarray  # their values
-    counter_at: int
-    time_at: int
     values: dict[int, tuple[int, int]]  # item kind -> (frame offset of its data, precision)
     names: tuple[str, ...]  # item names, for items_seen
     record: np.dtype  # a frame as a record: "counter", "time" and each value item's data as "v<kind>"
@@ -414,7 +412,7 @@ def _make_layout(payload: bytes, items: list[tuple[int, int]]) -> _Layout | None
         at += 3 + size
     header = bytes([PREAMBLE, BUS_ID, MID_MTDATA2, len(payload)]) + payload
     index = np.array(fixed_at)
-    # Big-endian values as the frame holds them; FP16.32 (6 bytes a value) as bytes, read by _fp1632.
+    # Big-endian values as the frame holds them; FP16.32 (6 bytes a value) as bytes, read by _item_values.
     fields: dict[str, tuple[Any, int]] = {"counter": (">u2", counter_at), "time": (">u4", time_at)}
     for kind, (offset, precision) in values.items():
         count = _VALUE_COUNTS.get(kind, 1)
@@ -422,7 +420,7 @@ def _make_layout(payload: bytes, items: list[tuple[int, int]]) -> _Layout | None
         fields[f"v{kind}"] = (form, offset)
     record = np.dtype({"names": list(fields), "formats": [f for f, _ in fields.values()],
                        "offsets": [at for _, at in fields.values()], "itemsize": len(header) + 1})
-    return _Layout(source, index, np.frombuffer(header, np.uint8)[index].copy(), counter_at, time_at, values,
+    return _Layout(source, index, np.frombuffer(header, np.uint8)[index].copy(), values,
                    tuple(item_name(data_id) for data_id, _ in items), record)
 
 
