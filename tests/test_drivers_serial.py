@@ -37,14 +37,23 @@ class RawPty:
 
     def __init__(self) -> None:
         self.master, self._slave, self.path = open_raw_pty()
+        self.closed = False
 
     def write(self, data: bytes) -> None:
+        """Write all of ``data``; nothing once the pty is closed (a feeding thread that outlived its test,
+        which would otherwise write to a closed or reused descriptor)."""
         view = memoryview(data)
-        while view:
-            view = view[os.write(self.master, view):]
+        while view and not self.closed:
+            try:
+                view = view[os.write(self.master, view):]
+            except OSError:
+                if not self.closed:
+                    raise
+                return
 
     def vanish(self) -> None:
         """The unit goes away: both ends of the pty close."""
+        self.closed = True
         for fd in (self.master, self._slave):
             try:
                 os.close(fd)
