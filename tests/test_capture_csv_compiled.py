@@ -204,3 +204,17 @@ def test_long_files_the_loop_reads_are_read_by_one_process(tmp_path: Path,
         assert not capture_csv.reads_compiled(path) and csv_halves._parallel(path)
     monkeypatch.setattr(capture_csv, "FAST_BYTES", 1 << 62)
     assert not capture_csv.reads_compiled(tmp_path / "station.csv")
+
+
+def test_the_parser_compiled_ahead_is_the_one_a_read_calls(tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """``./scripts/setup`` compiles the loop (``compile_now``) for the argument types a read passes: with a
+    read before or after it, the loop has one compiled signature (another would make the first read after
+    an install wait for the compiler)."""
+    from station.acquisition import _csv_kernel
+
+    _csv_kernel.compile_now()
+    path = tmp_path / "cap.csv"
+    capture_csv.write_csv(path, _xsens())
+    assert assert_same_chunks(path, monkeypatch) > 0
+    assert len(_csv_kernel.parse_rows.signatures) == 1

@@ -186,3 +186,11 @@ def parse_rows(buf: np.ndarray, pos: int, slots: np.ndarray, out: np.ndarray, ro
         if nl == end and end - pos <= max_line:
             return row, pos, chars, MORE
         return row, pos, chars, STOP
+
+
+def compile_now() -> None:
+    """Compile :func:`parse_rows` now, for the argument types a capture read passes (numba caches it on
+    disk): ``./scripts/setup`` calls it, so that the first long capture read after an install does not
+    wait a second for the compiler."""
+    buf = np.array(bytearray(b"1,2\n"), dtype=np.uint8)  # writable, as a read's buffer (another type else)
+    parse_rows(buf, 0, np.arange(2, dtype=np.int64), np.empty((1, 2)), 0, 0, 1, 1 << 20, 1, 1 << 16)
