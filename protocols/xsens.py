@@ -425,6 +425,7 @@ def _make_layout(payload: bytes, items: list[tuple[int, int]]) -> _Layout | None
 
 
 _PRECISION_TYPES = {FLOAT32: ">f4", FP1220: ">i4", FLOAT64: ">f8"}
+_ALL = np.logical_and.reduce  # ndarray.all without its Python wrapper
 
 
 def _item_values(data: np.ndarray, precision: int) -> np.ndarray:
@@ -472,8 +473,7 @@ class XsensDecoder(StreamDecoderBase):
         self._temp = math.nan
         self._pending: list[tuple[int, int, MTData2Packet]] = []  # delta packets waiting for an interval
         self._layouts: dict[tuple, _Layout | None] = {}  # packet layouts of the vectorised path
-        self._last_layout: _Layout | None = None  # the layout of the last run, and its first item's header
-        self._last_head = b""
+        self._last_layout: _Layout | None = None  # the layout of the last run
         # (position, frame size, good, framed) of the frames the vectorised path checked in this feed
         self._run_checked: tuple[int, int, np.ndarray, np.ndarray] | None = None
 
@@ -602,13 +602,14 @@ class XsensDecoder(StreamDecoderBase):
         count = min(avail // size, _RUN_WINDOW)
         if count < _RUN_MIN:
             return None
-        layout = self._last_layout  # a unit sends one layout: checked below with every frame's header
-        if layout is None or layout.record.itemsize != size or buf[pos + 4 : pos + 7] != self._last_head:
+        frames = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
+        layout = self._last_layout  # a unit sends one layout: the last run's, when the first frame has it
+        if layout is None or layout.record.itemsize != size \
+                or not _ALL(frames[0, layout.fixed_at] == layout.fixed):
             layout = self._layout(bytes(buf[pos + 4 : pos + size - 1]))
             if layout is None or layout.source != (self.source or layout.source):
                 return None
-            self._last_layout, self._last_head = layout, bytes(buf[pos + 4 : pos + 7])
-        frames = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos).reshape(count, size)
+            self._last_layout = layout
         checked = self._run_checked
         if checked is not None and checked[0] <= pos and (pos - checked[0]) % size == 0 \
                 and checked[1] == size and (pos - checked[0]) // size < len(checked[2]):

@@ -92,3 +92,28 @@ def test_spliced_layouts_decode_alike() -> None:
     assert_same(data)
     for seed in range(3):
         assert_same(damaged(data, seed), chunks=(3, 61, 4096, 65536))
+
+
+class RunCounting(XsensDecoder):
+    """The decoder, counting the samples its vectorised runs gave."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.in_runs = 0
+
+    def _sample_run(self, pos: int) -> tuple[np.ndarray, int] | None:
+        run = super()._sample_run(pos)
+        self.in_runs += 0 if run is None else len(run[0])
+        return run
+
+
+def test_a_new_layout_of_the_same_size_is_read_in_runs() -> None:
+    """float32 then FP12.20: frames of one size, the same first item, other item ids. The run's layout is
+    found again for the second part (not only the first's tried, and every frame left to the per-packet
+    path), and both paths still decode alike."""
+    data = encode_samples(samples(400, 8, False)) + encode_samples(samples(400, 9, False), precision="fp1220")
+    dec = RunCounting()
+    batches, _ = feed_in_chunks(dec, data, 4096)
+    assert sum(len(b) for b in batches) == 800
+    assert dec.in_runs >= 700  # the frames at the end of a read, too few for a run, go the per-packet path
+    assert_same(data, chunks=(97, 4096))
