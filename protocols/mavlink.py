@@ -576,7 +576,7 @@ class MavlinkDecoder(StreamDecoderBase):
                 bad = np.flatnonzero(~good).tolist()
         quiet, resyncs = [], []
         for slot in crc_bad:
-            found = _quiet_resyncs(buf, pos + slot * size, size) if slot + 1 < n else 0
+            found = self._quiet_resyncs(pos + slot * size, size) if slot + 1 < n else 0
             if found:
                 quiet.append(slot)
                 resyncs.append(found)
@@ -584,6 +584,14 @@ class MavlinkDecoder(StreamDecoderBase):
             stepped = set(quiet)
             bad = [slot for slot in bad if slot not in stepped]
         return _FastWindow(pos, size, n, bad, crc_bad, quiet, resyncs, msg)
+
+    def _quiet_resyncs(self, pos: int, size: int) -> int:
+        """The resyncs the per-frame path counts for the bad frame of ``size`` bytes at ``pos`` (another
+        frame right after it) when no start inside it announces a frame (:meth:`_frame_length` 0 at each:
+        MAVLink 2 with unknown incompatibility flags), so that the path reads no length there nor waits for
+        more bytes: one for the frame and one a start. 0 when a start inside may be read as a frame."""
+        starts = [m.start() for m in _STX.finditer(self._buf, pos + 1, pos + size)]
+        return 0 if any(self._frame_length(at) for at in starts) else 1 + len(starts)
 
     # -------------------------------------------------------------- IMU messages
 
@@ -699,10 +707,10 @@ class _FastWindow:
     ``checked``) that are not good frames of the source, and the per-frame path takes, ``crc_bad``
     those whose CRC failed. ``quiet`` are bad slots a run steps over: a CRC failed, another slot after
     it, and no start inside that the per-frame path would read as a frame (only MAVLink 2 starts with
-    unknown incompatibility flags: :func:`_quiet_resyncs`), so that path would count a CRC error, the
-    frame's bytes as garbage and ``quiet_resyncs`` resyncs, nothing else. Runs from any slot are then
-    slices, so a damaged frame costs the next run no second check. Copies of the payloads: no buffer
-    view."""
+    unknown incompatibility flags: ``MavlinkDecoder._quiet_resyncs``), so that path would count a CRC
+    error, the frame's bytes as garbage and ``quiet_resyncs`` resyncs, nothing else. Runs from any slot
+    are then slices, so a damaged frame costs the next run no second check. Copies of the payloads: no
+    buffer view."""
 
     __slots__ = ("base", "size", "checked", "bad", "crc_bad", "quiet", "quiet_resyncs", "msg", "out", "field")
 
@@ -727,20 +735,6 @@ class _FastWindow:
         """Whether ``pos`` is a checked slot."""
         off = pos - self.base
         return off >= 0 and off % self.size == 0 and off // self.size < self.checked
-
-
-def _quiet_resyncs(buf: bytearray, pos: int, size: int) -> int:
-    """The resyncs the per-frame path counts for the bad frame of ``size`` bytes at ``pos`` (another frame
-    right after it) when every start inside it is a MAVLink 2 one with unknown incompatibility flags,
-    where that path reads no length (nor waits for more bytes): one for the frame and one a start.
-    0 when a start inside may be read as a frame: the per-frame path takes it."""
-    resyncs = 1
-    for m in _STX.finditer(buf, pos + 1, pos + size):
-        at = m.start()
-        if buf[at] != STX_V2 or not buf[at + 2] & ~IFLAG_SIGNED:
-            return 0
-        resyncs += 1
-    return resyncs
 
 
 _FAST_WINDOW = 512  # frames a fast run checks at once
